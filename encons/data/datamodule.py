@@ -1,0 +1,147 @@
+"""LightningDataModule: simulate or load trajectories, serve them in the model's chart.
+
+Training yields random windows of ``chunk_len`` states, one per trajectory per epoch, drawn
+from ``(seed, epoch)`` so a resumed run sees the same windows as an uninterrupted one.
+Validation yields fixed windows; test yields whole trajectories. Noise (σ = ``noise``) is
+added to train and validation states only: test metrics compare against clean truth.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import lightning.pytorch as pl
+import torch
+from torch import Tensor
+from torch.utils.data import DataLoader, Dataset, Sampler
+
+from encons.data import store
+from encons.data.simulate import sample_trajectories
+from encons.errors import ConfigError, DataError
+from encons.systems.base import System
+
+log = logging.getLogger(__name__)
+
+
+class Windows(Dataset):
+    """Windows ``states[i, start : start + length]`` addressed by ``(i, start)`` pairs."""
+
+    def __init__(self, states: Tensor, length: int):
+        self.states, self.length = states, length
+        self.offsets = torch.arange(length)
+
+    def __len__(self) -> int:
+        return self.states.shape[0]
+
+    def __getitems__(self, index: list[tuple[int, int]]) -> Tensor:
+        traj, start = torch.tensor(index).T
+        return self.states[traj[:, None], start[:, None] + self.offsets]
+
+
+class WindowSampler(Sampler):
+    """Batches of ``(trajectory, start)``: a shuffled pass over trajectories, random starts."""
+
+    def __init__(self, n_traj: int, n_starts: int, batch_size: int, seed: int, shuffle: bool = True):
+        self.n_traj, self.n_starts, self.batch_size = n_traj, n_starts, batch_size
+        self.seed, self.shuffle, self.epoch = seed, shuffle, 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return -(-self.n_traj // self.batch_size)
+
+    def __iter__(self):
+        gen = torch.Generator().manual_seed(self.seed * 1_000_003 + (self.epoch if self.shuffle else 0))
+        order = torch.randperm(self.n_traj, generator=gen) if self.shuffle else torch.arange(self.n_traj)
+        starts = torch.randint(self.n_starts, (self.n_traj,), generator=gen)
+        for chunk in order.split(self.batch_size):
+            yield list(zip(chunk.tolist(), starts[chunk].tolist()))
+
+
+def _identity(batch: Tensor) -> Tensor:
+    return batch
+
+
+class TrajectoryDataModule(pl.LightningDataModule):
+    """Trajectories of ``system`` served in ``chart``; simulated and cached, or read from ``path``."""
+
+    def __init__(self, system: System, chart: str, system_config: dict | None = None, path: str | None = None,
+                 n_train: int = 800, n_val: int = 100, n_test: int = 100, n_steps: int = 100, dt: float = 0.03,
+                 noise: float = 0.01, substeps: int = 10, chunk_len: int = 5, batch_size: int = 200,
+                 seed: int = 0, cache_dir: str = ".cache/encons"):
+        super().__init__()
+        for key, value in dict(n_train=n_train, n_test=n_test, n_steps=n_steps, substeps=substeps,
+                               batch_size=batch_size).items():
+            if value < 1:
+                raise ConfigError(f"data.{key}={value} must be >= 1")
+        if dt <= 0 or noise < 0 or n_val < 0:
+            raise ConfigError(f"data.dt={dt} must be > 0, data.noise={noise} and data.n_val={n_val} >= 0")
+        if not 2 <= chunk_len <= n_steps + 1:
+            raise ConfigError(f"data.chunk_len={chunk_len} must lie in [2, n_steps + 1 = {n_steps + 1}]")
+        system.check_chart(chart)
+        self.system, self.chart, self.path = system, chart, path
+        self.sizes = {"train": n_train, "val": n_val, "test": n_test}
+        self.n_steps, self.dt, self.noise, self.substeps = n_steps, dt, noise, substeps
+        self.chunk_len, self.batch_size, self.seed = chunk_len, batch_size, seed
+        gen_config = dict(system=system_config or {"name": system.name}, sizes=self.sizes, n_steps=n_steps,
+                          dt=dt, substeps=substeps, seed=seed)
+        self.cache_file = Path(cache_dir) / f"{system.name}-{store.config_hash(gen_config)}.npz"
+
+    def prepare_data(self) -> None:
+        if self.path is None and not self.cache_file.exists():
+            gen = torch.Generator().manual_seed(self.seed)
+            t = torch.arange(self.n_steps + 1, dtype=torch.float64) * self.dt
+            splits = {}
+            for name, n in self.sizes.items():
+                if n:
+                    splits[name], rejected = sample_trajectories(self.system, n, t, gen, self.substeps)
+                    if rejected:
+                        log.info("%s: redrew %d of %d %s trajectories (%s)", self.system.name, rejected, n, name,
+                                 getattr(self.system, "rejection_reason", "invalid"))
+            store.save(self.cache_file, t, splits, self.system.base_chart)
+            log.info("simulated %s into %s", self.system.name, self.cache_file)
+
+    def setup(self, stage: str | None = None) -> None:
+        if hasattr(self, "t"):
+            return
+        source = Path(self.path) if self.path is not None else self.cache_file
+        t, splits, chart = store.load(source)
+        chart = chart or self.system.base_chart
+        if chart not in self.system.charts:
+            raise DataError(f"data file {str(source)!r} holds chart {chart!r}; system '{self.system.name}' "
+                            f"offers {list(self.system.charts)}")
+        width = 2 * self.system.coord_dim(chart)
+        for name, arr in splits.items():
+            if arr.shape[-1] != width:
+                raise DataError(f"data file {str(source)!r}: '{name}' has {arr.shape[-1]} state entries; "
+                                f"the {chart} chart of '{self.system.name}' needs {width}")
+        if "val" not in splits:
+            n_val = max(1, splits["train"].shape[0] // 10)
+            splits["val"], splits["train"] = splits["train"][:n_val], splits["train"][n_val:]
+        self.t = t
+        self.dt = float(t[1] - t[0])
+        gen = torch.Generator().manual_seed(self.seed + 1)
+        served = {k: self.system.to_chart(v, chart, self.chart) for k, v in splits.items()}
+        for name in ("train", "val"):
+            served[name] = served[name] + self.noise * torch.randn(served[name].shape, generator=gen,
+                                                                    dtype=torch.float64)
+        self.states = {k: v.float() for k, v in served.items()}
+        if self.chunk_len > len(t):
+            raise DataError(f"data.chunk_len={self.chunk_len} exceeds the {len(t)} states per trajectory")
+
+    def _windows(self, split: str, shuffle: bool) -> DataLoader:
+        states = self.states[split]
+        sampler = WindowSampler(states.shape[0], states.shape[1] - self.chunk_len + 1, self.batch_size,
+                                self.seed, shuffle)
+        return DataLoader(Windows(states, self.chunk_len), batch_sampler=sampler, collate_fn=_identity)
+
+    def train_dataloader(self) -> DataLoader:
+        return self._windows("train", shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._windows("val", shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        return DataLoader(self.states["test"], batch_size=len(self.states["test"]), collate_fn=torch.stack)

@@ -1,0 +1,74 @@
+"""The on-disk trajectory format (``.npz``), shared by the simulation cache and user data.
+
+Keys: ``t`` (T,) times, equally spaced; ``train``, ``val`` (optional), ``test`` arrays of
+shape (N, T, 2n) holding states ``(q, q̇)``; ``chart`` a string naming their chart.
+Files are written to a temporary name and renamed, so a half-written file is never read.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from encons.errors import DataError
+
+SPLITS = ("train", "val", "test")
+
+
+def config_hash(config: dict) -> str:
+    """A short stable hash of a JSON-serialisable generating config."""
+    return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def save(path: Path, t: Tensor, splits: dict[str, Tensor], chart: str) -> None:
+    """Write trajectories atomically (temporary file in the same folder, then rename)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, t=t.numpy(), chart=np.array(chart), **{k: v.numpy() for k, v in splits.items()})
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load(path: str | Path, state_dim: int | None = None) -> tuple[Tensor, dict[str, Tensor], str | None]:
+    """Read and check a trajectory file; raise ``DataError`` naming what is wrong and how to fix it."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"data file {str(path)!r} does not exist; set system.path to an .npz file (see README)")
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            arrays = {k: f[k] for k in f.files}
+    except Exception as err:  # numpy raises several types for a corrupt archive
+        raise DataError(f"data file {str(path)!r} is not a readable .npz archive ({err})") from None
+    missing = [k for k in ("t", "train", "test") if k not in arrays]
+    if missing:
+        raise DataError(f"data file {str(path)!r} lacks key(s) {missing}; it needs t, train, test (val optional)")
+    t = torch.from_numpy(np.asarray(arrays["t"], dtype=np.float64))
+    if t.ndim != 1 or len(t) < 2 or not bool((t.diff() > 0).all()):
+        raise DataError(f"data file {str(path)!r}: 't' must be 1-D, increasing, with >= 2 times")
+    if not torch.allclose(t.diff(), t.diff()[0].expand(len(t) - 1), rtol=1e-6, atol=1e-9):
+        raise DataError(f"data file {str(path)!r}: 't' must be equally spaced")
+    splits = {}
+    for name in SPLITS:
+        if name not in arrays:
+            continue
+        arr = arrays[name]
+        width = state_dim or arr.shape[-1] if arr.ndim == 3 else None
+        if arr.ndim != 3 or arr.shape[1] != len(t) or arr.shape[2] != width or arr.shape[2] % 2:
+            raise DataError(f"data file {str(path)!r}: '{name}' has shape {arr.shape}; expected "
+                            f"(N, {len(t)}, {state_dim or '2n'}) states (q, q̇)")
+        if not np.isfinite(arr).all():
+            raise DataError(f"data file {str(path)!r}: '{name}' contains NaN or inf")
+        splits[name] = torch.from_numpy(np.asarray(arr, dtype=np.float64))
+    chart = str(arrays["chart"]) if "chart" in arrays else None
+    return t, splits, chart

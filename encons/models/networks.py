@@ -1,0 +1,53 @@
+"""Network building blocks shared by the models: MLPs, angle embedding, Cholesky mass matrix."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+ACTIVATIONS = {"softplus": nn.Softplus, "tanh": nn.Tanh, "relu": nn.ReLU, "silu": nn.SiLU}
+
+
+def mlp(in_dim: int, out_dim: int, hidden: int = 256, depth: int = 3, activation: str = "softplus") -> nn.Sequential:
+    """``depth`` hidden layers of width ``hidden`` (Zhong et al. §4.1: 3 × 256, Softplus)."""
+    if activation not in ACTIVATIONS:
+        raise ValueError(f"model.activation must be one of {sorted(ACTIVATIONS)}, got {activation!r}")
+    layers: list[nn.Module] = []
+    width = in_dim
+    for _ in range(depth):
+        layers += [nn.Linear(width, hidden), ACTIVATIONS[activation]()]
+        width = hidden
+    layers.append(nn.Linear(width, out_dim))
+    return nn.Sequential(*layers)
+
+
+def embed_angles(q: Tensor, angular: bool) -> Tensor:
+    """(cos q, sin q) for angle-aware models (Zhong et al. §3, "-angle" variants), else q."""
+    return torch.cat([torch.cos(q), torch.sin(q)], -1) if angular else q
+
+
+class CholeskyMass(nn.Module):
+    """M(q) = L(q) L(q)ᵀ with L lower triangular, softplus diagonal + ``eps`` (Zhong et al. §3)."""
+
+    def __init__(self, n: int, angular: bool, hidden: int, depth: int, activation: str, eps: float):
+        super().__init__()
+        self.n, self.angular, self.eps = n, angular, eps
+        rows, cols = torch.tril_indices(n, n)
+        self.register_buffer("diag", rows == cols, persistent=False)
+        self.register_buffer("scatter", nn.functional.one_hot(rows * n + cols, n * n).float(), persistent=False)
+        self.net = mlp(2 * n if angular else n, len(rows), hidden, depth, activation)
+
+    def cholesky(self, q: Tensor) -> Tensor:
+        """L(q), shape (..., n, n)."""
+        entries = self.net(embed_angles(q, self.angular))
+        entries = torch.where(self.diag, nn.functional.softplus(entries) + self.eps, entries)
+        return (entries @ self.scatter.to(entries)).unflatten(-1, (self.n, self.n))
+
+    def forward(self, q: Tensor) -> Tensor:
+        """M(q), shape (..., n, n)."""
+        factor = self.cholesky(q)
+        return factor @ factor.transpose(-1, -2)
+
+    def solve(self, q: Tensor, p: Tensor) -> Tensor:
+        """M(q)⁻¹ p through the Cholesky factor."""
+        return torch.cholesky_solve(p.unsqueeze(-1), self.cholesky(q)).squeeze(-1)

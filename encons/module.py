@@ -1,0 +1,115 @@
+"""The one LightningModule that trains any model on any system.
+
+Objectives: ``rollout`` (Zhong et al. §4.1: L1 loss summed over a window rolled out from its
+first state) or ``derivative`` (Lim & Kasim eq. (2): squared error of the field against
+finite-difference state derivatives). An optional regulariser adds a weighted penalty.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Callable
+
+import lightning.pytorch as pl
+import torch
+from torch import Tensor
+
+from encons import metrics, plots
+from encons.errors import ConfigError, DivergenceError
+from encons.integrators import Integrator, rollout, state_derivative
+from encons.models.base import DynamicsModel
+from encons.systems.base import System
+
+log = logging.getLogger(__name__)
+OBJECTIVES = ("rollout", "derivative")
+Regulariser = Callable[[DynamicsModel, Tensor], Tensor]
+
+
+class DynamicsModule(pl.LightningModule):
+    """Trains ``model`` on windows of ``system`` trajectories sampled every ``dt``."""
+
+    def __init__(self, model: DynamicsModel, system: System, dt: float, integrator: Integrator,
+                 lr: float = 1e-3, weight_decay: float = 1e-2, scheduler: str | None = None,
+                 objective: str = "rollout", regulariser: Regulariser | None = None,
+                 horizon: int = 4, output_dir: str | None = None):
+        super().__init__()
+        if objective not in OBJECTIVES:
+            raise ConfigError(f"objective={objective!r} is unknown; allowed: {', '.join(OBJECTIVES)}")
+        if scheduler not in (None, "cosine"):
+            raise ConfigError(f"optim.scheduler={scheduler!r} is unknown; allowed: null, cosine")
+        if lr <= 0:
+            raise ConfigError(f"optim.lr={lr} must be > 0")
+        self.model, self.system, self.dt, self.integrator = model, system, dt, integrator
+        self.lr, self.weight_decay, self.scheduler_name = lr, weight_decay, scheduler
+        self.objective, self.regulariser, self.horizon = objective, regulariser, horizon
+        self.output_dir = Path(output_dir) if output_dir else None
+        self.test_metrics: dict[str, float] = {}
+        self._test_batches: list[Tensor] = []
+
+    def times(self, length: int, like: Tensor) -> Tensor:
+        return torch.arange(length, dtype=like.dtype, device=like.device) * self.dt
+
+    def predict(self, states: Tensor) -> Tensor:
+        """Roll out from the first state of each window (N, T, 2n) over its length."""
+        return rollout(self.model, states[:, 0], self.times(states.shape[1], states), self.integrator)
+
+    def to_common(self, states: Tensor) -> Tensor:
+        return self.system.to_chart(states, self.model.chart, self.system.common_chart)
+
+    def loss(self, batch: Tensor) -> Tensor:
+        if self.objective == "rollout":
+            return (self.predict(batch) - batch).abs().sum((-1, -2)).mean()
+        observed = (batch[:, 2:] - batch[:, :-2]) / (2 * self.dt)
+        return ((state_derivative(self.model, batch[:, 1:-1]) - observed) ** 2).sum(-1).mean()
+
+    def training_step(self, batch: Tensor, batch_idx: int) -> Tensor:
+        loss = self.loss(batch)
+        self.log("train/loss", loss, prog_bar=True, batch_size=batch.shape[0])
+        if self.regulariser is not None:
+            penalty = self.regulariser(self.model, batch.flatten(0, 1))
+            self.log("train/regulariser", penalty, batch_size=batch.shape[0])
+            loss = loss + penalty
+        if not torch.isfinite(loss):
+            raise DivergenceError(
+                f"training diverged: loss is {loss.item()} at epoch {self.current_epoch}, step "
+                f"{self.global_step}; the last good checkpoint is kept. Lower optim.lr or raise "
+                f"model.mass_eps, then resume with ckpt_path=last")
+        return loss
+
+    def validation_step(self, batch: Tensor, batch_idx: int) -> None:
+        pred = self.predict(batch)
+        tre = metrics.trajectory_relative_error(self.to_common(pred), self.to_common(batch), self.horizon)
+        self.log("val/loss", (pred - batch).abs().sum((-1, -2)).mean(), batch_size=batch.shape[0])
+        self.log("val/traj_rel_err", tre.mean(), prog_bar=True, batch_size=batch.shape[0])
+
+    def test_step(self, batch: Tensor, batch_idx: int) -> None:
+        self._test_batches.append(torch.stack([batch, self.predict(batch)]))
+
+    def on_test_epoch_end(self) -> None:
+        true, pred = torch.cat(self._test_batches, 1).double()
+        self._test_batches.clear()
+        energies = None
+        if self.system.known_physics:
+            energies = [self.system.energy(x, self.model.chart) for x in (pred, true)]
+        true_c, pred_c = self.to_common(true), self.to_common(pred)
+        self.test_metrics = metrics.summarise(pred_c, true_c, *(energies or (None, None)), horizon=self.horizon)
+        self.log_dict({f"test/{k}": v for k, v in self.test_metrics.items()})
+        if self.output_dir is not None and self.trainer.is_global_zero:
+            self.output_dir.mkdir(parents=True, exist_ok=True)
+            (self.output_dir / "test_metrics.json").write_text(json.dumps(self.test_metrics, indent=2))
+            figures = plots.test_figures(self.times(true.shape[1], true).cpu(), pred_c.cpu(), true_c.cpu(),
+                                         [e.cpu() for e in energies] if energies else None,
+                                         self.output_dir / "figures", title=self.run_title())
+            plots.log_figures(self.logger, figures)
+
+    def run_title(self) -> str:
+        return f"{type(self.model).__name__} on {self.system.name} ({self.model.chart} chart)"
+
+    def configure_optimizers(self):
+        opt = torch.optim.AdamW(self.parameters(), lr=self.lr, weight_decay=self.weight_decay)
+        if self.scheduler_name is None:
+            return opt
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, self.trainer.max_epochs or 1))
+        return {"optimizer": opt, "lr_scheduler": sched}

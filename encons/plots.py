@@ -1,0 +1,68 @@
+"""Matplotlib figures of test rollouts, saved as PNG and logged to the run's logger."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import torch  # noqa: E402
+from torch import Tensor  # noqa: E402
+
+from encons import metrics  # noqa: E402
+
+
+def _band(ax, t: Tensor, values: Tensor, label: str) -> None:
+    """Median over trajectories with the 2.5–97.5 percentile band, log scale."""
+    lo, med, hi = torch.quantile(values.double(), torch.tensor([0.025, 0.5, 0.975], dtype=torch.float64), dim=0)
+    ax.plot(t, med, label=f"{label} (median)")
+    ax.fill_between(t, lo, hi, alpha=0.25, label="2.5–97.5 %")
+    ax.set_yscale("log")
+    ax.set_xlabel("time")
+    ax.legend()
+
+
+def test_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] | None, out_dir: Path,
+                 title: str, n_show: int = 3) -> list[Path]:
+    """Rollout vs truth, relative error vs time and (if known) energy error vs time."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    n_coord = true.shape[-1] // 2
+    fig, axes = plt.subplots(1, min(n_show, true.shape[0]), figsize=(5 * min(n_show, true.shape[0]), 3.5),
+                             squeeze=False)
+    for k, ax in enumerate(axes[0]):
+        for d in range(min(n_coord, 6)):
+            line, = ax.plot(t, true[k, :, d], lw=1.5)
+            ax.plot(t, pred[k, :, d], "--", color=line.get_color(), lw=1.2)
+        ax.set_title(f"test trajectory {k}: truth (solid) vs model (dashed)", fontsize=9)
+        ax.set_xlabel("time")
+    fig.suptitle(title)
+    paths.append(_save(fig, out_dir / "rollout.png"))
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    _band(ax, t[1:], metrics.relative_error(pred, true)[:, 1:], "relative error")
+    ax.set_title(f"{title}\nrelative error of the state", fontsize=9)
+    paths.append(_save(fig, out_dir / "relative_error.png"))
+
+    if energies is not None:
+        fig, ax = plt.subplots(figsize=(6, 4))
+        _band(ax, t[1:], metrics.energy_abs_error(*energies)[:, 1:].clamp_min(1e-12), "|E(ŝ) − E(s)|")
+        ax.set_title(f"{title}\nabsolute error in true energy", fontsize=9)
+        paths.append(_save(fig, out_dir / "energy_error.png"))
+    return paths
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def log_figures(logger, paths: list[Path]) -> None:
+    """Send saved PNGs to a logger that takes images (wandb); others keep them on disk only."""
+    if logger is not None and hasattr(logger, "log_image"):
+        for path in paths:
+            logger.log_image(key=f"figures/{path.stem}", images=[str(path)])

@@ -1,0 +1,121 @@
+"""The System seam: ground-truth physics of one system, pure batched torch functions.
+
+A state is ``s = (q, q̇)`` concatenated on the last axis, in one of the system's charts:
+``angle`` (generalised coordinates) or ``cartesian`` (points in space, holonomic constraints
+Φ(x) = 0). Every function takes any leading batch shape ``(..., 2n)``.
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from encons.errors import ChartError
+
+
+@dataclass(frozen=True)
+class CartesianLayout:
+    """How the Cartesian chart is laid out: ``n_points`` points in ``dim`` dimensions.
+
+    ``bodies`` lists the point indices of each body. A body of one point is a point mass
+    (parameters: mass). A body of ``1 + dim`` points is a rigid body in Finzi et al.'s chart:
+    its centre of mass followed by ``dim`` unit body-axis points (parameters: mass and one
+    axis "inertia" per axis point).
+    """
+
+    n_points: int
+    dim: int
+    bodies: tuple[tuple[int, ...], ...]
+
+    @property
+    def size(self) -> int:
+        return self.n_points * self.dim
+
+
+def point_mass_matrix(layout: CartesianLayout, params: list[Tensor]) -> Tensor:
+    """The (n_points, n_points) mass matrix over points; the full one is ``kron(Mp, I_dim)``.
+
+    ``params[b]`` holds body b's positive parameters: ``[m]`` for a point mass, or
+    ``[m, I_1, …, I_dim]`` for a rigid body, whose kinetic energy is
+    ``½ m |ẋ_c|² + ½ Σ_i I_i |ẋ_i − ẋ_c|²`` (Finzi et al. 2020, App. gyroscope).
+    """
+    ref = params[0]
+    mp = torch.zeros(layout.n_points, layout.n_points, dtype=ref.dtype, device=ref.device)
+    for points, p in zip(layout.bodies, params):
+        idx = torch.tensor(points, device=ref.device)
+        if len(points) == 1:
+            block = p.reshape(1, 1)
+        else:
+            inertia = p[1:]
+            top = torch.cat([(p[0] + inertia.sum()).reshape(1), -inertia])
+            block = torch.cat([top.reshape(1, -1), torch.cat([-inertia[:, None], torch.diag(inertia)], 1)], 0)
+        mp = mp.index_put((idx[:, None], idx[None, :]), block)
+    return mp
+
+
+def apply_point_matrix(mp: Tensor, v: Tensor, dim: int) -> Tensor:
+    """Multiply ``kron(mp, I_dim)`` with vectors ``v`` of shape (..., n_points * dim)."""
+    shaped = v.unflatten(-1, (mp.shape[0], dim))
+    return torch.einsum("pq,...qd->...pd", mp, shaped).flatten(-2)
+
+
+class System(abc.ABC):
+    """True physics of one system.
+
+    Subclasses set ``name``, ``charts`` (the first is the chart in which initial conditions
+    are sampled and trajectories simulated) and ``common_chart`` (where metrics compare
+    models), and implement the abstract methods for each chart they list.
+    """
+
+    name: str
+    charts: tuple[str, ...]
+    common_chart: str
+    layout: CartesianLayout | None = None
+    known_physics: bool = True
+
+    @property
+    def base_chart(self) -> str:
+        return self.charts[0]
+
+    def check_chart(self, chart: str) -> None:
+        if chart not in self.charts:
+            raise ChartError(
+                f"system '{self.name}' has no '{chart}' chart; it offers {list(self.charts)}"
+            )
+
+    @abc.abstractmethod
+    def coord_dim(self, chart: str) -> int:
+        """Number of coordinates n in ``chart`` (the state has 2n entries)."""
+
+    @abc.abstractmethod
+    def vector_field(self, s: Tensor, chart: str) -> Tensor:
+        """True ds/dt at states ``s`` in ``chart``."""
+
+    @abc.abstractmethod
+    def energy(self, s: Tensor, chart: str) -> Tensor:
+        """True total energy at states ``s`` in ``chart``; shape ``s.shape[:-1]``."""
+
+    @abc.abstractmethod
+    def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
+        """``n`` initial states in the base chart, float64."""
+
+    @abc.abstractmethod
+    def to_chart(self, s: Tensor, src: str, dst: str) -> Tensor:
+        """Map states from chart ``src`` to chart ``dst`` (at least base → every chart)."""
+
+    def constraints(self, x: Tensor) -> Tensor:
+        """Holonomic constraints Φ(x) of the Cartesian chart, shape (..., K)."""
+        raise ChartError(f"system '{self.name}' declares no holonomic constraints")
+
+    def valid(self, traj: Tensor) -> Tensor:
+        """Boolean mask over trajectories (N, T, 2n) in the base chart that are usable."""
+        return torch.ones(traj.shape[0], dtype=torch.bool, device=traj.device)
+
+
+def split_state(s: Tensor) -> tuple[Tensor, Tensor]:
+    """Split ``s = (q, q̇)`` into its two halves."""
+    n = s.shape[-1] // 2
+    return s[..., :n], s[..., n:]

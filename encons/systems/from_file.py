@@ -1,0 +1,43 @@
+"""A system known only through a user's trajectory file: one chart, no true physics.
+
+Energy metrics and physics-structured models that need constraints are unavailable; the
+error metrics are computed in the file's chart.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from encons.data import store
+from encons.systems.base import System
+
+
+class FileSystem(System):
+    """Dimensions and chart read from an ``.npz`` file in the format of ``encons.data.store``."""
+
+    known_physics = False
+
+    def __init__(self, path: str, chart: str | None = None):
+        t, splits, file_chart = store.load(path)
+        self.name = "from_file"
+        self.charts = (chart or file_chart or "angle",)
+        self.common_chart = self.charts[0]
+        self.n = splits["train"].shape[-1] // 2
+
+    def coord_dim(self, chart: str) -> int:
+        self.check_chart(chart)
+        return self.n
+
+    def to_chart(self, s: Tensor, src: str, dst: str) -> Tensor:
+        self.check_chart(src)
+        self.check_chart(dst)
+        return s
+
+    def _unknown(self, *_: object) -> Tensor:
+        raise NotImplementedError("a system loaded from a file has no known physics")
+
+    vector_field = energy = _unknown
+
+    def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
+        return self._unknown()

@@ -1,0 +1,121 @@
+"""N-link planar pendulum (Zhong et al. §4.1; Finzi et al. 2020 "ChainPendulum").
+
+Angle chart: absolute angle of each link from the downward vertical and its rate.
+Cartesian chart: the N bobs in 2D (D = 2N) with constraints |x_1|² = l_1² (tether to the
+pivot) and |x_i − x_{i−1}|² = l_i². Gravity points along −y.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import Tensor
+
+from encons.systems.base import CartesianLayout, System, apply_point_matrix, point_mass_matrix, split_state
+from encons.systems.constrained import constrained_acceleration
+
+
+def _per_link(value: float | Sequence[float], n: int, what: str) -> Tensor:
+    vals = [float(value)] * n if isinstance(value, (int, float)) else [float(v) for v in value]
+    if len(vals) != n or min(vals) <= 0:
+        raise ValueError(f"system.{what} must be one positive number or {n} of them, got {value!r}")
+    return torch.tensor(vals, dtype=torch.float64)
+
+
+class NPendulum(System):
+    """Chain of ``n_links`` point masses on massless rods, hanging from a fixed pivot."""
+
+    charts = ("angle", "cartesian")
+    common_chart = "cartesian"
+
+    def __init__(self, n_links: int = 2, masses: float | Sequence[float] = 1.0,
+                 lengths: float | Sequence[float] = 1.0, g: float = 9.81, init_scale: float = 1.0):
+        if n_links < 1:
+            raise ValueError(f"system.n_links must be >= 1, got {n_links}")
+        self.name = f"pendulum{n_links}"
+        self.n = n_links
+        self.m = _per_link(masses, n_links, "masses")
+        self.l = _per_link(lengths, n_links, "lengths")
+        self.g = float(g)
+        self.init_scale = float(init_scale)
+        self.mu = self.m.flip(0).cumsum(0).flip(0)  # μ_k = Σ_{j≥k} m_j
+        self.layout = CartesianLayout(n_links, 2, tuple((i,) for i in range(n_links)))
+
+    def coord_dim(self, chart: str) -> int:
+        self.check_chart(chart)
+        return self.n if chart == "angle" else 2 * self.n
+
+    def _consts(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        return (self.m.to(like), self.l.to(like), self.mu.to(like))
+
+    def mass_matrix(self, q: Tensor) -> Tensor:
+        """M(q)_ij = μ_max(i,j) l_i l_j cos(q_i − q_j)."""
+        _, l, mu = self._consts(q)
+        idx = torch.arange(self.n, device=q.device)
+        mu_max = mu[torch.maximum(idx[:, None], idx[None, :])]
+        return mu_max * l[:, None] * l[None, :] * torch.cos(q[..., :, None] - q[..., None, :])
+
+    def potential(self, q: Tensor) -> Tensor:
+        _, l, mu = self._consts(q)
+        return -self.g * (mu * l * torch.cos(q)).sum(-1)
+
+    def point_masses(self) -> Tensor:
+        """The true (n_points, n_points) Cartesian mass matrix over points."""
+        return point_mass_matrix(self.layout, list(self.m.reshape(-1, 1)))
+
+    def cartesian_potential(self, x: Tensor) -> Tensor:
+        return self.g * (self.m.to(x) * x[..., 1::2]).sum(-1)
+
+    def constraints(self, x: Tensor) -> Tensor:
+        pts = x.unflatten(-1, (self.n, 2))
+        rel = torch.cat([pts[..., :1, :], pts[..., 1:, :] - pts[..., :-1, :]], -2)
+        return (rel**2).sum(-1) - self.l.to(x) ** 2
+
+    def vector_field(self, s: Tensor, chart: str) -> Tensor:
+        self.check_chart(chart)
+        q, qd = split_state(s)
+        if chart == "cartesian":
+            grad_v = torch.zeros_like(q)
+            grad_v[..., 1::2] = self.g * self.m.to(q)
+            minv = torch.linalg.inv(self.point_masses().to(q))
+            acc = constrained_acceleration(q, qd, lambda v: apply_point_matrix(minv, v, 2), grad_v, self.constraints)
+            return torch.cat([qd, acc], -1)
+        _, l, mu = self._consts(q)
+        idx = torch.arange(self.n, device=q.device)
+        coeff = mu[torch.maximum(idx[:, None], idx[None, :])] * l[:, None] * l[None, :]
+        diff = q[..., :, None] - q[..., None, :]
+        coriolis = (coeff * torch.sin(diff) * qd[..., None, :] ** 2).sum(-1)
+        gravity = self.g * mu * l * torch.sin(q)
+        acc = torch.linalg.solve(coeff * torch.cos(diff), -(coriolis + gravity))
+        return torch.cat([qd, acc], -1)
+
+    def energy(self, s: Tensor, chart: str) -> Tensor:
+        self.check_chart(chart)
+        q, qd = split_state(s)
+        if chart == "cartesian":
+            kinetic = 0.5 * (self.m.to(q) * (qd.unflatten(-1, (self.n, 2)) ** 2).sum(-1)).sum(-1)
+            return kinetic + self.cartesian_potential(q)
+        kinetic = 0.5 * (qd[..., None, :] @ self.mass_matrix(q) @ qd[..., :, None])[..., 0, 0]
+        return kinetic + self.potential(q)
+
+    def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
+        return self.init_scale * torch.randn(n, 2 * self.n, generator=generator, dtype=torch.float64)
+
+    def to_chart(self, s: Tensor, src: str, dst: str) -> Tensor:
+        self.check_chart(src)
+        self.check_chart(dst)
+        if src == dst:
+            return s
+        q, qd = split_state(s)
+        l = self.l.to(s)
+        if src == "angle":
+            seg = torch.stack([torch.sin(q), -torch.cos(q)], -1) * l[:, None]
+            vel = torch.stack([torch.cos(q), torch.sin(q)], -1) * (l * qd)[..., None]
+            return torch.cat([seg.cumsum(-2).flatten(-2), vel.cumsum(-2).flatten(-2)], -1)
+        pts, vel = q.unflatten(-1, (self.n, 2)), qd.unflatten(-1, (self.n, 2))
+        seg = torch.cat([pts[..., :1, :], pts[..., 1:, :] - pts[..., :-1, :]], -2)
+        dseg = torch.cat([vel[..., :1, :], vel[..., 1:, :] - vel[..., :-1, :]], -2)
+        angle = torch.atan2(seg[..., 0], -seg[..., 1])
+        rate = (seg[..., 0] * dseg[..., 1] - seg[..., 1] * dseg[..., 0]) / (seg**2).sum(-1)
+        return torch.cat([angle, rate], -1)

@@ -1,0 +1,98 @@
+"""Hydra entry point: ``python -m encons.train model=<model> system=<system> [overrides]``.
+
+Builds system → data → model → LightningModule from the composed config, trains, tests,
+prints a summary table and returns the metric named by ``optimized_metric`` (for sweeps).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import time
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
+import lightning.pytorch as pl
+from hydra.errors import InstantiationException
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from encons.config import build_model, build_system, check_config, resolve_checkpoint
+from encons.data.datamodule import TrajectoryDataModule
+from encons.errors import EnconsError
+from encons.module import DynamicsModule
+from encons.paths import config_dir
+from encons.report import print_summary
+
+log = logging.getLogger("encons")
+
+
+def train(cfg: DictConfig) -> dict[str, float]:
+    """Train and test one model on one system; return every logged metric as floats."""
+    started = time.perf_counter()
+    check_config(cfg)
+    pl.seed_everything(cfg.seed, workers=True, verbose=False)
+    system = build_system(cfg)
+    model = build_model(cfg, system)
+    data = TrajectoryDataModule(system, model.chart, OmegaConf.to_container(cfg.system, resolve=True),
+                                cache_dir=cfg.paths.cache_dir, **cfg.data)
+    data.prepare_data()
+    data.setup()
+    regulariser = instantiate(cfg.regulariser) if cfg.get("regulariser") else None
+    module = DynamicsModule(model, system, data.dt, instantiate(cfg.integrator), objective=cfg.objective,
+                            regulariser=regulariser, horizon=cfg.horizon, output_dir=cfg.paths.output_dir,
+                            **cfg.optim)
+    loggers = [instantiate(c) for c in (cfg.get("logger") or {}).values()]
+    callbacks = [instantiate(c) for c in (cfg.get("callbacks") or {}).values()]
+    trainer: pl.Trainer = instantiate(cfg.trainer, logger=loggers or False, callbacks=callbacks)
+    for lg in loggers:
+        lg.log_hyperparams(OmegaConf.to_container(cfg, resolve=True))
+    try:
+        trainer.fit(module, datamodule=data, ckpt_path=resolve_checkpoint(cfg))
+        results = {k: float(v) for k, v in trainer.callback_metrics.items()}
+        if cfg.test:
+            trainer.test(module, datamodule=data, verbose=False)
+            results.update({f"test/{k}": v for k, v in module.test_metrics.items()})
+    finally:
+        _finish_wandb(loggers)
+    results["wall_time_s"] = time.perf_counter() - started
+    if trainer.is_global_zero:
+        print_summary(module.run_title(), results, Path(cfg.paths.output_dir))
+    return results
+
+
+def _finish_wandb(loggers: list) -> None:
+    if any(type(lg).__name__ == "WandbLogger" for lg in loggers):
+        import wandb
+
+        wandb.finish()
+
+
+@hydra.main(config_path=config_dir(), config_name="train")
+def _hydra_main(cfg: DictConfig) -> float | None:
+    try:
+        results = train(cfg)
+    except (EnconsError, InstantiationException) as err:
+        if HydraConfig.get().mode == RunMode.MULTIRUN:
+            raise  # the sweeper records the trial as failed and goes on
+        print(f"encons: error: {_one_line(err)}", file=sys.stderr)
+        sys.exit(2)
+    return results.get(cfg.optimized_metric)
+
+
+def _one_line(err: Exception) -> str:
+    if isinstance(err, InstantiationException):
+        return f"{str(err).splitlines()[0]} ({err.__cause__})"
+    return str(err)
+
+
+def main() -> None:
+    os.environ.setdefault("WANDB_SILENT", "true")
+    _hydra_main()
+
+
+if __name__ == "__main__":
+    main()
