@@ -110,6 +110,23 @@ class System(abc.ABC):
         """Holonomic constraints Φ(x) of the Cartesian chart, shape (..., K)."""
         raise ChartError(f"system '{self.name}' declares no holonomic constraints")
 
+    # The true physical quantities, for tests that feed them to structured models.
+    def mass_matrix(self, q: Tensor) -> Tensor:
+        """M(q) of the angle chart, shape (..., n, n)."""
+        raise ChartError(f"system '{self.name}' has no mass matrix in generalised coordinates")
+
+    def potential(self, q: Tensor) -> Tensor:
+        """V(q) of the angle chart."""
+        raise ChartError(f"system '{self.name}' has no potential in generalised coordinates")
+
+    def point_masses(self) -> Tensor:
+        """The constant (n_points, n_points) Cartesian mass matrix over points (``layout``)."""
+        raise ChartError(f"system '{self.name}' has no Cartesian mass matrix")
+
+    def cartesian_potential(self, x: Tensor) -> Tensor:
+        """V(x) of the Cartesian chart."""
+        raise ChartError(f"system '{self.name}' has no Cartesian potential")
+
     def valid(self, traj: Tensor) -> Tensor:
         """Boolean mask over trajectories (N, T, 2n) in the base chart that are usable."""
         return torch.ones(traj.shape[0], dtype=torch.bool, device=traj.device)
