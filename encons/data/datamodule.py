@@ -68,7 +68,8 @@ class TrajectoryDataModule(pl.LightningDataModule):
     """Trajectories of ``system`` served in ``chart``; simulated and cached, or read from ``path``."""
 
     def __init__(self, system: System, chart: str, system_config: dict | None = None, path: str | None = None,
-                 n_train: int = 800, n_val: int = 100, n_test: int = 100, n_steps: int = 100, dt: float = 0.03,
+                 n_train: int = 800, n_val: int = 100, n_test: int = 100, n_steps: int = 100,
+                 test_steps: int | None = None, dt: float = 0.03,
                  noise: float = 0.01, substeps: int = 10, chunk_len: int = 5, batch_size: int = 200,
                  seed: int = 0, cache_dir: str = ".cache/encons"):
         super().__init__()
@@ -84,23 +85,25 @@ class TrajectoryDataModule(pl.LightningDataModule):
         self.system, self.chart, self.path = system, chart, path
         self.sizes = {"train": n_train, "val": n_val, "test": n_test}
         self.n_steps, self.dt, self.noise, self.substeps = n_steps, dt, noise, substeps
+        self.test_steps = test_steps or n_steps
         self.chunk_len, self.batch_size, self.seed = chunk_len, batch_size, seed
         gen_config = dict(system=system_config or {"name": system.name}, sizes=self.sizes, n_steps=n_steps,
-                          dt=dt, substeps=substeps, seed=seed)
+                          test_steps=self.test_steps, dt=dt, substeps=substeps, seed=seed)
         self.cache_file = Path(cache_dir) / f"{system.name}-{store.config_hash(gen_config)}.npz"
 
     def prepare_data(self) -> None:
         if self.path is None and not self.cache_file.exists():
             gen = torch.Generator().manual_seed(self.seed)
-            t = torch.arange(self.n_steps + 1, dtype=torch.float64) * self.dt
             splits = {}
             for name, n in self.sizes.items():
                 if n:
+                    steps = self.test_steps if name == "test" else self.n_steps
+                    t = torch.arange(steps + 1, dtype=torch.float64) * self.dt
                     splits[name], rejected = sample_trajectories(self.system, n, t, gen, self.substeps)
                     if rejected:
                         log.info("%s: redrew %d of %d %s trajectories (%s)", self.system.name, rejected, n, name,
                                  getattr(self.system, "rejection_reason", "invalid"))
-            store.save(self.cache_file, t, splits, self.system.base_chart)
+            store.save(self.cache_file, t[: self.n_steps + 1], splits, self.system.base_chart)
             log.info("simulated %s into %s", self.system.name, self.cache_file)
 
     def setup(self, stage: str | None = None) -> None:

@@ -1,7 +1,8 @@
 """The on-disk trajectory format (``.npz``), shared by the simulation cache and user data.
 
 Keys: ``t`` (T,) times, equally spaced; ``train``, ``val`` (optional), ``test`` arrays of
-shape (N, T, 2n) holding states ``(q, q̇)``; ``chart`` a string naming their chart.
+shape (N, T, 2n) holding states ``(q, q̇)`` sampled at ``t`` (``test`` may run longer, at the
+same spacing); ``chart`` a string naming their chart.
 Files are written to a temporary name and renamed, so a half-written file is never read.
 """
 
@@ -64,7 +65,8 @@ def load(path: str | Path, state_dim: int | None = None) -> tuple[Tensor, dict[s
             continue
         arr = arrays[name]
         width = state_dim or arr.shape[-1] if arr.ndim == 3 else None
-        if arr.ndim != 3 or arr.shape[1] != len(t) or arr.shape[2] != width or arr.shape[2] % 2:
+        too_short = arr.ndim == 3 and (arr.shape[1] < len(t) if name == "test" else arr.shape[1] != len(t))
+        if arr.ndim != 3 or too_short or arr.shape[2] != width or arr.shape[2] % 2:
             raise DataError(f"data file {str(path)!r}: '{name}' has shape {arr.shape}; expected "
                             f"(N, {len(t)}, {state_dim or '2n'}) states (q, q̇)")
         if not np.isfinite(arr).all():
