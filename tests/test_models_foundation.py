@@ -1,0 +1,81 @@
+"""NODE and HNN fed the true physics reproduce the true vector field (float64)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from encons.data.simulate import simulate
+from encons.integrators import Integrator, rollout, state_derivative
+from encons.models.hnn import HNN, HNNAngle
+from encons.models.node import NODE
+from encons.systems.pendulum import NPendulum
+
+
+class TrueMass(torch.nn.Module):
+    """The system's M(q) behind the interface of ``CholeskyMass``."""
+
+    def __init__(self, system):
+        super().__init__()
+        self.system = system
+
+    def forward(self, q):
+        return self.system.mass_matrix(q)
+
+    def solve(self, q, p):
+        return torch.linalg.solve(self.system.mass_matrix(q), p.unsqueeze(-1)).squeeze(-1)
+
+
+class _Field(torch.nn.Module):
+    def __init__(self, system):
+        super().__init__()
+        self.system = system
+
+    def forward(self, z):
+        return self.system.vector_field(z, "angle")
+
+
+@pytest.fixture
+def system_and_states():
+    system = NPendulum(2, masses=[1.0, 1.5], lengths=[1.0, 0.8])
+    return system, system.sample_initial(64, torch.Generator().manual_seed(3))
+
+
+@pytest.mark.parametrize("cls", [HNN, HNNAngle])
+def test_hnn_with_true_hamiltonian_and_mass_is_exact(cls, system_and_states):
+    system, s = system_and_states
+    model = cls(system, hidden=8, depth=1).double()
+    model.mass = TrueMass(system)
+
+    def true_hamiltonian(z):
+        q, p = z[..., :2], z[..., 2:]
+        kinetic = 0.5 * (p.unsqueeze(-2) @ TrueMass(system).solve(q, p).unsqueeze(-1)).squeeze((-1, -2))
+        return kinetic + system.potential(q)
+
+    model.hamiltonian = true_hamiltonian
+    assert torch.allclose(state_derivative(model, s), system.vector_field(s, "angle"), atol=1e-10)
+
+
+def test_hnn_with_learned_pieces_is_not_exact(system_and_states):
+    """The check above can fail: an untrained HNN is far from the true field."""
+    system, s = system_and_states
+    model = HNN(system, hidden=8, depth=1).double()
+    assert not torch.allclose(state_derivative(model, s), system.vector_field(s, "angle"), atol=1e-3)
+
+
+def test_node_with_true_field_rolls_out_the_truth(system_and_states):
+    system, s = system_and_states
+    model = NODE(system, hidden=8, depth=1).double()
+    model.net = _Field(system)
+    t = torch.arange(11, dtype=torch.float64) * 0.03
+    pred = rollout(model, s, t, Integrator("rk4", substeps=10))
+    truth = rollout(model, s, t, Integrator("dopri5", rtol=1e-12, atol=1e-12))
+    assert torch.allclose(state_derivative(model, s), system.vector_field(s, "angle"))
+    assert (pred - simulate(system, s, t, substeps=10)).abs().max() < 1e-12  # the generator's own path
+    assert (pred - truth).abs().max() < 1e-6
+
+
+def test_hnn_encode_decode_round_trip(system_and_states):
+    system, s = system_and_states
+    model = HNNAngle(system, hidden=8, depth=1).double()
+    assert torch.allclose(model.decode(model.encode(s)), s, atol=1e-10)
