@@ -1,4 +1,4 @@
-"""Where encons finds its Hydra configs: a checkout's ``conf/`` and ``sweeps/``, else the wheel's."""
+"""Where encons finds its Hydra configs: a checkout's ``conf/``, else the installed wheel's."""
 
 from __future__ import annotations
 
@@ -9,14 +9,7 @@ _CHECKOUT = Path(__file__).resolve().parents[1]
 
 
 def config_dir() -> str:
-    """The primary config folder (holding ``train.yaml``)."""
+    """The primary config folder (holding ``train.yaml``; ``sweeps`` links to ``sweeps/``)."""
     if (_CHECKOUT / "conf" / "train.yaml").is_file():
         return str(_CHECKOUT / "conf")
     return str(files("encons.conf"))
-
-
-def sweeps_root() -> str:
-    """The folder whose ``sweeps/`` sub-folder is the ``sweeps`` config group."""
-    if (_CHECKOUT / "sweeps").is_dir() and (_CHECKOUT / "conf").is_dir():
-        return str(_CHECKOUT)
-    return str(Path(str(files("encons"))))

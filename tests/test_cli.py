@@ -1,0 +1,50 @@
+"""Bad input ends with one clear line and a non-zero exit; the CLI runs from a fresh folder."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import run_cli
+
+FAST = ["debug=fast", "logger=none"]
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["model=nosuchmodel"], "model/nosuchmodel"),
+    (["system=nosuchsystem"], "system/nosuchsystem"),
+    (["integrator=rk5"], "integrator/rk5"),
+    (["integrator.method=rk5"], "integrator.method='rk5' is unknown; allowed:"),
+    (["model.chart=polar"], "needs the 'polar' chart"),
+    (["model.hidden=-4"], "model.hidden=-4 must be a positive integer"),
+    (["data.n_train=0"], "data.n_train=0 must be >= 1"),
+    (["data.chunk_len=1"], "data.chunk_len=1 must lie in"),
+    (["trainer.max_epochs=0"], "trainer.max_epochs=0 must be >= 1"),
+    (["optim.lr=-1"], "optim.lr=-1"),
+    (["nosuchkey=3"], "Could not override 'nosuchkey'"),
+    (["system=from_file", "system.path=/nonexistent/data.npz"], "does not exist"),
+    (["ckpt_path=last"], "no earlier run"),
+])
+def test_bad_input_gives_one_clear_error(tmp_path, args, needle):
+    proc = run_cli(*FAST, *args, cwd=tmp_path)
+    assert proc.returncode != 0
+    assert needle in proc.stderr, proc.stderr[-2000:]
+    assert "Traceback" not in proc.stderr
+
+
+def test_malformed_user_file(tmp_path):
+    path = tmp_path / "bad.npz"
+    np.savez(path, t=np.arange(4.0), train=np.zeros((3, 4, 3)), test=np.zeros((3, 4, 3)))
+    proc = run_cli(*FAST, "system=from_file", f"system.path={path}", cwd=tmp_path)
+    assert proc.returncode == 2 and "expected (N, 4, 2n)" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_cli_trains_and_writes_outputs(tmp_path):
+    proc = run_cli(*FAST, "model=hnn", "system=pendulum1", cwd=tmp_path, env={"ENCONS_ROOT": str(tmp_path)})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    run_dir = next((tmp_path / "outputs" / "pendulum1-hnn").iterdir())
+    assert (run_dir / "checkpoints" / "last.ckpt").is_file()
+    assert {p.name for p in (run_dir / "figures").iterdir()} == {"rollout.png", "relative_error.png",
+                                                                 "energy_error.png"}
+    assert "test/traj_rel_err" in proc.stdout
