@@ -61,14 +61,25 @@ def test_noise_only_on_train_and_val(tmp_path):
     assert 0.45 < spread < 0.55
 
 
+def test_lightning_advances_the_window_sampler_epoch(tmp_path):
+    from lightning.fabric.utilities.data import _set_sampler_epoch
+
+    dm = make(tmp_path)
+    dm.prepare_data()
+    dm.setup()
+    loader = dm.train_dataloader()
+    _set_sampler_epoch(loader, 5)
+    assert loader.sampler.epoch == 5
+
+
 def test_windows_are_deterministic_per_epoch_and_cover_every_trajectory():
-    sampler = WindowSampler(10, 7, 4, seed=1)
+    sampler = WindowSampler(10, 7, seed=1)
     sampler.set_epoch(3)
-    first = [pair for batch in sampler for pair in batch]
+    first = list(sampler)
     sampler.set_epoch(4)
-    other = [pair for batch in sampler for pair in batch]
+    other = list(sampler)
     sampler.set_epoch(3)
-    assert first == [pair for batch in sampler for pair in batch] and first != other
+    assert first == list(sampler) and first != other
     assert sorted(i for i, _ in first) == list(range(10)) and all(0 <= s < 7 for _, s in first)
 
 
@@ -78,7 +89,7 @@ def test_train_batches_are_windows_of_chunk_len(tmp_path):
     dm.setup()
     batch = next(iter(dm.train_dataloader()))
     assert batch.shape == (5, 5, 4)
-    i, start = next(iter(dm.train_dataloader().batch_sampler))[0]
+    i, start = next(iter(dm.train_dataloader().sampler))
     assert torch.equal(batch[0], dm.states["train"][i, start:start + 5])
 
 

@@ -40,24 +40,23 @@ class Windows(Dataset):
 
 
 class WindowSampler(Sampler):
-    """Batches of ``(trajectory, start)``: a shuffled pass over trajectories, random starts."""
+    """``(trajectory, start)`` pairs: a pass over trajectories (shuffled unless ``shuffle`` is
+    false) with random window starts, drawn from ``(seed, epoch)``."""
 
-    def __init__(self, n_traj: int, n_starts: int, batch_size: int, seed: int, shuffle: bool = True):
-        self.n_traj, self.n_starts, self.batch_size = n_traj, n_starts, batch_size
-        self.seed, self.shuffle, self.epoch = seed, shuffle, 0
+    def __init__(self, n_traj: int, n_starts: int, seed: int, shuffle: bool = True):
+        self.n_traj, self.n_starts, self.seed, self.shuffle, self.epoch = n_traj, n_starts, seed, shuffle, 0
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
 
     def __len__(self) -> int:
-        return -(-self.n_traj // self.batch_size)
+        return self.n_traj
 
     def __iter__(self):
         gen = torch.Generator().manual_seed(self.seed * 1_000_003 + (self.epoch if self.shuffle else 0))
         order = torch.randperm(self.n_traj, generator=gen) if self.shuffle else torch.arange(self.n_traj)
         starts = torch.randint(self.n_starts, (self.n_traj,), generator=gen)
-        for chunk in order.split(self.batch_size):
-            yield list(zip(chunk.tolist(), starts[chunk].tolist()))
+        return iter(zip(order.tolist(), starts[order].tolist()))
 
 
 def _identity(batch: Tensor) -> Tensor:
@@ -136,9 +135,9 @@ class TrajectoryDataModule(pl.LightningDataModule):
 
     def _windows(self, split: str, shuffle: bool) -> DataLoader:
         states = self.states[split]
-        sampler = WindowSampler(states.shape[0], states.shape[1] - self.chunk_len + 1, self.batch_size,
-                                self.seed, shuffle)
-        return DataLoader(Windows(states, self.chunk_len), batch_sampler=sampler, collate_fn=_identity)
+        sampler = WindowSampler(states.shape[0], states.shape[1] - self.chunk_len + 1, self.seed, shuffle)
+        return DataLoader(Windows(states, self.chunk_len), sampler=sampler, batch_size=self.batch_size,
+                          collate_fn=_identity)
 
     def train_dataloader(self) -> DataLoader:
         return self._windows("train", shuffle=True)
