@@ -1,0 +1,29 @@
+# encons — common tasks. `make install` once, then `make test`.
+PY      ?= python3
+VENV    ?= .venv
+BIN     := $(VENV)/bin
+ARGS    ?=
+
+.PHONY: install test test-all train bench clean
+
+install:  ## fresh virtual environment: CPU torch first (pinned), then encons with its dev extra
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q torch==2.13.0
+	$(BIN)/pip install -q --pre -e ".[dev]"
+
+test:  ## the test suite (slow tests excluded)
+	$(BIN)/python -m pytest
+
+test-all:  ## every test, slow ones included
+	$(BIN)/python -m pytest -m "slow or not slow"
+
+train:  ## e.g. make train ARGS="model=chnn system=gyroscope"
+	$(BIN)/python -m encons.train $(ARGS)
+
+bench:  ## speed of a training step per model, and dataset generation
+	$(BIN)/python benchmarks/speed.py $(ARGS)
+
+clean:
+	rm -rf outputs multirun .cache/encons .pytest_cache build dist *.egg-info
+	find . -name __pycache__ -type d -prune -exec rm -rf {} +
