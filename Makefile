@@ -10,7 +10,7 @@ install:  ## fresh virtual environment: CPU torch first (pinned), then encons wi
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q torch==2.13.0
-	$(BIN)/pip install -q --pre -e ".[dev]"
+	$(BIN)/pip install -q -e ".[dev]"
 
 test:  ## the test suite (slow tests excluded)
 	$(BIN)/python -m pytest
