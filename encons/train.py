@@ -30,9 +30,8 @@ from encons.report import print_summary
 log = logging.getLogger("encons")
 
 
-def train(cfg: DictConfig) -> dict[str, float]:
-    """Train and test one model on one system; return every logged metric as floats."""
-    started = time.perf_counter()
+def build(cfg: DictConfig) -> tuple[TrajectoryDataModule, DynamicsModule]:
+    """System → data → model → LightningModule from a composed config, seeded by ``cfg.seed``."""
     check_config(cfg)
     pl.seed_everything(cfg.seed, workers=True, verbose=False)
     system = build_system(cfg)
@@ -45,9 +44,31 @@ def train(cfg: DictConfig) -> dict[str, float]:
     module = DynamicsModule(model, system, data.dt, instantiate(cfg.integrator), objective=cfg.objective,
                             regulariser=regulariser, horizon=cfg.horizon, output_dir=cfg.paths.output_dir,
                             **cfg.optim)
+    return data, module
+
+
+def run_config(cfg: DictConfig) -> DictConfig:
+    """The resolved run config without Hydra's own node: what ``encons.evaluate`` rebuilds from."""
+    node = lambda key: OmegaConf.to_container(cfg[key], resolve=True) if OmegaConf.is_config(cfg[key]) else cfg[key]
+    return OmegaConf.create({key: node(key) for key in cfg if key != "hydra"})
+
+
+def build_trainer(cfg: DictConfig) -> tuple[pl.Trainer, list]:
+    """The Lightning Trainer of ``cfg.trainer`` with the configured loggers and callbacks."""
     loggers = [instantiate(c) for c in (cfg.get("logger") or {}).values()]
     callbacks = [instantiate(c) for c in (cfg.get("callbacks") or {}).values()]
-    trainer: pl.Trainer = instantiate(cfg.trainer, logger=loggers or False, callbacks=callbacks)
+    trainer = instantiate(cfg.trainer, logger=loggers or False, callbacks=callbacks)
+    return trainer, loggers
+
+
+def train(cfg: DictConfig) -> dict[str, float]:
+    """Train and test one model on one system; return every logged metric as floats."""
+    started = time.perf_counter()
+    data, module = build(cfg)
+    output_dir = Path(cfg.paths.output_dir)
+    output_dir.mkdir(parents=True, exist_ok=True)
+    OmegaConf.save(run_config(cfg), output_dir / "config.yaml")
+    trainer, loggers = build_trainer(cfg)
     for lg in loggers:
         lg.log_hyperparams(OmegaConf.to_container(cfg, resolve=True))
     try:
@@ -60,7 +81,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
         _finish_wandb(loggers)
     results["wall_time_s"] = time.perf_counter() - started
     if trainer.is_global_zero:
-        print_summary(module.run_title(), results, Path(cfg.paths.output_dir))
+        print_summary(module.run_title(), results, output_dir)
     return results
 
 
