@@ -1,0 +1,214 @@
+"""Optuna sweeps through Hydra: a sweeper that records how each trial ended, the job's pruning
+callback, and the end-of-sweep report.
+
+The Hydra Optuna sweeper never hands its ``Trial`` to the job, so it cannot prune. This sweeper
+passes the trial's number to the job as ``sweeps.trial=N``; the job reaches that trial through the
+study's storage (:func:`pruning_callback`) and reports the validation metric every epoch. A job
+that raises ``optuna.TrialPruned`` is recorded as pruned; one that raises anything else or returns
+a non-finite value is recorded as failed, its reason kept in the ``fail_reason`` user attribute,
+and the sweep goes on. Storage, pruner and search space are set in ``sweeps/optuna.yaml``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import logging
+import math
+import os
+import tempfile
+import warnings
+from pathlib import Path
+
+import optuna
+from hydra.core.plugins import Plugins
+from hydra.core.utils import JobReturn, JobStatus
+from hydra.plugins.sweeper import Sweeper
+from hydra.types import HydraContext, TaskFunction
+from hydra.utils import instantiate
+from hydra_plugins.hydra_optuna_sweeper._impl import create_params_from_overrides
+from numpy.random import SeedSequence
+from omegaconf import DictConfig, OmegaConf
+from optuna.trial import TrialState
+
+log = logging.getLogger(__name__)
+TRIAL_KEY = "sweeps.trial"  # the job's config key that receives the trial number
+
+
+class OptunaSweeper(Sweeper):
+    """Asks an Optuna study for ``n_trials`` trials (``n_jobs`` at a time), launches them with the
+    configured Hydra launcher and tells the study how each ended. ``enqueue``: parameter dicts
+    tried first (skipped when the study already holds them). The sampler's seed is mixed with
+    the number of trials already stored, so a resumed study does not repeat its first trials;
+    give each concurrent worker its own ``sampler.seed``."""
+
+    def __init__(self, sampler: DictConfig, direction: str, storage: str | None, study_name: str,
+                 n_trials: int, n_jobs: int, max_failure_rate: float, params: DictConfig | None,
+                 enqueue: list | None = None):
+        if direction not in ("minimize", "maximize"):
+            raise ValueError(f"hydra.sweeper.direction={direction!r}; allowed: minimize, maximize")
+        self.sampler_config, self.direction, self.storage, self.study_name = sampler, direction, storage, study_name
+        self.n_trials, self.n_jobs, self.max_failure_rate = n_trials, n_jobs, max_failure_rate
+        self.params = OmegaConf.to_container(params) if params else {}
+        self.enqueue = OmegaConf.to_container(enqueue) if enqueue else []
+
+    def setup(self, *, hydra_context: HydraContext, task_function: TaskFunction, config: DictConfig) -> None:
+        self.config = config
+        self.launcher = Plugins.instance().instantiate_launcher(
+            config=config, hydra_context=hydra_context, task_function=task_function)
+
+    def sweep(self, arguments: list[str]) -> None:
+        space, fixed, fixed_overrides = create_params_from_overrides(
+            [f"{k}={v}" for k, v in self.params.items()] + list(arguments))
+        for name in fixed:
+            space.pop(name, None)
+        sweep_dir = Path(self.config.hydra.sweep.dir)
+        sweep_dir.mkdir(parents=True, exist_ok=True)
+        study = optuna.create_study(storage=self.storage, study_name=self.study_name,
+                                    direction=self.direction, load_if_exists=True)
+        study.sampler = self._sampler(len(study.trials))
+        for params in self.enqueue:
+            study.enqueue_trial(params, skip_if_exists=True)
+        log.info("study %s in %s: %d trials stored, %d to run", study.study_name, self.storage,
+                 len(study.trials), self.n_trials)
+        failed, job_idx = 0, 0
+        while job_idx < self.n_trials:
+            trials = [study.ask(space) for _ in range(min(self.n_jobs, self.n_trials - job_idx))]
+            overrides = [tuple(f"{k}={v}" for k, v in {**t.params, **fixed}.items()) + tuple(fixed_overrides)
+                         + (f"{TRIAL_KEY}={t.number}",) for t in trials]
+            returns = self.launcher.launch(overrides, initial_job_idx=job_idx)
+            job_idx += len(trials)
+            failed += sum(_tell(study, t, r) == TrialState.FAIL for t, r in zip(trials, returns))
+            if failed > self.max_failure_rate * self.n_trials:
+                report(study, sweep_dir)
+                raise RuntimeError(f"{failed} of {job_idx} trials failed, more than hydra.sweeper."
+                                   f"max_failure_rate={self.max_failure_rate} of {self.n_trials}; "
+                                   f"reasons in {sweep_dir / 'trials.csv'}")
+        report(study, sweep_dir)
+
+    def _sampler(self, n_stored: int) -> optuna.samplers.BaseSampler:
+        config = OmegaConf.to_container(self.sampler_config, resolve=True)
+        if config.get("seed") is not None:
+            config["seed"] = int(SeedSequence([config["seed"], n_stored]).generate_state(1)[0])
+        return instantiate(config, _execution_whitelist_=("optuna.samplers.*",))
+
+
+def _tell(study: optuna.Study, trial: optuna.Trial, ret: JobReturn) -> TrialState:
+    """Record how a launched job ended: complete with its value, pruned, or failed with a reason."""
+    if ret.status == JobStatus.FAILED:
+        err = ret._return_value
+        if isinstance(err, optuna.TrialPruned):
+            log.info("trial %d pruned: %s", trial.number, err)
+            study.tell(trial, state=TrialState.PRUNED)
+            return TrialState.PRUNED
+        reason = f"{type(err).__name__}: {err}"
+    elif ret.return_value is None:
+        reason = "the job returned no value: is optimized_metric logged?"
+    elif math.isfinite(value := float(ret.return_value)):
+        log.info("trial %d: %s", trial.number, value)
+        study.tell(trial, value)
+        return TrialState.COMPLETE
+    else:
+        reason = f"objective is {value}"
+    log.warning("trial %d failed: %s", trial.number, reason)
+    trial.set_user_attr("fail_reason", reason)
+    study.tell(trial, state=TrialState.FAIL)
+    return TrialState.FAIL
+
+
+def pruning_callback(storage: str, study_name: str, trial: int | None, monitor: str,
+                     pruner: optuna.pruners.BasePruner | None):
+    """Optuna's Lightning pruning callback for trial number ``trial`` of the stored study, judged
+    by ``pruner`` (``None``: never prune) on ``monitor`` after every validation epoch."""
+    from optuna_integration.pytorch_lightning import PyTorchLightningPruningCallback
+
+    from encons.errors import ConfigError
+
+    if trial is None:
+        raise ConfigError(f"{TRIAL_KEY} is unset: an Optuna sweep runs with -m "
+                          f"(python -m encons.train -m sweeps=NAME)")
+
+    class Pruning(PyTorchLightningPruningCallback):
+        def on_fit_end(self, trainer, pl_module) -> None:
+            self.check_pruned()  # under DDP the callback only stops the trainer; raise here
+
+    shared = optuna.storages.get_storage(storage)
+    trial_id = shared.get_trial_id_from_study_id_trial_number(shared.get_study_id_from_name(study_name), trial)
+    study = optuna.load_study(study_name=study_name, storage=shared, pruner=pruner or optuna.pruners.NopPruner())
+    return Pruning(optuna.Trial(study, trial_id), monitor)
+
+
+def report(study: optuna.Study, out_dir: Path) -> None:
+    """Print the best trial; save ``trials.csv``, ``optimization_results.yaml`` and figures."""
+    trials = study.get_trials(deepcopy=False)
+    names = sorted({k for t in trials for k in t.params})
+    rows = [{"number": t.number, "state": t.state.name, "value": t.value,
+             "duration_s": t.duration.total_seconds() if t.duration else None,
+             "last_step": t.last_step, **t.params, "fail_reason": t.user_attrs.get("fail_reason")}
+            for t in trials]
+    table = io.StringIO()
+    writer = csv.DictWriter(table, ["number", "state", "value", "duration_s", "last_step", *names, "fail_reason"])
+    writer.writeheader()
+    writer.writerows(rows)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    _atomic_write(out_dir / "trials.csv", table.getvalue())
+    states = [t.state for t in trials]
+    counts = ", ".join(f"{s.name.lower()} {states.count(s)}" for s in TrialState if states.count(s))
+    complete = [t for t in trials if t.state == TrialState.COMPLETE]
+    if not complete:
+        print(f"study {study.study_name}: no complete trial ({counts})")
+        return
+    best = study.best_trial
+    results = {"study": study.study_name, "best_trial": best.number, "best_value": best.value,
+               "best_params": best.params}
+    _atomic_write(out_dir / "optimization_results.yaml", OmegaConf.to_yaml(results))
+    _save_figures(study, out_dir, plot_importance=len(complete) > 1 and len(names) > 0)
+    print(f"study {study.study_name}: {len(trials)} trials ({counts})\n"
+          f"best trial {best.number}: value {best.value:.6g}\n"
+          f"best params: {' '.join(f'{k}={v}' for k, v in best.params.items())}\n"
+          f"table and figures: {out_dir}")
+
+
+def _atomic_write(path: Path, data: str | bytes) -> None:
+    """Several workers may report into one folder: write a temporary sibling, then rename it."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    with os.fdopen(fd, "wb") as f:
+        f.write(data.encode() if isinstance(data, str) else data)
+    os.replace(tmp, path)
+
+
+def _save_figures(study: optuna.Study, out_dir: Path, plot_importance: bool) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from optuna.visualization import matplotlib as vis
+
+    plots = {"optimization_history": vis.plot_optimization_history}
+    if plot_importance:
+        plots["param_importances"] = vis.plot_param_importances
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+        for name, plot in plots.items():
+            fig = plot(study).figure
+            fig.tight_layout()
+            png = io.BytesIO()
+            fig.savefig(png, format="png")
+            plt.close(fig)
+            _atomic_write(out_dir / f"{name}.png", png.getvalue())
+
+
+def main() -> None:
+    """``python -m encons.sweep STORAGE STUDY [OUT]``: the report of a stored study, e.g. after
+    several workers shared it."""
+    parser = argparse.ArgumentParser(description=main.__doc__)
+    parser.add_argument("storage", help="SQLAlchemy URL, e.g. sqlite:///multirun/NAME/optuna.db")
+    parser.add_argument("study")
+    parser.add_argument("out", nargs="?", default=".", help="folder for trials.csv and figures")
+    args = parser.parse_args()
+    report(optuna.load_study(study_name=args.study, storage=args.storage), Path(args.out))
+
+
+if __name__ == "__main__":
+    main()
