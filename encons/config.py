@@ -4,15 +4,32 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
 from hydra.errors import InstantiationException
 from hydra.utils import get_class, instantiate
-from omegaconf import DictConfig
+from omegaconf import DictConfig, open_dict
 
 from encons.errors import ConfigError
 from encons.models.base import DynamicsModel
+from encons.paths import config_dir
 from encons.systems.base import System
 
 POSITIVE_MODEL_KEYS = ("hidden", "depth")
+
+
+def compose_train(overrides: list[str], output_dir: str | Path, cache_dir: str | Path | None = None) -> DictConfig:
+    """Compose ``train.yaml`` from Python as the CLI would, writing outputs to ``output_dir``."""
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=config_dir(), job_name="train"):
+        cfg = compose("train", overrides=list(overrides), return_hydra_config=True)
+    HydraConfig.instance().set_config(cfg)
+    with open_dict(cfg):
+        cfg.paths.output_dir = str(output_dir)
+        if cache_dir is not None:
+            cfg.paths.cache_dir = str(cache_dir)
+    return cfg
 
 
 def check_config(cfg: DictConfig) -> None:

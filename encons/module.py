@@ -1,8 +1,9 @@
 """The one LightningModule that trains any model on any system.
 
 Objectives: ``rollout`` (Zhong et al. §4.1: L1 loss summed over a window rolled out from its
-first state) or ``derivative`` (Lim & Kasim eq. (2): squared error of the field against
-finite-difference state derivatives). An optional regulariser adds a weighted penalty.
+first state) or ``derivative`` (Lim & Kasim eq. (2): squared error of the field against the
+state derivatives the data module pairs with the states). An optional regulariser adds a
+weighted penalty.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from pathlib import Path
 from typing import Callable
 
 import lightning.pytorch as pl
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -58,18 +60,22 @@ class DynamicsModule(pl.LightningModule):
     def to_common(self, states: Tensor) -> Tensor:
         return self.system.to_chart(states, self.model.chart, self.system.common_chart)
 
-    def loss(self, batch: Tensor) -> Tensor:
+    def loss(self, states: Tensor, rates: Tensor | None = None) -> Tensor:
+        """The objective on windows ``states`` (N, T, 2n); ``rates`` are their ds/dt (derivative)."""
         if self.objective == "rollout":
-            return (self.predict(batch) - batch).abs().sum((-1, -2)).mean()
-        observed = (batch[:, 2:] - batch[:, :-2]) / (2 * self.dt)
-        return ((state_derivative(self.model, batch[:, 1:-1]) - observed) ** 2).sum(-1).mean()
+            return (self.predict(states) - states).abs().sum((-1, -2)).mean()
+        return ((state_derivative(self.model, states) - rates) ** 2).sum(-1).mean()
 
-    def training_step(self, batch: Tensor, batch_idx: int) -> Tensor:
-        loss = self.loss(batch)
-        self.log("train/loss", loss, prog_bar=True, batch_size=batch.shape[0])
+    def training_step(self, batch: Tensor | tuple[Tensor, Tensor], batch_idx: int) -> Tensor:
+        if self.objective == "derivative" and isinstance(batch, Tensor):
+            raise ConfigError("objective=derivative needs (states, rates) batches: build the data module "
+                              "with objective='derivative' (data.objective: ${objective})")
+        states, rates = batch if self.objective == "derivative" else (batch, None)
+        loss = self.loss(states, rates)
+        self.log("train/loss", loss, prog_bar=True, batch_size=states.shape[0])
         if self.regulariser is not None:
-            penalty = self.regulariser(self.model, batch.flatten(0, 1))
-            self.log("train/regulariser", penalty, batch_size=batch.shape[0])
+            penalty = self.regulariser(self.model, states.flatten(0, 1))
+            self.log("train/regulariser", penalty, batch_size=states.shape[0])
             loss = loss + penalty
         if not torch.isfinite(loss):
             raise DivergenceError(
@@ -99,6 +105,11 @@ class DynamicsModule(pl.LightningModule):
         if self.output_dir is not None and self.trainer.is_global_zero:
             self.output_dir.mkdir(parents=True, exist_ok=True)
             (self.output_dir / "test_metrics.json").write_text(json.dumps(self.test_metrics, indent=2))
+            curves = {"t": self.times(true.shape[1], true).cpu().numpy(),
+                      "rel_err": metrics.relative_error(pred_c, true_c).cpu().numpy()}
+            if energies:
+                curves["energy_err"] = metrics.energy_abs_error(*energies).cpu().numpy()
+            np.savez(self.output_dir / "test_curves.npz", **curves)
             figures = plots.test_figures(self.times(true.shape[1], true).cpu(), pred_c.cpu(), true_c.cpu(),
                                          [e.cpu() for e in energies] if energies else None,
                                          self.output_dir / "figures", title=self.run_title())

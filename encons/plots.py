@@ -54,6 +54,50 @@ def test_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] |
     return paths
 
 
+def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path) -> list[Path]:
+    """The papers' comparison plots over a benchmark grid, one panel per system.
+
+    Trajectory relative error per model (Zhong et al. Fig. 2), and relative error and absolute
+    energy error vs time averaged over test trajectories and seeds (Figs. 3–4), read from each
+    run's ``test_curves.npz``.
+    """
+    import numpy as np
+
+    systems = list(dict.fromkeys(e["system"] for e in summary))
+    paths = []
+    fig, axes = plt.subplots(1, len(systems), figsize=(4.5 * len(systems), 4), squeeze=False)
+    for ax, system in zip(axes[0], systems):
+        entries = [e for e in summary if e["system"] == system and "test/traj_rel_err" in e]
+        ax.bar([e["model"] for e in entries], [e["test/traj_rel_err"] for e in entries],
+               yerr=[e["test/traj_rel_err_std"] for e in entries], capsize=3)
+        ax.set_yscale("log")
+        ax.set_title(system)
+        ax.set_ylabel("trajectory relative error (T = 4)")
+        ax.tick_params(axis="x", rotation=60)
+    paths.append(_save(fig, out_dir / "traj_rel_err.png"))
+
+    for key, label, name in (("rel_err", "relative error", "rel_err_vs_time.png"),
+                             ("energy_err", "|E(ŝ) − E(s)|", "energy_err_vs_time.png")):
+        fig, axes = plt.subplots(1, len(systems), figsize=(4.5 * len(systems), 4), squeeze=False)
+        for ax, system in zip(axes[0], systems):
+            curves: dict[str, list] = {}
+            for row in rows:
+                path = Path(row["run_dir"]) / "test_curves.npz"
+                if row["system"] == system and path.is_file():
+                    with np.load(path) as f:
+                        if key in f.files:
+                            curves.setdefault(row["model"], []).append((f["t"], f[key].mean(0)))
+            for model, runs in curves.items():
+                ax.plot(runs[0][0][1:], np.mean([c for _, c in runs], 0)[1:], label=model)
+            ax.set_yscale("log")
+            ax.set_xlabel("time")
+            ax.set_ylabel(label)
+            ax.set_title(system)
+            ax.legend(fontsize=7)
+        paths.append(_save(fig, out_dir / name))
+    return paths
+
+
 def _save(fig, path: Path) -> Path:
     fig.tight_layout()
     fig.savefig(path, dpi=110)

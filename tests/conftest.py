@@ -9,12 +9,9 @@ from pathlib import Path
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
-from hydra.core.hydra_config import HydraConfig
-from omegaconf import open_dict
 
-from encons.paths import config_dir
+from encons.config import compose_train
 
 torch.set_default_dtype(torch.float32)
 
@@ -32,25 +29,13 @@ def isolated_env(tmp_path_factory, monkeypatch):
     GlobalHydra.instance().clear()
 
 
-def compose_train(overrides: list[str], output_dir: Path, fast: bool = True):
-    """Compose ``train.yaml`` as the CLI would, with outputs under ``output_dir``."""
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=config_dir(), job_name="test"):
-        cfg = compose("train", overrides=(["debug=fast"] if fast else []) + overrides, return_hydra_config=True)
-    HydraConfig.instance().set_config(cfg)
-    with open_dict(cfg):
-        cfg.paths.output_dir = str(output_dir)
-        cfg.paths.cache_dir = str(output_dir.parent / "cache")
-    return cfg
-
-
 @pytest.fixture
 def train_run(tmp_path):
     """Run ``encons.train.train`` on a tiny config: ``train_run(["model=hnn", ...])`` -> metrics."""
     from encons.train import train
 
     def run(overrides: list[str], name: str = "run", fast: bool = True) -> dict[str, float]:
-        return train(compose_train(overrides, tmp_path / name, fast))
+        return train(compose_train((["debug=fast"] if fast else []) + overrides, tmp_path / name, tmp_path / "cache"))
 
     return run
 
