@@ -87,21 +87,24 @@ class DynamicsModule(pl.LightningModule):
     def validation_step(self, batch: Tensor, batch_idx: int) -> None:
         pred = self.predict(batch)
         tre = metrics.trajectory_relative_error(self.to_common(pred), self.to_common(batch), self.horizon)
-        self.log("val/loss", (pred - batch).abs().sum((-1, -2)).mean(), batch_size=batch.shape[0])
-        self.log("val/traj_rel_err", tre.mean(), prog_bar=True, batch_size=batch.shape[0])
+        self.log("val/loss", (pred - batch).abs().sum((-1, -2)).mean(), batch_size=batch.shape[0], sync_dist=True)
+        self.log("val/traj_rel_err", tre.mean(), prog_bar=True, batch_size=batch.shape[0], sync_dist=True)
 
     def test_step(self, batch: Tensor, batch_idx: int) -> None:
         self._test_batches.append(torch.stack([batch, self.predict(batch)]))
 
     def on_test_epoch_end(self) -> None:
-        true, pred = torch.cat(self._test_batches, 1).double()
+        batches = torch.cat(self._test_batches, 1)
         self._test_batches.clear()
+        if self.trainer.world_size > 1:  # DDP: each process rolled out its share of the test set
+            batches = self.all_gather(batches).transpose(0, 1).flatten(1, 2)
+        true, pred = batches.double()
         energies = None
         if self.system.known_physics:
             energies = [self.system.energy(x, self.model.chart) for x in (pred, true)]
         true_c, pred_c = self.to_common(true), self.to_common(pred)
         self.test_metrics = metrics.summarise(pred_c, true_c, *(energies or (None, None)), horizon=self.horizon)
-        self.log_dict({f"test/{k}": v for k, v in self.test_metrics.items()})
+        self.log_dict({f"test/{k}": v for k, v in self.test_metrics.items()}, sync_dist=True)
         if self.output_dir is not None and self.trainer.is_global_zero:
             self.output_dir.mkdir(parents=True, exist_ok=True)
             (self.output_dir / "test_metrics.json").write_text(json.dumps(self.test_metrics, indent=2))
