@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
-from importlib.resources import files
 from pathlib import Path
 
-_CHECKOUT = Path(__file__).resolve().parents[1]
+_PACKAGE = Path(__file__).resolve().parent
 
 
 def config_dir() -> str:
-    """The primary config folder (holding ``train.yaml``; ``sweeps`` links to ``sweeps/``)."""
-    if (_CHECKOUT / "conf" / "train.yaml").is_file():
-        return str(_CHECKOUT / "conf")
-    return str(files("encons.conf"))
+    """The primary config folder (holding ``train.yaml``; its ``sweeps`` links to ``sweeps/``).
+
+    In a checkout that is ``<repo>/conf``; in an installed wheel, ``encons/conf``.
+    """
+    checkout = _PACKAGE.parent / "conf"
+    return str(checkout if (checkout / "train.yaml").is_file() else _PACKAGE / "conf")
