@@ -4,6 +4,9 @@ Training yields random windows of ``chunk_len`` states, one per trajectory per e
 from ``(seed, epoch)`` so a resumed run sees the same windows as an uninterrupted one.
 Validation yields fixed windows; test yields whole trajectories. Noise (σ = ``noise``) is
 added to train and validation states only: test metrics compare against clean truth.
+For ``objective="derivative"`` (Lim & Kasim eq. (2)) training windows come as ``(states, rates)``:
+rates ds/dt are the true field at the clean simulated states (the authors' protocol), or
+central differences of the observed states for loaded data.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ from pathlib import Path
 import lightning.pytorch as pl
 import torch
 from torch import Tensor
+from torch.func import jvp
 from torch.utils.data import DataLoader, Dataset, Sampler
 
 from encons.data import store
@@ -25,18 +29,20 @@ log = logging.getLogger(__name__)
 
 
 class Windows(Dataset):
-    """Windows ``states[i, start : start + length]`` addressed by ``(i, start)`` pairs."""
+    """Windows ``states[i, start : start + length]`` addressed by ``(i, start)`` pairs, with the
+    matching windows of ``rates`` when given."""
 
-    def __init__(self, states: Tensor, length: int):
-        self.states, self.length = states, length
+    def __init__(self, states: Tensor, length: int, rates: Tensor | None = None):
+        self.states, self.length, self.rates = states, length, rates
         self.offsets = torch.arange(length)
 
     def __len__(self) -> int:
         return self.states.shape[0]
 
-    def __getitems__(self, index: list[tuple[int, int]]) -> Tensor:
+    def __getitems__(self, index: list[tuple[int, int]]) -> Tensor | tuple[Tensor, Tensor]:
         traj, start = torch.tensor(index).T
-        return self.states[traj[:, None], start[:, None] + self.offsets]
+        at = (traj[:, None], start[:, None] + self.offsets)
+        return self.states[at] if self.rates is None else (self.states[at], self.rates[at])
 
 
 class WindowSampler(Sampler):
@@ -70,7 +76,7 @@ class TrajectoryDataModule(pl.LightningDataModule):
                  n_train: int = 800, n_val: int = 100, n_test: int = 100, n_steps: int = 100,
                  test_steps: int | None = None, dt: float = 0.03,
                  noise: float = 0.01, substeps: int = 10, chunk_len: int = 5, batch_size: int = 200,
-                 seed: int = 0, cache_dir: str = ".cache/encons"):
+                 seed: int = 0, cache_dir: str = ".cache/encons", objective: str = "rollout"):
         super().__init__()
         for key, value in dict(n_train=n_train, n_test=n_test, n_steps=n_steps, substeps=substeps,
                                batch_size=batch_size).items():
@@ -86,6 +92,7 @@ class TrajectoryDataModule(pl.LightningDataModule):
         self.n_steps, self.dt, self.noise, self.substeps = n_steps, dt, noise, substeps
         self.test_steps = test_steps or n_steps
         self.chunk_len, self.batch_size, self.seed = chunk_len, batch_size, seed
+        self.objective = objective
         gen_config = dict(system=system_config or {"name": system.name}, sizes=self.sizes, n_steps=n_steps,
                           test_steps=self.test_steps, dt=dt, substeps=substeps, seed=seed)
         self.cache_file = Path(cache_dir) / f"{system.name}-{store.config_hash(gen_config)}.npz"
@@ -130,17 +137,26 @@ class TrajectoryDataModule(pl.LightningDataModule):
             served[name] = served[name] + self.noise * torch.randn(served[name].shape, generator=gen,
                                                                     dtype=torch.float64)
         self.states = {k: v.float() for k, v in served.items()}
+        self.rates = self._rates(splits["train"], chart, served["train"]).float() \
+            if self.objective == "derivative" else None
         if self.chunk_len > len(t):
             raise DataError(f"data.chunk_len={self.chunk_len} exceeds the {len(t)} states per trajectory")
 
-    def _windows(self, split: str, shuffle: bool) -> DataLoader:
+    def _rates(self, clean: Tensor, chart: str, observed: Tensor) -> Tensor:
+        """ds/dt of the training states in the served chart, float64 (see the module docstring)."""
+        if self.path is None and self.system.known_physics:
+            field = self.system.vector_field(clean, chart)
+            return jvp(lambda s: self.system.to_chart(s, chart, self.chart), (clean,), (field,))[1]
+        return torch.gradient(observed, spacing=self.dt, dim=1, edge_order=2)[0]
+
+    def _windows(self, split: str, shuffle: bool, rates: Tensor | None = None) -> DataLoader:
         states = self.states[split]
         sampler = WindowSampler(states.shape[0], states.shape[1] - self.chunk_len + 1, self.seed, shuffle)
-        return DataLoader(Windows(states, self.chunk_len), sampler=sampler, batch_size=self.batch_size,
+        return DataLoader(Windows(states, self.chunk_len, rates), sampler=sampler, batch_size=self.batch_size,
                           collate_fn=_identity)
 
     def train_dataloader(self) -> DataLoader:
-        return self._windows("train", shuffle=True)
+        return self._windows("train", shuffle=True, rates=self.rates)
 
     def val_dataloader(self) -> DataLoader:
         return self._windows("val", shuffle=False)

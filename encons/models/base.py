@@ -7,8 +7,9 @@ The rollout (``encons.integrators.rollout``) is the only place that integrates a
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Callable, ClassVar
 
+import torch
 from torch import Tensor, nn
 
 from encons.systems.base import System
@@ -42,3 +43,12 @@ class DynamicsModel(nn.Module):
     def forward(self, t: Tensor, z: Tensor) -> Tensor:  # noqa: D401 - torchdiffeq signature
         """dz/dt at internal states ``z`` of any batch shape."""
         raise NotImplementedError
+
+    def constrained_field(self, s: Tensor) -> tuple[Tensor, Callable[[Tensor], Tensor]]:
+        """Points and per-sample field that soft dynamics constraints (``encons.regularisers``) act on.
+
+        Default: the internal field at ``encode(s)``; for a model whose ``encode`` is a learned
+        invertible map this is the latent field, as in Lim & Kasim eq. (7).
+        """
+        t = torch.zeros((), dtype=s.dtype, device=s.device)
+        return self.encode(s), lambda z: self(t, z)

@@ -1,0 +1,109 @@
+"""Neural ODE in the latent coordinates of an invertible network (Lim & Kasim 2023, §3.2).
+
+z = g(s) (eq. (5)), g a stack of Glow-style blocks (Kingma & Dhariwal 2018; the layout of
+FrEIA's ``AllInOneBlock`` the authors used): an affine coupling with soft-clamped log-scales,
+a global affine scaling and a fixed random rotation. The latent field ż = f(z) is an MLP.
+Rollouts integrate z and decode with g⁻¹, which is integrating the pushed-back field
+ṡ = (∂g⁻¹/∂z) f(g(s)) of eq. (6) (``encons.integrators.state_derivative`` evaluates it);
+regularisers act on f at g(s), eq. (7).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from encons.models.base import DynamicsModel
+from encons.models.networks import mlp
+from encons.systems.base import System
+
+
+def random_rotation(dim: int) -> Tensor:
+    """A random matrix of SO(dim), drawn from torch's global generator."""
+    q, r = torch.linalg.qr(torch.randn(dim, dim))
+    q = q * torch.sign(torch.diagonal(r))
+    if torch.det(q) < 0:
+        q[:, 0] = -q[:, 0]
+    return q
+
+
+class CouplingBlock(nn.Module):
+    """y = R (e^a ⊙ (x₁, x₂ ⊙ e^{c·tanh(s(x₁)/c)} + t(x₁)) + b), invertible in closed form.
+
+    The coupling network's last layer starts at zero, so a fresh block is the rotation R.
+    """
+
+    def __init__(self, dim: int, hidden: int, depth: int, activation: str, clamp: float):
+        super().__init__()
+        if dim < 2:
+            raise ValueError(f"model=inn_node needs a state of at least 2 entries, got {dim}")
+        if clamp <= 0:
+            raise ValueError(f"model.clamp must be > 0, got {clamp}")
+        self.split, self.clamp = dim - dim // 2, float(clamp)
+        self.coupling = mlp(self.split, 2 * (dim // 2), hidden, depth, activation)
+        nn.init.zeros_(self.coupling[-1].weight)
+        nn.init.zeros_(self.coupling[-1].bias)
+        self.log_scale = nn.Parameter(torch.zeros(dim))
+        self.offset = nn.Parameter(torch.zeros(dim))
+        self.register_buffer("rotation", random_rotation(dim))
+
+    def _affine(self, x1: Tensor) -> tuple[Tensor, Tensor]:
+        s, t = self.coupling(x1).chunk(2, -1)
+        return self.clamp * torch.tanh(s / self.clamp), t
+
+    def forward(self, x: Tensor) -> Tensor:
+        x1, x2 = x[..., : self.split], x[..., self.split:]
+        s, t = self._affine(x1)
+        u = torch.cat([x1, x2 * torch.exp(s) + t], -1)
+        return (u * torch.exp(self.log_scale) + self.offset) @ self.rotation.T
+
+    def inverse(self, y: Tensor) -> Tensor:
+        u = (y @ self.rotation - self.offset) * torch.exp(-self.log_scale)
+        u1, u2 = u[..., : self.split], u[..., self.split:]
+        s, t = self._affine(u1)
+        return torch.cat([u1, (u2 - t) * torch.exp(-s)], -1)
+
+
+class InvertibleNet(nn.Module):
+    """g = block_K ∘ … ∘ block_1 and its exact inverse, on the last axis of any batch shape."""
+
+    def __init__(self, dim: int, blocks: int = 8, hidden: int = 100, depth: int = 1,
+                 activation: str = "softplus", clamp: float = 2.0):
+        super().__init__()
+        if blocks < 1:
+            raise ValueError(f"model.blocks must be >= 1, got {blocks}")
+        self.blocks = nn.ModuleList(CouplingBlock(dim, hidden, depth, activation, clamp) for _ in range(blocks))
+
+    def forward(self, x: Tensor) -> Tensor:
+        for block in self.blocks:
+            x = block(x)
+        return x
+
+    def inverse(self, z: Tensor) -> Tensor:
+        for block in reversed(self.blocks):
+            z = block.inverse(z)
+        return z
+
+
+class INNNODE(DynamicsModel):
+    """Latent MLP field on z = g(s); works in any chart (default: the system's base chart).
+
+    Sizes default to the paper's: MLP of 2 hidden layers × 200, INN of 8 blocks whose
+    coupling networks have one hidden layer of 100 (two linear layers).
+    """
+
+    def __init__(self, system: System, chart: str | None = None, hidden: int = 200, depth: int = 2,
+                 activation: str = "softplus", blocks: int = 8, block_hidden: int = 100, block_depth: int = 1,
+                 clamp: float = 2.0):
+        super().__init__(system, chart)
+        self.inn = InvertibleNet(2 * self.n, blocks, block_hidden, block_depth, activation, clamp)
+        self.net = mlp(2 * self.n, 2 * self.n, hidden, depth, activation)
+
+    def encode(self, s: Tensor) -> Tensor:
+        return self.inn(s)
+
+    def decode(self, z: Tensor) -> Tensor:
+        return self.inn.inverse(z)
+
+    def forward(self, t: Tensor, z: Tensor) -> Tensor:
+        return self.net(z)

@@ -1,0 +1,41 @@
+"""Damped pendulum observed in redundant Cartesian states (Lim & Kasim 2023, Task 4).
+
+θ̈ = −(g/l) sin θ − α θ̇ with m = l = g = 1, α = 0.05, observed as (x, y, ẋ, ẏ) with
+x = l sin θ, y = −l cos θ. The chain of ``NPendulum`` with every angle's acceleration
+damped by −α q̇; as ẋ = (∂x/∂q) q̇, the Cartesian acceleration is damped by −α ẋ on the
+constraint manifold. The Cartesian chart comes first: it is the one observed, simulated and
+served to models that work in any chart.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import Tensor
+
+from encons.systems.base import split_state
+from encons.systems.pendulum import NPendulum
+
+
+class DampedPendulum(NPendulum):
+    """``NPendulum`` with damping rate ``damping`` (α) on every link; energy decays."""
+
+    charts = ("cartesian", "angle")
+
+    def __init__(self, n_links: int = 1, masses: float | Sequence[float] = 1.0,
+                 lengths: float | Sequence[float] = 1.0, g: float = 1.0, damping: float = 0.05,
+                 init_scale: float = 1.0):
+        super().__init__(n_links, masses, lengths, g, init_scale)
+        if damping < 0:
+            raise ValueError(f"system.damping must be >= 0, got {damping}")
+        self.name = "damped_pendulum" if n_links == 1 else f"damped_pendulum{n_links}"
+        self.damping = float(damping)
+
+    def vector_field(self, s: Tensor, chart: str) -> Tensor:
+        _, qd = split_state(s)
+        return super().vector_field(s, chart) - self.damping * torch.cat([torch.zeros_like(qd), qd], -1)
+
+    def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
+        """Angles and rates ~ N(0, init_scale²) (as in the paper), mapped to the Cartesian chart."""
+        return self.to_chart(super().sample_initial(n, generator), "angle", "cartesian")
