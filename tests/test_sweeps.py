@@ -16,6 +16,7 @@ import yaml
 from optuna.trial import TrialState
 
 from conftest import run_cli
+from encons.config import compose_train
 
 TINY = ["system=pendulum1", "debug=fast", "test=false"]
 NODE = ["model=node", *TINY]
@@ -104,3 +105,13 @@ def test_model_grid_runs_every_model_and_seed(tmp_path):
     assert {(c["model"]["_target_"].rsplit(".", 1)[-1], c["seed"]) for c in runs.values()} == {
         ("NODE", 0), ("NODE", 1), ("HNN", 0), ("HNN", 1)}
     assert all((folder / name / "checkpoints" / "last.ckpt").is_file() for name in runs)
+
+
+@pytest.mark.parametrize("launcher, target, parallel_key", [
+    ("parallel", "joblib_launcher.JoblibLauncher", "n_jobs"),
+    ("slurm", "submitit_launcher.SlurmLauncher", "array_parallelism"),
+])
+def test_launcher_configs_follow_the_sweepers_batch_size(tmp_path, launcher, target, parallel_key):
+    cfg = compose_train(["sweeps=optuna", f"hydra/launcher={launcher}", "hydra.sweeper.n_jobs=3"], tmp_path)
+    assert cfg.hydra.launcher._target_.endswith(target)
+    assert cfg.hydra.launcher[parallel_key] == 3
