@@ -1,4 +1,4 @@
-"""Every foundation model × pendulum system trains end to end on a tiny config."""
+"""Every model × benchmark system trains end to end on a tiny config."""
 
 from __future__ import annotations
 
@@ -7,8 +7,13 @@ import math
 import pytest
 
 
-@pytest.mark.parametrize("system", ["pendulum1", "pendulum2", "pendulum4"])
-@pytest.mark.parametrize("model", ["node", "hnn", "hnn_angle"])
+SYSTEMS = ["pendulum1", "pendulum2", "pendulum4", "gyroscope"]
+MODELS = ["node", "hnn", "hnn_angle", "hnn_structure", "hnn_structure_angle", "lnn", "lnn_angle", "lnn_structure",
+          "lnn_structure_angle", "chnn", "clnn"]
+
+
+@pytest.mark.parametrize("system", SYSTEMS)
+@pytest.mark.parametrize("model", MODELS)
 def test_trains_end_to_end(train_run, model, system):
     results = train_run([f"model={model}", f"system={system}"])
     assert math.isfinite(results["test/traj_rel_err"])

@@ -1,39 +1,30 @@
-"""HNN and HNN-angle (Greydanus et al. 2019, as benchmarked in Zhong et al. §3).
+"""Hamiltonian models in generalised coordinates (Zhong et al. §3): HNN, HNN-structure, "-angle".
 
-A network H(q, p) gives q̇ = ∂H/∂p, ṗ = −∂H/∂q (Zhong et al. eq. (6)). Data hold (q, q̇)
-only, so a learned M(q) = L Lᵀ maps q̇ → p = M(q) q̇ at the start of a rollout and
-p → q̇ = M(q)⁻¹ p on the way out.
+Each learns H(q, p) and integrates q̇ = ∂H/∂p, ṗ = −∂H/∂q (Zhong et al. eq. (6)). Data hold
+(q, q̇) only, so a learned M(q) = L Lᵀ maps q̇ → p = M(q) q̇ at the start of a rollout and
+p → q̇ = M(q)⁻¹ p on the way out. "-angle" variants embed each angle as (cos q, sin q).
 """
 
 from __future__ import annotations
 
 import torch
 from torch import Tensor
-from torch.func import grad
 
-from encons.batching import batched
+from encons.batching import batched_grad
 from encons.models.base import DynamicsModel
-from encons.models.networks import CholeskyMass, embed_angles, mlp
+from encons.models.networks import CholeskyMass, Potential, embed_angles, mlp
 from encons.systems.base import System, split_state
 
 
-class HNN(DynamicsModel):
-    """Unstructured Hamiltonian in generalised coordinates; ``angular`` embeds q on S¹."""
+class HamiltonianModel(DynamicsModel):
+    """ż = J ∇H(z) on z = (q, p); subclasses set ``self.mass`` and define ``hamiltonian``."""
 
     default_chart = "angle"
     angular = False
 
-    def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
-                 activation: str = "softplus", mass_eps: float = 1e-3):
-        super().__init__(system, chart)
-        n = self.n
-        self.hamiltonian_net = mlp(3 * n if self.angular else 2 * n, 1, hidden, depth, activation)
-        self.mass = CholeskyMass(n, self.angular, hidden, depth, activation, mass_eps)
-
     def hamiltonian(self, z: Tensor) -> Tensor:
         """H(q, p) of internal states (..., 2n)."""
-        q, p = split_state(z)
-        return self.hamiltonian_net(torch.cat([embed_angles(q, self.angular), p], -1)).squeeze(-1)
+        raise NotImplementedError
 
     def encode(self, s: Tensor) -> Tensor:
         q, qd = split_state(s)
@@ -44,12 +35,51 @@ class HNN(DynamicsModel):
         return torch.cat([q, self.mass.solve(q, p)], -1)
 
     def forward(self, t: Tensor, z: Tensor) -> Tensor:
-        dh = batched(grad(self.hamiltonian), z)
+        dh = batched_grad(self.hamiltonian, z)
         dq, dp = split_state(dh)
         return torch.cat([dp, -dq], -1)
 
 
+class HNN(HamiltonianModel):
+    """Unstructured H(q, p) network (Greydanus et al. 2019; Zhong et al. eq. (6))."""
+
+    def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
+                 activation: str = "softplus", mass_eps: float = 1e-3):
+        super().__init__(system, chart)
+        n = self.n
+        self.hamiltonian_net = mlp(3 * n if self.angular else 2 * n, 1, hidden, depth, activation)
+        self.mass = CholeskyMass(n, self.angular, hidden, depth, activation, mass_eps)
+
+    def hamiltonian(self, z: Tensor) -> Tensor:
+        q, p = split_state(z)
+        return self.hamiltonian_net(torch.cat([embed_angles(q, self.angular), p], -1)).squeeze(-1)
+
+
 class HNNAngle(HNN):
     """HNN with each angle embedded as (cos q, sin q) (Zhong et al. §3, "HNN-angle")."""
+
+    angular = True
+
+
+class HNNStructure(HamiltonianModel):
+    """H = ½ pᵀ M(q)⁻¹ p + V(q) with learned M and V (SymODEN, Zhong et al. 2020a; eqs. (8)–(9))."""
+
+    def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
+                 activation: str = "softplus", mass_eps: float = 1e-3):
+        super().__init__(system, chart)
+        self.mass = CholeskyMass(self.n, self.angular, hidden, depth, activation, mass_eps)
+        self.potential_net = Potential(self.n, self.angular, hidden, depth, activation)
+
+    def potential(self, q: Tensor) -> Tensor:
+        """V(q)."""
+        return self.potential_net(q)
+
+    def hamiltonian(self, z: Tensor) -> Tensor:
+        q, p = split_state(z)
+        return 0.5 * (p * self.mass.solve(q, p)).sum(-1) + self.potential(q)
+
+
+class HNNStructureAngle(HNNStructure):
+    """HNN-structure with each angle embedded as (cos q, sin q) (Zhong et al. §3)."""
 
     angular = True

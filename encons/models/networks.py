@@ -1,9 +1,11 @@
-"""Network building blocks shared by the models: MLPs, angle embedding, Cholesky mass matrix."""
+"""Building blocks shared by the models: MLPs, angle embedding, Cholesky M(q), V(q), Cartesian masses."""
 
 from __future__ import annotations
 
 import torch
 from torch import Tensor, nn
+
+from encons.systems.base import CartesianLayout, point_mass_matrix
 
 ACTIVATIONS = {"softplus": nn.Softplus, "tanh": nn.Tanh, "relu": nn.ReLU, "silu": nn.SiLU}
 
@@ -51,3 +53,33 @@ class CholeskyMass(nn.Module):
     def solve(self, q: Tensor, p: Tensor) -> Tensor:
         """M(q)⁻¹ p through the Cholesky factor."""
         return torch.cholesky_solve(p.unsqueeze(-1), self.cholesky(q)).squeeze(-1)
+
+
+class Potential(nn.Module):
+    """V(q): an MLP to a scalar, angles embedded on S¹ when ``angular`` (Zhong et al. §3)."""
+
+    def __init__(self, n: int, angular: bool, hidden: int, depth: int, activation: str):
+        super().__init__()
+        self.angular = angular
+        self.net = mlp(2 * n if angular else n, 1, hidden, depth, activation)
+
+    def forward(self, q: Tensor) -> Tensor:
+        """V(q), shape ``q.shape[:-1]``."""
+        return self.net(embed_angles(q, self.angular)).squeeze(-1)
+
+
+class PointMasses(nn.Module):
+    """Constant Cartesian masses, exp-parametrised (Zhong et al. §4.1), one set per body of ``layout``.
+
+    A point mass learns its mass; a rigid body its mass and one axis "inertia" per axis point,
+    assembled into its block over its points (Finzi et al. 2020) by ``point_mass_matrix``.
+    """
+
+    def __init__(self, layout: CartesianLayout):
+        super().__init__()
+        self.layout = layout
+        self.log_params = nn.ParameterList([nn.Parameter(torch.zeros(len(points))) for points in layout.bodies])
+
+    def forward(self) -> Tensor:
+        """The (n_points, n_points) mass matrix over points."""
+        return point_mass_matrix(self.layout, [p.exp() for p in self.log_params])

@@ -1,0 +1,91 @@
+"""Models with explicit constraints on the Cartesian chart (Finzi et al. 2020; Zhong et al. §2.3–2.4).
+
+Both learn a potential V(x) and constant positive masses structured by the system's bodies
+(``PointMasses``), and take the system's known holonomic constraints Φ(x) = 0. The mass
+matrix is kron(Mp, I_dim) over the (n_points, n_points) matrix Mp; only Mp is ever inverted.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from encons.batching import batched_grad
+from encons.models.base import DynamicsModel
+from encons.models.networks import PointMasses, Potential
+from encons.systems.base import System, apply_point_matrix, split_state
+from encons.systems.constrained import (
+    constrained_acceleration,
+    constrained_hamiltonian_field,
+    constraint_jacobians,
+)
+
+
+class CartesianModel(DynamicsModel):
+    """Learned V(x) and body masses, with the system's constraints and Cartesian layout."""
+
+    default_chart = "cartesian"
+    needs_constraints = True
+
+    def __init__(self, system: System, hidden: int = 256, depth: int = 3, activation: str = "softplus"):
+        super().__init__(system)
+        self.dim = system.layout.dim
+        self.constraints = system.constraints
+        self.potential_net = Potential(self.n, False, hidden, depth, activation)
+        self.masses = PointMasses(system.layout)
+
+    def potential(self, x: Tensor) -> Tensor:
+        """V(x)."""
+        return self.potential_net(x)
+
+    def point_masses(self) -> Tensor:
+        """The (n_points, n_points) mass matrix Mp over points."""
+        return self.masses()
+
+    def _mass_inverse(self) -> Tensor:
+        return torch.linalg.inv(self.point_masses())
+
+    def _grad_potential(self, x: Tensor) -> Tensor:
+        return batched_grad(self.potential, x)
+
+
+class CLNN(CartesianModel):
+    """Constrained Lagrangian dynamics on s = (x, ẋ), Zhong et al. eq. (15) (Finzi et al. 2020)."""
+
+    def lagrangian(self, s: Tensor) -> Tensor:
+        """L = ½ ẋᵀ M ẋ − V(x) of states (..., 2D)."""
+        x, v = split_state(s)
+        return 0.5 * (v * apply_point_matrix(self.point_masses(), v, self.dim)).sum(-1) - self.potential(x)
+
+    def forward(self, t: Tensor, s: Tensor) -> Tensor:
+        x, v = split_state(s)
+        minv = self._mass_inverse()
+        acc = constrained_acceleration(x, v, lambda u: apply_point_matrix(minv, u, self.dim),
+                                       self._grad_potential(x), self.constraints)
+        return torch.cat([v, acc], -1)
+
+
+class CHNN(CartesianModel):
+    """Constrained Hamiltonian dynamics on z = (x, p), p = M ẋ, Zhong et al. eq. (20) (Finzi et al. 2020)."""
+
+    def hamiltonian(self, z: Tensor) -> Tensor:
+        """H = ½ pᵀ M⁻¹ p + V(x) of internal states (..., 2D)."""
+        x, p = split_state(z)
+        return 0.5 * (p * apply_point_matrix(self._mass_inverse(), p, self.dim)).sum(-1) + self.potential(x)
+
+    def encode(self, s: Tensor) -> Tensor:
+        x, v = split_state(s)
+        return torch.cat([x, apply_point_matrix(self.point_masses(), v, self.dim)], -1)
+
+    def decode(self, z: Tensor) -> Tensor:
+        x, p = split_state(z)
+        return torch.cat([x, apply_point_matrix(self._mass_inverse(), p, self.dim)], -1)
+
+    def forward(self, t: Tensor, z: Tensor) -> Tensor:
+        x, p = split_state(z)
+        minv = self._mass_inverse()
+        apply_minv = lambda u: apply_point_matrix(minv, u, self.dim)  # noqa: E731
+        velocity = apply_minv(p)
+        jac, d_rate = constraint_jacobians(self.constraints, x, velocity)
+        grad_h = torch.cat([self._grad_potential(x), velocity], -1)
+        return constrained_hamiltonian_field(grad_h, jac, d_rate, apply_minv)
