@@ -10,7 +10,7 @@ from typing import Callable
 
 import torch
 from torch import Tensor
-from torch.func import grad, jvp, vmap
+from torch.func import grad, jvp, vjp, vmap
 
 from encons.batching import batched_grad
 from encons.models.base import DynamicsModel
@@ -21,17 +21,18 @@ from encons.systems.base import System, split_state
 def euler_lagrange_acceleration(lagrangian: Callable[[Tensor], Tensor], s: Tensor) -> Tensor:
     """q̈ of Zhong et al. eq. (3) at states s = (q, q̇) (..., 2n) of a batch-aware scalar L(s).
 
-    ∇L and the Hessian rows of ∂L/∂q̇ come from n + 1 forward-over-reverse products, vmapped
-    over the directions only: along (q̇, 0) for (∇_q ∇_q̇ᵀ L) q̇ and along (0, e_i) for the rows
-    of ∇_q̇ ∇_q̇ᵀ L.
+    ∇L comes from one batched grad; the Hessian rows from n + 1 vector products with it,
+    vmapped over the vectors only (reverse over reverse, ~25% faster here than forward over
+    reverse): (q̇, 0) gives (∇_q ∇_q̇ᵀ L) q̇ and (0, e_i) the rows of ∇_q̇ ∇_q̇ᵀ L.
     """
     n = s.shape[-1] // 2
     qd = s[..., n:]
     units = torch.eye(2 * n, dtype=s.dtype, device=s.device)[n:].reshape(n, *[1] * (s.dim() - 1), 2 * n)
-    tangents = torch.cat([torch.cat([qd, torch.zeros_like(qd)], -1)[None], units.expand(n, *s.shape)])
-    dl, rows = vmap(lambda v: jvp(lambda u: batched_grad(lagrangian, u), (s,), (v,)))(tangents)
+    vectors = torch.cat([torch.cat([qd, torch.zeros_like(qd)], -1)[None], units.expand(n, *s.shape)])
+    dl, pullback = vjp(lambda u: batched_grad(lagrangian, u), s)
+    (rows,) = vmap(pullback)(vectors)
     hessian_vv = rows[1:, ..., n:].movedim(0, -2)  # a learned L may make it singular: inf, not an error
-    return torch.linalg.solve_ex(hessian_vv, dl[0, ..., :n] - rows[0, ..., n:])[0]
+    return torch.linalg.solve_ex(hessian_vv, dl[..., :n] - rows[0, ..., n:])[0]
 
 
 class LNN(DynamicsModel):

@@ -64,17 +64,19 @@ def constrained_hamiltonian_field(grad_h: Tensor, jac: Tensor, d_rate: Tensor, m
     ``grad_h`` is ∇H (..., 2D). Ψ = (Φ(x), DΦ(x) M⁻¹ p) (§2.4) enters through the blocks of
     DΨ = [[A, 0], [C, A M⁻¹]]: ``jac`` A = DΦ and ``d_rate`` C = D_x Φ̇ (..., K, D), with
     ``minv`` applying the constant M⁻¹. Then DΨ J DΨᵀ = [[0, S], [−S, W]] with S = A M⁻¹ Aᵀ and
-    W = C M⁻¹ Aᵀ − A M⁻¹ Cᵀ, so eq. (20) needs two solves with the K × K Cholesky factor of S
-    instead of one 2K × 2K LU solve.
+    W = C M⁻¹ Aᵀ − A M⁻¹ Cᵀ, and eq. (20) needs one K × K solve (K + 2 right-hand sides)
+    instead of a 2K × 2K one: λ₂ = S⁻¹ A ∇_p H, λ₁ = S⁻¹ (W λ₂ − C ∇_p H + A M⁻¹ ∇_x H),
+    ẋ = ∇_p H − M⁻¹ Aᵀ λ₂, ṗ = −∇_x H + Aᵀ λ₁ + Cᵀ λ₂.
     """
     grad_x, grad_p = grad_h.chunk(2, -1)
-    jac_minv, jac_t = minv(jac), jac.transpose(-1, -2)  # rows of A M⁻¹ (M symmetric)
-    factor = torch.linalg.cholesky(jac @ jac_minv.transpose(-1, -2))
+    jac_minv = minv(jac)  # rows of A M⁻¹ (M symmetric)
     cross = d_rate @ jac_minv.transpose(-1, -2)
-    lam_2 = torch.cholesky_solve((jac @ grad_p.unsqueeze(-1)), factor)
-    rhs_1 = (cross - cross.transpose(-1, -2)) @ lam_2 - (d_rate @ grad_p.unsqueeze(-1)
-                                                         - jac_minv @ grad_x.unsqueeze(-1))
-    lam_1 = torch.cholesky_solve(rhs_1, factor)
+    b_1 = jac @ grad_p.unsqueeze(-1)
+    b_2 = d_rate @ grad_p.unsqueeze(-1) - jac_minv @ grad_x.unsqueeze(-1)
+    solved = torch.linalg.solve(jac @ jac_minv.transpose(-1, -2),
+                                torch.cat([b_1, b_2, cross - cross.transpose(-1, -2)], -1))
+    lam_2 = solved[..., :1]
+    lam_1 = solved[..., 2:] @ lam_2 - solved[..., 1:2]
     dx = grad_p - (jac_minv.transpose(-1, -2) @ lam_2).squeeze(-1)
-    dp = -grad_x + (jac_t @ lam_1 + d_rate.transpose(-1, -2) @ lam_2).squeeze(-1)
+    dp = -grad_x + (torch.cat([jac, d_rate], -2).transpose(-1, -2) @ torch.cat([lam_1, lam_2], -2)).squeeze(-1)
     return torch.cat([dx, dp], -1)
