@@ -114,3 +114,12 @@ def test_nsf_conserves_its_learned_hamiltonian():
     assert rate.abs().max() < 1e-9
     w = vmap(model.symplectic_matrix)(s)
     assert torch.allclose(w, -w.transpose(-1, -2))
+
+
+def test_nsf_field_jacobian_is_the_same_in_forward_and_reverse_mode():
+    """Guards the explicit inverse in NSF: vmap(jacfwd(linalg.solve)) is wrong in torch 2.13."""
+    torch.manual_seed(4)
+    model = NSF(NPendulum(n_links=2), hidden=16, depth=2).double()
+    s = torch.randn(8, 4, dtype=torch.float64)
+    z, field = model.constrained_field(s)
+    assert torch.allclose(field_jacobian(field, z, "forward"), field_jacobian(field, z, "reverse"), atol=1e-8)

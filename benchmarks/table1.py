@@ -1,0 +1,111 @@
+"""Lim & Kasim (2023) Table 1 at a CPU-feasible budget: energy-deviation RMSE of test rollouts.
+
+Every run trains with the paper's derivative objective (eq. (2), exact simulator derivatives,
+noise σ = 0.1 on the states of Tasks 1, 2, 4) on the paper's data (conf/system/*.yaml), then
+rolls out 100 fresh initial conditions to t = 100 and reports the median [2.5th, 97.5th
+percentile] over trajectories of the RMSE of E(ŝ_t) − E(s_t), with the trajectory relative
+error (Σ over the first 4 steps). Regulariser weights are the paper's, rescaled to encons'
+sums (see conf/regulariser/*.yaml): w/2n for C_H, w for C_D.
+
+    python benchmarks/table1.py [--epochs 20] [--hidden 200] [--tasks 1 2 3 4] [--n-train-double 200]
+        [--out benchmarks/results/table1] [any train override ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+from encons.benchmark import write_csv
+from encons.config import compose_train
+from encons.errors import EnconsError
+from encons.paths import config_dir
+
+# (task, system, label, overrides, paper's median RMSE)
+RUNS = [
+    (1, "mass_spring", "NODE", ["model=node"], "0.086"),
+    (1, "mass_spring", "NODE + C_H (ours)", ["model=node", "regulariser=hamiltonian", "regulariser.weight=5e4"],
+     "0.0017"),
+    (1, "mass_spring", "HNN", ["model=hnn"], "0.0065"),
+    (1, "mass_spring", "LNN", ["model=lnn"], "0.0060"),
+    (1, "mass_spring", "NSF", ["model=nsf"], "0.014"),
+    (2, "pendulum", "NODE", ["model=node"], "∞"),
+    (2, "pendulum", "NODE + C_H (ours)", ["model=node", "regulariser=hamiltonian", "regulariser.weight=5e3"],
+     "0.024"),
+    (2, "pendulum", "HNN", ["model=hnn"], "0.015"),
+    (2, "pendulum", "LNN", ["model=lnn"], "0.032"),
+    (2, "pendulum", "NSF", ["model=nsf"], "0.027"),
+    (3, "double_pendulum", "NODE", ["model=node"], "∞"),
+    (3, "double_pendulum", "INN-NODE + C_H' (ours)",
+     ["model=inn_node", "regulariser=hamiltonian", "regulariser.weight=250"], "4.03"),
+    (4, "damped_pendulum", "NODE", ["model=node"], "0.18"),
+    (4, "damped_pendulum", "NODE + C_D (ours)", ["model=node", "regulariser=dissipative", "regulariser.weight=100"],
+     "0.12"),
+]
+
+
+def available(overrides: list[str]) -> bool:
+    """Whether the ``model=`` config of a run exists (``lnn`` may be missing from a checkout)."""
+    model = next(o.split("=", 1)[1] for o in overrides if o.startswith("model="))
+    return (Path(config_dir()) / "model" / f"{model}.yaml").is_file()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--epochs", type=int, default=20)
+    parser.add_argument("--hidden", type=int, default=200, help="width of every MLP (paper: 200)")
+    parser.add_argument("--batch-size", type=int, default=8, help="whole trajectories per batch")
+    parser.add_argument("--n-train-double", type=int, default=200, help="double-pendulum trajectories (paper: 2000)")
+    parser.add_argument("--tasks", type=int, nargs="+", default=[1, 2, 3, 4])
+    parser.add_argument("--out", default="benchmarks/results/table1")
+    args, extra = parser.parse_known_args()
+    os.environ.setdefault("WANDB_MODE", "disabled")
+    from encons.train import train
+
+    out = Path(args.out)
+    common = ["logger=none", "objective=derivative", f"trainer.max_epochs={args.epochs}", "optim.lr=1e-3",
+              "model.depth=2", f"model.hidden={args.hidden}", f"data.batch_size={args.batch_size}"]
+    rows = []
+    for task, system, label, overrides, paper in RUNS:
+        if task not in args.tasks or not available(overrides):
+            continue
+        per_system = [f"data.chunk_len={300 if system == 'double_pendulum' else 30}"]
+        if system == "double_pendulum":
+            per_system.append(f"data.n_train={args.n_train_double}")
+        run_dir = out / "runs" / f"task{task}-{label.split()[0].lower()}{'-reg' if '+' in label else ''}"
+        cfg = compose_train([f"system={system}", *overrides, *common, *per_system, *extra], run_dir,
+                            out / "cache")
+        started = time.perf_counter()
+        try:
+            results, error = train(cfg), ""
+        except EnconsError as err:
+            results, error = {}, str(err)
+        rows.append({"task": task, "system": system, "model": label, "paper_median": paper, "error": error,
+                     "wall_time_s": time.perf_counter() - started, "overrides": " ".join(overrides),
+                     **{k.removeprefix("test/"): v for k, v in results.items() if k.startswith("test/")}})
+        write_csv(out / "table1.csv", rows)
+    print_table(rows, args)
+    print(f"CSV: {out / 'table1.csv'}")
+
+
+def print_table(rows: list[dict], args: argparse.Namespace) -> None:
+    table = Table(title=f"Lim & Kasim Table 1 at {args.epochs} epochs, width {args.hidden} "
+                        "(energy-deviation RMSE: median [2.5%, 97.5%])")
+    for col in ("task", "system", "model", "energy RMSE", "paper median", "traj rel err (T=4)", "time [s]"):
+        table.add_column(col)
+    for r in rows:
+        energy = (f"{r['energy_rmse_median']:.3g} [{r['energy_rmse_p2_5']:.2g}, {r['energy_rmse_p97_5']:.2g}]"
+                  if "energy_rmse_median" in r else f"failed: {r['error'][:60]}")
+        tre = f"{r['traj_rel_err']:.3g}" if "traj_rel_err" in r else "-"
+        table.add_row(str(r["task"]), r["system"], r["model"], energy, r["paper_median"], tre,
+                      f"{r['wall_time_s']:.0f}")
+    Console(width=160).print(table)
+
+
+if __name__ == "__main__":
+    main()
