@@ -12,7 +12,8 @@ from torch import Tensor
 
 from encons.batching import batched_grad
 from encons.models.base import DynamicsModel
-from encons.models.networks import CholeskyMass, Potential, embed_angles, mlp
+from encons.models.networks import CholeskyMass, embed_angles, mlp
+from encons.models.structured import MassPotentialModel
 from encons.systems.base import System, split_state
 
 
@@ -61,18 +62,8 @@ class HNNAngle(HNN):
     angular = True
 
 
-class HNNStructure(HamiltonianModel):
+class HNNStructure(HamiltonianModel, MassPotentialModel):
     """H = ½ pᵀ M(q)⁻¹ p + V(q) with learned M and V (SymODEN, Zhong et al. 2020a; eqs. (8)–(9))."""
-
-    def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
-                 activation: str = "softplus", mass_eps: float = 1e-3):
-        super().__init__(system, chart)
-        self.mass = CholeskyMass(self.n, self.angular, hidden, depth, activation, mass_eps)
-        self.potential_net = Potential(self.n, self.angular, hidden, depth, activation)
-
-    def potential(self, q: Tensor) -> Tensor:
-        """V(q)."""
-        return self.potential_net(q)
 
     def hamiltonian(self, z: Tensor) -> Tensor:
         q, p = split_state(z)

@@ -14,7 +14,8 @@ from torch.func import grad, jvp, vjp, vmap
 
 from encons.batching import batched_grad
 from encons.models.base import DynamicsModel
-from encons.models.networks import CholeskyMass, Potential, embed_angles, mlp
+from encons.models.networks import embed_angles, mlp
+from encons.models.structured import MassPotentialModel
 from encons.systems.base import System, split_state
 
 
@@ -61,25 +62,12 @@ class LNNAngle(LNN):
     angular = True
 
 
-class LNNStructure(DynamicsModel):
+class LNNStructure(MassPotentialModel):
     """L = ½ q̇ᵀ M(q) q̇ − V(q) with learned M and V, eq. (5) (DeLaN, Lutter et al. 2019).
 
     q̈ = M⁻¹ [−Ṁ q̇ + ½ ∇_q(q̇ᵀ M q̇) − ∇V]: one batched grad of q ↦ ½ q̇ᵀ M(q) q̇ − V(q) at
     fixed q̇, whose M and Ṁ = dM/dt along q̇ come from one jvp of M inside it (one M forward).
     """
-
-    default_chart = "angle"
-    angular = False
-
-    def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
-                 activation: str = "softplus", mass_eps: float = 1e-3):
-        super().__init__(system, chart)
-        self.mass = CholeskyMass(self.n, self.angular, hidden, depth, activation, mass_eps)
-        self.potential_net = Potential(self.n, self.angular, hidden, depth, activation)
-
-    def potential(self, q: Tensor) -> Tensor:
-        """V(q)."""
-        return self.potential_net(q)
 
     def lagrangian(self, s: Tensor) -> Tensor:
         """L(q, q̇) of states (..., 2n)."""
