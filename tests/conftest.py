@@ -14,6 +14,7 @@ from hydra.core.global_hydra import GlobalHydra
 from encons.config import compose_train
 
 torch.set_default_dtype(torch.float32)
+torch.set_num_threads(1)  # tiny tensors: threads only contend (about 4× faster on 2 shared cores)
 
 
 @pytest.fixture(autouse=True)
@@ -25,6 +26,7 @@ def isolated_env(tmp_path_factory, monkeypatch):
     monkeypatch.setenv("WANDB_MODE", "offline")
     monkeypatch.setenv("WANDB_SILENT", "true")
     monkeypatch.setenv("ENCONS_ROOT", str(home))
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
     yield
     GlobalHydra.instance().clear()
 

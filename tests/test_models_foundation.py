@@ -1,4 +1,5 @@
-"""NODE and HNN fed the true physics reproduce the true vector field (float64)."""
+"""NODE fed the true field rolls out the truth; HNN maps and defaults (the true-physics checks of
+every structured model are in test_models_true_physics.py)."""
 
 from __future__ import annotations
 
@@ -10,20 +11,6 @@ from encons.integrators import Integrator, rollout, state_derivative
 from encons.models.hnn import HNN, HNNAngle
 from encons.models.node import NODE
 from encons.systems.pendulum import NPendulum
-
-
-class TrueMass(torch.nn.Module):
-    """The system's M(q) behind the interface of ``CholeskyMass``."""
-
-    def __init__(self, system):
-        super().__init__()
-        self.system = system
-
-    def forward(self, q):
-        return self.system.mass_matrix(q)
-
-    def solve(self, q, p):
-        return torch.linalg.solve(self.system.mass_matrix(q), p.unsqueeze(-1)).squeeze(-1)
 
 
 class _Field(torch.nn.Module):
@@ -39,21 +26,6 @@ class _Field(torch.nn.Module):
 def system_and_states():
     system = NPendulum(2, masses=[1.0, 1.5], lengths=[1.0, 0.8])
     return system, system.sample_initial(64, torch.Generator().manual_seed(3))
-
-
-@pytest.mark.parametrize("cls", [HNN, HNNAngle])
-def test_hnn_with_true_hamiltonian_and_mass_is_exact(cls, system_and_states):
-    system, s = system_and_states
-    model = cls(system, hidden=8, depth=1).double()
-    model.mass = TrueMass(system)
-
-    def true_hamiltonian(z):
-        q, p = z[..., :2], z[..., 2:]
-        kinetic = 0.5 * (p.unsqueeze(-2) @ TrueMass(system).solve(q, p).unsqueeze(-1)).squeeze((-1, -2))
-        return kinetic + system.potential(q)
-
-    model.hamiltonian = true_hamiltonian
-    assert torch.allclose(state_derivative(model, s), system.vector_field(s, "angle"), atol=1e-10)
 
 
 def test_hnn_with_learned_pieces_is_not_exact(system_and_states):

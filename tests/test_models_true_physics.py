@@ -26,15 +26,6 @@ MODELS = ANGLE_MODELS + [CHNN, CLNN]
 SYSTEMS = {"pendulum2": lambda: NPendulum(2, masses=[1.0, 1.5], lengths=[1.0, 0.8]), "gyroscope": Gyroscope}
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """Rollouts of small batches: a second thread only adds contention (4× slower on 2 shared cores)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 class TrueMass(torch.nn.Module):
     """The system's M(q) behind the interface of ``CholeskyMass``."""
 
