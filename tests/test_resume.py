@@ -29,8 +29,8 @@ def test_resume_matches_uninterrupted(train_run, tmp_path):
 def test_divergence_raises_and_keeps_last_good_checkpoint(train_run, tmp_path, monkeypatch):
     loss = DynamicsModule.loss
 
-    def poisoned(self, batch):
-        value = loss(self, batch)
+    def poisoned(self, *args):
+        value = loss(self, *args)
         return value * float("nan") if self.current_epoch == 2 else value
 
     monkeypatch.setattr(DynamicsModule, "loss", poisoned)
