@@ -40,6 +40,8 @@ class NPendulum(System):
         self.g = float(g)
         self.init_scale = float(init_scale)
         self.mu = self.m.flip(0).cumsum(0).flip(0)  # μ_k = Σ_{j≥k} m_j
+        idx = torch.arange(n_links)
+        self.coeff = self.mu[torch.maximum(idx[:, None], idx[None, :])] * self.l[:, None] * self.l[None, :]
         self.layout = CartesianLayout(n_links, 2, tuple((i,) for i in range(n_links)))
 
     def coord_dim(self, chart: str) -> int:
@@ -51,10 +53,7 @@ class NPendulum(System):
 
     def mass_matrix(self, q: Tensor) -> Tensor:
         """M(q)_ij = μ_max(i,j) l_i l_j cos(q_i − q_j)."""
-        _, l, mu = self._consts(q)
-        idx = torch.arange(self.n, device=q.device)
-        mu_max = mu[torch.maximum(idx[:, None], idx[None, :])]
-        return mu_max * l[:, None] * l[None, :] * torch.cos(q[..., :, None] - q[..., None, :])
+        return self.coeff.to(q) * torch.cos(q[..., :, None] - q[..., None, :])
 
     def potential(self, q: Tensor) -> Tensor:
         _, l, mu = self._consts(q)
@@ -82,8 +81,7 @@ class NPendulum(System):
             acc = constrained_acceleration(q, qd, lambda v: apply_point_matrix(minv, v, 2), grad_v, self.constraints)
             return torch.cat([qd, acc], -1)
         _, l, mu = self._consts(q)
-        idx = torch.arange(self.n, device=q.device)
-        coeff = mu[torch.maximum(idx[:, None], idx[None, :])] * l[:, None] * l[None, :]
+        coeff = self.coeff.to(q)
         diff = q[..., :, None] - q[..., None, :]
         coriolis = (coeff * torch.sin(diff) * qd[..., None, :] ** 2).sum(-1)
         gravity = self.g * mu * l * torch.sin(q)
