@@ -32,6 +32,8 @@ from numpy.random import SeedSequence
 from omegaconf import DictConfig, OmegaConf
 from optuna.trial import TrialState
 
+from encons.errors import ConfigError
+
 log = logging.getLogger(__name__)
 TRIAL_KEY = "sweeps.trial"  # the job's config key that receives the trial number
 
@@ -47,7 +49,7 @@ class OptunaSweeper(Sweeper):
                  n_trials: int, n_jobs: int, max_failure_rate: float, params: DictConfig | None,
                  enqueue: list | None = None):
         if direction not in ("minimize", "maximize"):
-            raise ValueError(f"hydra.sweeper.direction={direction!r}; allowed: minimize, maximize")
+            raise ConfigError(f"hydra.sweeper.direction={direction!r} is unknown; allowed: minimize, maximize")
         self.sampler_config, self.direction, self.storage, self.study_name = sampler, direction, storage, study_name
         self.n_trials, self.n_jobs, self.max_failure_rate = n_trials, n_jobs, max_failure_rate
         self.params = OmegaConf.to_container(params) if params else {}
@@ -76,7 +78,7 @@ class OptunaSweeper(Sweeper):
         while job_idx < self.n_trials:
             trials = [study.ask(space) for _ in range(min(self.n_jobs, self.n_trials - job_idx))]
             overrides = [tuple(f"{k}={v}" for k, v in {**t.params, **fixed}.items()) + tuple(fixed_overrides)
-                         + (f"{TRIAL_KEY}={t.number}",) for t in trials]
+                         + (f"++{TRIAL_KEY}={t.number}",) for t in trials]
             returns = self.launcher.launch(overrides, initial_job_idx=job_idx)
             job_idx += len(trials)
             failed += sum(_tell(study, t, r) == TrialState.FAIL for t, r in zip(trials, returns))
@@ -91,13 +93,17 @@ class OptunaSweeper(Sweeper):
         config = OmegaConf.to_container(self.sampler_config, resolve=True)
         if config.get("seed") is not None:
             config["seed"] = int(SeedSequence([config["seed"], n_stored]).generate_state(1)[0])
-        return instantiate(config, _execution_whitelist_=("optuna.samplers.*",))
+        sampler = instantiate(config, _execution_whitelist_=("optuna.samplers.*",))
+        if not isinstance(sampler, optuna.samplers.BaseSampler):
+            raise ConfigError(f"hydra.sweeper.sampler={config['_target_']} needs the search space up front; "
+                              f"for a grid use Hydra's basic sweeper (see sweeps/model_grid.yaml)")
+        return sampler
 
 
 def _tell(study: optuna.Study, trial: optuna.Trial, ret: JobReturn) -> TrialState:
     """Record how a launched job ended: complete with its value, pruned, or failed with a reason."""
     if ret.status == JobStatus.FAILED:
-        err = ret._return_value
+        err = ret._return_value  # the job's exception; ret.return_value would re-raise it
         if isinstance(err, optuna.TrialPruned):
             log.info("trial %d pruned: %s", trial.number, err)
             study.tell(trial, state=TrialState.PRUNED)
@@ -123,11 +129,12 @@ def pruning_callback(storage: str, study_name: str, trial: int | None, monitor: 
     by ``pruner`` (``None``: never prune) on ``monitor`` after every validation epoch."""
     from optuna_integration.pytorch_lightning import PyTorchLightningPruningCallback
 
-    from encons.errors import ConfigError
-
     if trial is None:
         raise ConfigError(f"{TRIAL_KEY} is unset: an Optuna sweep runs with -m "
                           f"(python -m encons.train -m sweeps=NAME)")
+    if storage is None:
+        raise ConfigError("sweeps.storage=null: a trial reaches its study through a storage; give an "
+                          "SQLAlchemy URL (sqlite:///..., postgresql://...)")
 
     class Pruning(PyTorchLightningPruningCallback):
         def on_fit_end(self, trainer, pl_module) -> None:
@@ -157,7 +164,7 @@ def report(study: optuna.Study, out_dir: Path) -> None:
     counts = ", ".join(f"{s.name.lower()} {states.count(s)}" for s in TrialState if states.count(s))
     complete = [t for t in trials if t.state == TrialState.COMPLETE]
     if not complete:
-        print(f"study {study.study_name}: no complete trial ({counts})")
+        print(f"study {study.study_name}: no complete trial ({counts}); table: {out_dir / 'trials.csv'}")
         return
     best = study.best_trial
     results = {"study": study.study_name, "best_trial": best.number, "best_value": best.value,
@@ -191,7 +198,11 @@ def _save_figures(study: optuna.Study, out_dir: Path, plot_importance: bool) -> 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
         for name, plot in plots.items():
-            fig = plot(study).figure
+            try:
+                fig = plot(study).figure
+            except (RuntimeError, ValueError) as err:  # e.g. importances of values that never vary
+                log.warning("no %s figure: %s", name, err)
+                continue
             fig.tight_layout()
             png = io.BytesIO()
             fig.savefig(png, format="png")

@@ -90,5 +90,5 @@ def test_three_workers_share_one_study(postgres_url, tmp_path):
     for t in trials:
         overrides = yaml.safe_load((tmp_path / "multirun" / study / f"trial_{t.number}/.hydra/overrides.yaml")
                                    .read_text())
-        assert f"sweeps.trial={t.number}" in overrides
+        assert f"++sweeps.trial={t.number}" in overrides
         assert f"optim.lr={t.params['optim.lr']}" in overrides
