@@ -102,9 +102,15 @@ class System(abc.ABC):
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
         """``n`` initial states in the base chart, float64."""
 
-    @abc.abstractmethod
     def to_chart(self, s: Tensor, src: str, dst: str) -> Tensor:
         """Map states from chart ``src`` to chart ``dst`` (at least base → every chart)."""
+        self.check_chart(src)
+        self.check_chart(dst)
+        return s if src == dst else self.map_chart(s, src, dst)
+
+    def map_chart(self, s: Tensor, src: str, dst: str) -> Tensor:
+        """The chart map between two different charts; systems with several charts implement it."""
+        raise ChartError(f"system '{self.name}' cannot map states from '{src}' to '{dst}'")
 
     def constraints(self, x: Tensor) -> Tensor:
         """Holonomic constraints Φ(x) of the Cartesian chart, shape (..., K)."""

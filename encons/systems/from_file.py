@@ -29,11 +29,6 @@ class FileSystem(System):
         self.check_chart(chart)
         return self.n
 
-    def to_chart(self, s: Tensor, src: str, dst: str) -> Tensor:
-        self.check_chart(src)
-        self.check_chart(dst)
-        return s
-
     def _unknown(self, *_: object) -> Tensor:
         raise NotImplementedError("a system loaded from a file has no known physics")
 

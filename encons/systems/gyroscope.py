@@ -156,11 +156,7 @@ class Gyroscope(System):
         com = self.ell * axes[..., 2, :]
         return torch.cat([com[..., None, :], com[..., None, :] + axes], -2).flatten(-2)
 
-    def to_chart(self, s: Tensor, src: str, dst: str) -> Tensor:
-        self.check_chart(src)
-        self.check_chart(dst)
-        if src == dst:
-            return s
+    def map_chart(self, s: Tensor, src: str, dst: str) -> Tensor:
         q, qd = split_state(s)
         if src == "angle":
             return torch.cat(jvp(self._points, (q,), (qd,)), -1)

@@ -47,7 +47,3 @@ class MassSpring(System):
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
         return self.init_scale * torch.randn(n, 2, generator=generator, dtype=torch.float64)
 
-    def to_chart(self, s: Tensor, src: str, dst: str) -> Tensor:
-        self.check_chart(src)
-        self.check_chart(dst)
-        return s

@@ -100,11 +100,7 @@ class NPendulum(System):
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
         return self.init_scale * torch.randn(n, 2 * self.n, generator=generator, dtype=torch.float64)
 
-    def to_chart(self, s: Tensor, src: str, dst: str) -> Tensor:
-        self.check_chart(src)
-        self.check_chart(dst)
-        if src == dst:
-            return s
+    def map_chart(self, s: Tensor, src: str, dst: str) -> Tensor:
         q, qd = split_state(s)
         l = self.l.to(s)
         if src == "angle":
