@@ -12,17 +12,11 @@ from typing import Callable
 
 import torch
 from torch import Tensor
-from torch.func import grad, jacfwd
+from torch.func import grad
 
-from encons.batching import batched
 
 Constraint = Callable[[Tensor], Tensor]
 MatVec = Callable[[Tensor], Tensor]
-
-
-def constraint_jacobian(phi: Constraint, x: Tensor) -> Tensor:
-    """DΦ(x), shape (..., K, D)."""
-    return batched(jacfwd(phi), x)
 
 
 def constraint_jacobians(phi: Constraint, x: Tensor, v: Tensor) -> tuple[Tensor, Tensor]:
