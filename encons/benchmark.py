@@ -1,105 +1,150 @@
-"""Benchmark grid: every model × system × seed trained on the same data, then tables and figures.
+"""Benchmark runner: the runs of a profile (conf/profile/*.yaml), trained one by one, then the report.
 
-    python -m encons.benchmark systems=[pendulum2,gyroscope] models=[node,hnn_angle,chnn] seeds=[0,1] \\
-        [out=benchmarks/results/NAME] [any train override, e.g. trainer.max_epochs=50]
+    python -m encons.benchmark [profile=smoke|quick|zhong|finzi|lim_kasim] [seeds=[0,1]] [out=DIR]
+        ['train=[trainer.max_epochs=50]']
 
-Writes ``results.csv`` (one row per run), ``summary.csv`` (mean ± std over seeds) and the papers'
-comparison figures (trajectory relative error per model, Zhong et al. Fig. 2; relative error and
-energy error vs time, Figs. 3–4) under ``out``, and prints the summary table.
+A profile lists its runs as a grid (``systems`` × ``models``), as explicit ``runs`` (a label and
+its train overrides, e.g. a model with a regulariser) and as data-efficiency runs (``n_train``);
+each is trained ``len(seeds)`` times through the training entry point, on datasets cached under
+``paths.cache_dir`` (one per system and data config, shared by every model and seed). A finished
+run leaves ``runs/<id>/result.json``; a rerun skips it, so an interrupted benchmark resumes where it
+stopped. Progress prints runs done / total with an ETA. The report (``encons.report``) is written
+to ``out`` at the end and can be rebuilt alone with ``python -m encons.report OUT``.
 """
 
 from __future__ import annotations
 
-import csv
 import json
 import sys
 import time
-from collections import defaultdict
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from omegaconf import OmegaConf
-from rich.console import Console
-from rich.table import Table
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from hydra.errors import MissingConfigException
+from omegaconf import DictConfig, OmegaConf
 
 from encons.config import compose_train
-from encons.errors import EnconsError
-from encons.plots import comparison_figures
-
-GRID_KEYS = ("systems", "models", "seeds", "out")
+from encons.errors import ConfigError, EnconsError
+from encons.paths import config_dir
 
 
-def run_grid(systems: list[str], models: list[str], seeds: list[int], out: Path, overrides: list[str]) -> list[dict]:
-    """Train every combination (the data of a system are shared: same data seed); one row each."""
+@dataclass
+class Run:
+    """One training run of a benchmark: ``label`` is the model column of the tables."""
+
+    system: str
+    label: str
+    seed: int
+    overrides: list[str]
+    n_train: int | None = None
+    paper: dict = field(default_factory=dict)
+
+    @property
+    def id(self) -> str:
+        size = f"-n{self.n_train}" if self.n_train is not None else ""
+        return f"{self.system}-{self.label}{size}-seed{self.seed}".replace("/", "_").replace("'", "p")
+
+
+def compose_benchmark(overrides: list[str]) -> DictConfig:
+    """``conf/benchmark.yaml`` with its profile and the command line's overrides."""
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=config_dir(), job_name="benchmark"):
+        try:
+            cfg = compose("benchmark", overrides=list(overrides), return_hydra_config=True)
+        except MissingConfigException:
+            profiles = sorted(p.stem for p in (Path(config_dir()) / "profile").glob("*.yaml"))
+            bad = next((o for o in overrides if o.startswith("profile=")), "profile=?")
+            raise ConfigError(f"{bad} is unknown; allowed: {', '.join(profiles)}") from None
+    from hydra.core.hydra_config import HydraConfig
+
+    HydraConfig.instance().set_config(cfg)
+    return cfg
+
+
+def plain(cfg: DictConfig) -> dict:
+    """The benchmark config without Hydra's own node, resolved."""
+    return {k: OmegaConf.to_container(cfg[k], resolve=True) if OmegaConf.is_config(cfg[k]) else cfg[k]
+            for k in cfg if k != "hydra"}
+
+
+def expand(cfg: DictConfig) -> list[Run]:
+    """Every run of the profile: grid, listed runs and data-efficiency runs, times seeds."""
+    c = plain(cfg)
+    per_system = c.get("per_system") or {}
+    entries = [(s, m, [f"model={m}"], None, {}) for s in c["systems"] for m in c["models"]]
+    entries += [(r["system"], r["label"], list(r["overrides"]), None, r.get("paper", {})) for r in c["runs"]]
+    for n in c["n_train"]:
+        if n < 1:
+            raise ConfigError(f"n_train={n} must be >= 1")
+        for m in c["n_train_models"] or c["models"]:
+            entries.append((c["n_train_system"], m, [f"model={m}", f"data.n_train={n}"], n, {}))
+    if not entries:
+        raise ConfigError("profile has no runs: give systems and models, runs or n_train")
+    return [Run(system, label, seed, [f"system={system}", *ovr, *c["common"], *per_system.get(system, []),
+                                     f"seed={seed}", *c["train"]], n, paper)
+            for system, label, ovr, n, paper in entries for seed in c["seeds"]]
+
+
+def run_one(run: Run, out: Path, cache_dir: str | None) -> dict:
+    """Train and test ``run`` (unless its ``result.json`` exists); return its result row."""
     from encons.train import train
 
-    rows = []
-    for system in systems:
-        for model in models:
-            for seed in seeds:
-                run_dir = out / "runs" / f"{system}-{model}-seed{seed}"
-                cfg = compose_train([f"system={system}", f"model={model}", f"seed={seed}", *overrides], run_dir)
-                try:
-                    results = train(cfg)
-                    error = ""
-                except EnconsError as err:
-                    results, error = {}, str(err)
-                rows.append({"system": system, "model": model, "seed": seed, "run_dir": str(run_dir),
-                             "error": error, **results})
-    return rows
+    run_dir = out / "runs" / run.id
+    done = run_dir / "result.json"
+    if done.is_file():
+        return {**json.loads(done.read_text()), "skipped": True}
+    cfg = compose_train(run.overrides, run_dir, cache_dir)
+    started = time.perf_counter()
+    try:
+        results, error = train(cfg), ""
+    except EnconsError as err:
+        results, error = {}, str(err)
+    row = {"system": run.system, "model": run.label, "seed": run.seed, "n_train": cfg.data.n_train,
+           "data_efficiency": run.n_train is not None, "run_dir": str(run_dir), "error": error,
+           "wall_time_s": time.perf_counter() - started, "overrides": " ".join(run.overrides),
+           **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))}}
+    run_dir.mkdir(parents=True, exist_ok=True)
+    tmp = done.with_suffix(".tmp")
+    tmp.write_text(json.dumps(row, indent=1))
+    tmp.replace(done)  # atomic: a run killed before this line is rerun
+    return row
 
 
-def summarise(rows: list[dict], metrics: tuple[str, ...] = ("test/traj_rel_err", "test/energy_abs_err",
-                                                             "wall_time_s")) -> list[dict]:
-    """Mean and std over seeds per (system, model)."""
-    groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
-    for row in rows:
-        groups[(row["system"], row["model"])].append(row)
-    summary = []
-    for (system, model), group in groups.items():
-        entry = {"system": system, "model": model, "runs": len(group)}
-        for key in metrics:
-            values = [r[key] for r in group if key in r]
-            if values:
-                mean = sum(values) / len(values)
-                entry[key] = mean
-                entry[f"{key}_std"] = (sum((v - mean) ** 2 for v in values) / max(1, len(values) - 1)) ** 0.5
-        summary.append(entry)
-    return summary
+def run_profile(cfg: DictConfig) -> Path:
+    """Run every run of ``cfg`` not yet finished under ``cfg.out``, then write the report there."""
+    from encons.report import write_report
 
-
-def write_csv(path: Path, rows: list[dict]) -> None:
-    keys = list(dict.fromkeys(k for row in rows for k in row))
-    with path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=keys)
-        writer.writeheader()
-        writer.writerows(rows)
-
-
-def print_table(summary: list[dict]) -> None:
-    table = Table(title="encons benchmark (mean ± std over seeds)")
-    for col in ("system", "model", "traj rel err (T=4)", "energy abs err", "wall time [s]"):
-        table.add_column(col)
-    for e in summary:
-        cell = lambda k: f"{e[k]:.3g} ± {e[k + '_std']:.2g}" if k in e else "failed"
-        table.add_row(e["system"], e["model"], cell("test/traj_rel_err"), cell("test/energy_abs_err"),
-                      cell("wall_time_s"))
-    Console().print(table)
+    runs = expand(cfg)
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "benchmark.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(plain(cfg))))
+    cache_dir = cfg.get("cache_dir")
+    started, trained = time.perf_counter(), 0
+    for k, run in enumerate(runs, 1):
+        row = run_one(run, out, cache_dir)
+        if row.get("skipped"):
+            status = "skipped (finished before)"
+        else:
+            trained += 1
+            status = f"{row['wall_time_s']:.0f} s" + (f", failed: {row['error'][:80]}" if row["error"] else "")
+        left = len(runs) - k
+        eta = (time.perf_counter() - started) / trained * left if trained else float("nan")
+        print(f"[{k}/{len(runs)}] {run.id}: {status}; ETA {eta / 60:.1f} min", flush=True)
+    write_report(out)
+    return out
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = OmegaConf.from_dotlist([a for a in (argv or sys.argv[1:]) if a.split("=")[0] in GRID_KEYS])
-    overrides = [a for a in (argv or sys.argv[1:]) if a.split("=")[0] not in GRID_KEYS]
-    out = Path(args.get("out") or f"benchmarks/results/{time.strftime('%Y-%m-%d_%H-%M-%S')}")
-    out.mkdir(parents=True, exist_ok=True)
-    rows = run_grid(list(args.get("systems", ["pendulum2"])), list(args.get("models", ["node", "hnn"])),
-                    list(args.get("seeds", [0])), out, ["logger=none", *overrides])
-    summary = summarise(rows)
-    write_csv(out / "results.csv", rows)
-    write_csv(out / "summary.csv", summary)
-    (out / "overrides.json").write_text(json.dumps(overrides))
-    comparison_figures(rows, summary, out)
-    print_table(summary)
-    print(f"results: {out}")
+    import os
+
+    os.environ.setdefault("WANDB_MODE", "disabled")
+    try:
+        run_profile(compose_benchmark(list(sys.argv[1:] if argv is None else argv)))
+    except EnconsError as err:
+        print(f"encons: error: {err}", file=sys.stderr)
+        sys.exit(2)
 
 
 if __name__ == "__main__":
