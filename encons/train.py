@@ -20,7 +20,7 @@ from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from encons.config import build_model, build_system, check_config, resolve_checkpoint
+from encons.config import build_model, build_system, check_config, objective_of, resolve_checkpoint
 from encons.data.datamodule import TrajectoryDataModule
 from encons.errors import EnconsError
 from encons.module import DynamicsModule
@@ -36,12 +36,14 @@ def build(cfg: DictConfig) -> tuple[TrajectoryDataModule, DynamicsModule]:
     pl.seed_everything(cfg.seed, workers=True, verbose=False)
     system = build_system(cfg)
     model = build_model(cfg, system)
+    objective = objective_of(cfg)
+    data_cfg = {**OmegaConf.to_container(cfg.data, resolve=True), "objective": objective}
     data = TrajectoryDataModule(system, model.chart, OmegaConf.to_container(cfg.system, resolve=True),
-                                cache_dir=cfg.paths.cache_dir, **cfg.data)
+                                cache_dir=cfg.paths.cache_dir, **data_cfg)
     data.prepare_data()
     data.setup()
     regulariser = instantiate(cfg.regulariser) if cfg.get("regulariser") else None
-    module = DynamicsModule(model, system, data.dt, instantiate(cfg.integrator), objective=cfg.objective,
+    module = DynamicsModule(model, system, data.dt, instantiate(cfg.integrator), objective=objective,
                             regulariser=regulariser, horizon=cfg.horizon, output_dir=cfg.paths.output_dir,
                             **cfg.optim)
     return data, module

@@ -88,9 +88,9 @@ def test_train_batches_are_windows_of_chunk_len(tmp_path):
     dm.prepare_data()
     dm.setup()
     batch = next(iter(dm.train_dataloader()))
-    assert batch.shape == (5, 5, 4)
+    assert set(batch) == {"states"} and batch["states"].shape == (5, 5, 4)
     i, start = next(iter(dm.train_dataloader().sampler))
-    assert torch.equal(batch[0], dm.states["train"][i, start:start + 5])
+    assert torch.equal(batch["states"][0], dm.states["train"][i, start:start + 5])
 
 
 def write(path, **arrays):
