@@ -38,6 +38,7 @@ class DynamicsModule(pl.LightningModule):
 
     def __init__(self, model: DynamicsModel, system: System, dt: float, integrator: Integrator,
                  lr: float = 1e-3, weight_decay: float = 1e-2, scheduler: str | None = None,
+                 patience: int = 50, factor: float = 0.7,
                  objective: str | None = None, regulariser: Regulariser | None = None,
                  horizon: int = 4, output_dir: str | None = None):
         super().__init__()
@@ -45,12 +46,15 @@ class DynamicsModule(pl.LightningModule):
         if objective not in model.objectives:
             raise ConfigError(f"objective={objective} does not apply to {type(model).__name__}; "
                               f"allowed: {', '.join(model.objectives)}")
-        if scheduler not in (None, "cosine"):
-            raise ConfigError(f"optim.scheduler={scheduler!r} is unknown; allowed: null, cosine")
+        if scheduler not in (None, "cosine", "plateau"):
+            raise ConfigError(f"optim.scheduler={scheduler!r} is unknown; allowed: null, cosine, plateau")
+        if patience < 0 or not 0 < factor < 1:
+            raise ConfigError(f"optim.patience={patience} must be >= 0 and optim.factor={factor} in (0, 1)")
         if lr <= 0:
             raise ConfigError(f"optim.lr={lr} must be > 0")
         self.model, self.system, self.dt, self.integrator = model, system, dt, integrator
         self.lr, self.weight_decay, self.scheduler_name = lr, weight_decay, scheduler
+        self.patience, self.factor = patience, factor
         self.objective, self.regulariser, self.horizon = objective, regulariser, horizon
         self.output_dir = Path(output_dir) if output_dir else None
         self.test_metrics: dict[str, float] = {}
@@ -137,5 +141,8 @@ class DynamicsModule(pl.LightningModule):
         opt = torch.optim.AdamW(self.parameters(), lr=self.lr, weight_decay=self.weight_decay)
         if self.scheduler_name is None:
             return opt
+        if self.scheduler_name == "plateau":  # on the validation loss, every epoch (Santos et al. §7)
+            sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, patience=self.patience, factor=self.factor)
+            return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "monitor": "val/loss"}}
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, self.trainer.max_epochs or 1))
         return {"optimizer": opt, "lr_scheduler": sched}
