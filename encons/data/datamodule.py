@@ -3,7 +3,9 @@
 Training yields random windows of ``chunk_len`` states, one per trajectory per epoch, drawn
 from ``(seed, epoch)`` so a resumed run sees the same windows as an uninterrupted one.
 Validation yields fixed windows; test yields whole trajectories. Noise (σ = ``noise``) is
-added to train and validation states only: test metrics compare against clean truth.
+added to training states only: validation and test compare rollouts with the clean simulated
+trajectories (for a loaded file, with what the file holds), so the validation error that sweeps,
+pruners and the best checkpoint steer by sees the model, not the noise floor.
 Batches are dicts: ``states`` (B, T, 2n); ``u`` (B, T, m), the inputs of each step, when the
 system takes inputs; and for ``objective="derivative"`` (Lim & Kasim eq. (2)) ``rates``: ds/dt,
 the true field at the clean simulated states (the authors' protocol), or central differences
@@ -139,9 +141,8 @@ class TrajectoryDataModule(pl.LightningDataModule):
         self.dt = float(t[1] - t[0])
         gen = torch.Generator().manual_seed(self.seed + 1)
         served = {k: self.system.to_chart(v, chart, self.chart) for k, v in splits.items()}
-        for name in ("train", "val"):
-            served[name] = served[name] + self.noise * torch.randn(served[name].shape, generator=gen,
-                                                                    dtype=torch.float64)
+        served["train"] = served["train"] + self.noise * torch.randn(served["train"].shape, generator=gen,
+                                                                      dtype=torch.float64)
         self.arrays = {k: {"states": v.float()} for k, v in served.items()}
         for name, u in inputs.items():
             self.arrays[name]["u"] = u.float()
