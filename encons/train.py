@@ -20,7 +20,7 @@ from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from encons.config import build_model, build_system, check_config, objective_of, resolve_checkpoint
+from encons.config import build_model, build_system, check_config, instantiate_node, objective_of, resolve_checkpoint
 from encons.data.datamodule import TrajectoryDataModule
 from encons.errors import EnconsError
 from encons.module import DynamicsModule
@@ -42,8 +42,8 @@ def build(cfg: DictConfig) -> tuple[TrajectoryDataModule, DynamicsModule]:
                                 cache_dir=cfg.paths.cache_dir, **data_cfg)
     data.prepare_data()
     data.setup()
-    regulariser = instantiate(cfg.regulariser) if cfg.get("regulariser") else None
-    module = DynamicsModule(model, system, data.dt, instantiate(cfg.integrator), objective=objective,
+    regulariser = instantiate_node(cfg, "regulariser") if cfg.get("regulariser") else None
+    module = DynamicsModule(model, system, data.dt, instantiate_node(cfg, "integrator"), objective=objective,
                             regulariser=regulariser, horizon=cfg.horizon, output_dir=cfg.paths.output_dir,
                             **cfg.optim)
     return data, module

@@ -79,7 +79,7 @@ class TrajectoryDataModule(pl.LightningDataModule):
                  n_train: int = 800, n_val: int = 100, n_test: int = 100, n_steps: int = 100,
                  test_steps: int | None = None, dt: float = 0.03,
                  noise: float = 0.01, substeps: int = 10, chunk_len: int = 5, batch_size: int = 200,
-                 seed: int = 0, cache_dir: str = ".cache/encons", objective: str = "rollout"):
+                 seed: int = 0, cache_dir: str = ".cache/encons", objective: str | None = "rollout"):
         super().__init__()
         for key, value in dict(n_train=n_train, n_test=n_test, n_steps=n_steps, substeps=substeps,
                                batch_size=batch_size).items():
