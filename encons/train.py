@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -16,13 +17,14 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 import lightning.pytorch as pl
-from hydra.errors import InstantiationException
+from hydra.errors import (ConfigCompositionException, InstantiationException, MissingConfigException,
+                          OverrideParseException)
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from encons.config import build_model, build_system, check_config, objective_of, resolve_checkpoint
+from encons.config import build_model, build_system, check_config, instantiate_node, objective_of, resolve_checkpoint
 from encons.data.datamodule import TrajectoryDataModule
-from encons.errors import EnconsError
+from encons.errors import ConfigError, EnconsError
 from encons.module import DynamicsModule
 from encons.paths import config_dir
 from encons.report import print_summary
@@ -42,8 +44,12 @@ def build(cfg: DictConfig) -> tuple[TrajectoryDataModule, DynamicsModule]:
                                 cache_dir=cfg.paths.cache_dir, **data_cfg)
     data.prepare_data()
     data.setup()
-    regulariser = instantiate(cfg.regulariser) if cfg.get("regulariser") else None
-    module = DynamicsModule(model, system, data.dt, instantiate(cfg.integrator), objective=objective,
+    test_steps = data.states["test"].shape[1] - 1
+    if cfg.horizon > test_steps:
+        raise ConfigError(f"horizon={cfg.horizon} exceeds the {test_steps} steps of a test trajectory; "
+                          f"allowed: 1..{test_steps}")
+    regulariser = instantiate_node(cfg, "regulariser") if cfg.get("regulariser") else None
+    module = DynamicsModule(model, system, data.dt, instantiate_node(cfg, "integrator"), objective=objective,
                             regulariser=regulariser, horizon=cfg.horizon, output_dir=cfg.paths.output_dir,
                             **cfg.optim)
     return data, module
@@ -114,7 +120,27 @@ def _one_line(err: Exception) -> str:
 
 def main() -> None:
     os.environ.setdefault("WANDB_SILENT", "true")
-    _hydra_main()
+    # Hydra then lets its own errors through to us (else it prints them with its search path and
+    # exits 1): a user's error becomes the last line printed, a bug keeps its traceback.
+    os.environ["HYDRA_FULL_ERROR"] = "1"
+    try:
+        _hydra_main()
+    except (EnconsError, ConfigCompositionException, OverrideParseException) as err:
+        print(f"encons: error: {_composition_line(err)}", file=sys.stderr)
+        sys.exit(2)
+
+
+def _composition_line(err: Exception) -> str:
+    if isinstance(err, MissingConfigException) and err.missing_cfg_file and err.options:
+        group, _, name = err.missing_cfg_file.rpartition("/")
+        return f"{group}={name} is unknown; allowed: {', '.join(sorted(err.options))}"
+    lines = str(err).strip().splitlines()
+    missing = re.match(r"Could not override '([^']+)'", lines[0])
+    if missing:
+        return (f"{missing.group(1)} is not a key of the config; allowed: the keys `--cfg job` prints, "
+                f"or +{missing.group(1)}=VALUE to add one")
+    return lines[0] + ("; allowed: key=value overrides (Hydra's override grammar)"
+                       if isinstance(err, OverrideParseException) else "")
 
 
 if __name__ == "__main__":
