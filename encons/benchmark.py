@@ -121,6 +121,10 @@ def run_profile(cfg: DictConfig) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     (out / "benchmark.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(plain(cfg))))
     cache_dir = cfg.get("cache_dir")
+    if cfg.get("threads"):
+        import torch
+
+        torch.set_num_threads(int(cfg.threads))
     started, trained = time.perf_counter(), 0
     for k, run in enumerate(runs, 1):
         row = run_one(run, out, cache_dir)
