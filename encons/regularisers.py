@@ -61,7 +61,7 @@ class JacobianPenalty:
 
     def __init__(self, weight: float = 1.0, jacobian: str = "reverse"):
         if weight < 0:
-            raise ConfigError(f"regulariser.weight={weight} must be >= 0")
+            raise ConfigError(f"regulariser.weight={weight}; allowed: >= 0")
         if jacobian not in JACOBIANS:
             raise ConfigError(f"regulariser.jacobian={jacobian!r} is unknown; allowed: {', '.join(JACOBIANS)}")
         self.weight, self.jacobian = float(weight), jacobian

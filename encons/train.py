@@ -128,6 +128,10 @@ def main() -> None:
     except (EnconsError, ConfigCompositionException, OverrideParseException) as err:
         print(f"encons: error: {_composition_line(err)}", file=sys.stderr)
         sys.exit(2)
+    except (FileExistsError, NotADirectoryError, PermissionError) as err:  # e.g. Hydra creating hydra.run.dir
+        print(f"encons: error: {err.filename!r}: {err.strerror}; allowed: a writable folder for hydra.run.dir, "
+              f"hydra.sweep.dir and paths.*", file=sys.stderr)
+        sys.exit(2)
 
 
 def _composition_line(err: Exception) -> str:

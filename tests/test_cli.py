@@ -11,17 +11,17 @@ FAST = ["debug=fast", "logger=none"]
 
 
 @pytest.mark.parametrize("args, needle", [
-    (["model=nosuchmodel"], "model/nosuchmodel"),
-    (["system=nosuchsystem"], "system/nosuchsystem"),
-    (["integrator=rk5"], "integrator/rk5"),
+    (["model=nosuchmodel"], "model=nosuchmodel is unknown; allowed: chnn"),
+    (["system=nosuchsystem"], "system=nosuchsystem is unknown; allowed:"),
+    (["integrator=rk5"], "integrator=rk5 is unknown; allowed: dopri5"),
     (["integrator.method=rk5"], "integrator.method='rk5' is unknown; allowed:"),
     (["model.chart=polar"], "needs the 'polar' chart"),
     (["model.hidden=-4"], "model.hidden=-4; allowed: a positive integer"),
-    (["data.n_train=0"], "data.n_train=0 must be >= 1"),
-    (["data.chunk_len=1"], "data.chunk_len=1 must lie in"),
+    (["data.n_train=0"], "data.n_train=0; allowed: >= 1"),
+    (["data.chunk_len=1"], "data.chunk_len=1; allowed: [2, "),
     (["trainer.max_epochs=0"], "trainer.max_epochs=0; allowed: an integer >= 1"),
     (["optim.lr=-1"], "optim.lr=-1"),
-    (["nosuchkey=3"], "Could not override 'nosuchkey'"),
+    (["nosuchkey=3"], "nosuchkey is not a key of the config; allowed:"),
     (["system=from_file", "system.path=/nonexistent/data.npz"], "does not exist"),
     (["ckpt_path=last"], "no earlier run"),
 ])
@@ -36,7 +36,7 @@ def test_malformed_user_file(tmp_path):
     path = tmp_path / "bad.npz"
     np.savez(path, t=np.arange(4.0), train=np.zeros((3, 4, 3)), test=np.zeros((3, 4, 3)))
     proc = run_cli(*FAST, "system=from_file", f"system.path={path}", cwd=tmp_path)
-    assert proc.returncode == 2 and "expected (N, 4, 2n)" in proc.stderr
+    assert proc.returncode == 2 and "allowed: (N, 4, 2n)" in proc.stderr, proc.stderr[-500:]
     assert "Traceback" not in proc.stderr
 
 
