@@ -11,7 +11,6 @@ import pytest
 import torch
 from hydra.core.global_hydra import GlobalHydra
 
-from encons.config import compose_train
 
 torch.set_default_dtype(torch.float32)
 torch.set_num_threads(1)  # tiny tensors: threads only contend (about 4× faster on 2 shared cores)
@@ -33,11 +32,13 @@ def isolated_env(tmp_path_factory, monkeypatch):
 
 @pytest.fixture
 def train_run(tmp_path):
-    """Run ``encons.train.train`` on a tiny config: ``train_run(["model=hnn", ...])`` -> metrics."""
-    from encons.train import train
+    """Run ``encons.api.train`` on a tiny config: ``train_run(["model=hnn", ...])`` -> metrics."""
+    from encons import api
 
     def run(overrides: list[str], name: str = "run", fast: bool = True) -> dict[str, float]:
-        return train(compose_train((["debug=fast"] if fast else []) + overrides, tmp_path / name, tmp_path / "cache"))
+        cfg = api.compose(*(["debug=fast"] if fast else []), *overrides, output_dir=tmp_path / name,
+                          cache_dir=tmp_path / "cache")
+        return api.train(cfg).metrics
 
     return run
 
