@@ -44,8 +44,8 @@ def run_grid(systems: list[str], models: list[str], seeds: list[int], out: Path,
             results, error = api.train(cfg).metrics, ""
         except EnconsError as err:
             results, error = {}, str(err)
-        rows.append({"system": system, "model": model, "seed": seed, "run_dir": str(run_dir),
-                     "error": error, **results})
+        rows.append({"system": system, "model": model, "seed": seed, "horizon": cfg.horizon,
+                     "run_dir": str(run_dir), "error": error, **results})
     progress.done()
     return rows
 
@@ -100,9 +100,9 @@ def write_csv(path: Path, rows: list[dict]) -> None:
         writer.writerows(rows)
 
 
-def print_table(summary: list[dict]) -> None:
+def print_table(summary: list[dict], horizon: int = 4) -> None:
     table = Table(title="encons benchmark (mean ± std over seeds)")
-    for col in ("system", "model", "traj rel err (T=4)", "energy abs err", "wall time [s]"):
+    for col in ("system", "model", f"traj rel err (T={horizon})", "energy abs err", "wall time [s]"):
         table.add_column(col)
     for e in summary:
         cell = lambda k: f"{e[k]:.3g} ± {e[k + '_std']:.2g}" if k in e else "failed"
@@ -126,8 +126,9 @@ def main(argv: list[str] | None = None) -> None:
     write_csv(out / "results.csv", rows)
     write_csv(out / "summary.csv", summary)
     (out / "overrides.json").write_text(json.dumps(overrides))
-    comparison_figures(rows, summary, out)
-    print_table(summary)
+    horizon = rows[0]["horizon"] if rows else 4
+    comparison_figures(rows, summary, out, horizon)
+    print_table(summary, horizon)
     print(f"results: {out}")
 
 
