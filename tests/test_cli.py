@@ -40,11 +40,14 @@ def test_malformed_user_file(tmp_path):
     assert "Traceback" not in proc.stderr
 
 
-def test_cli_trains_and_writes_outputs(tmp_path):
-    proc = run_cli(*FAST, "model=hnn", "system=pendulum1", cwd=tmp_path, env={"ENCONS_ROOT": str(tmp_path)})
+def test_cli_trains_quietly_and_writes_outputs(tmp_path):
+    proc = run_cli("debug=fast", "model=hnn", "system=pendulum1", cwd=tmp_path, env={"ENCONS_ROOT": str(tmp_path)})
     assert proc.returncode == 0, proc.stderr[-2000:]
     run_dir = next((tmp_path / "outputs" / "pendulum1-hnn").iterdir())
     assert (run_dir / "checkpoints" / "last.ckpt").is_file()
     assert {p.name for p in (run_dir / "figures").iterdir()} == {"rollout.png", "relative_error.png",
                                                                  "energy_error.png"}
     assert "test/traj_rel_err" in proc.stdout
+    assert "Warning" not in proc.stderr and "💡" not in proc.stdout + proc.stderr, proc.stderr  # quiet run
+    log = (run_dir / "train.log").read_text()
+    assert "tested: best checkpoint by validation" in log and "test/traj_rel_err" in log  # the summary
