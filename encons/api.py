@@ -379,6 +379,10 @@ def evaluate(run: Run | str | Path, overrides: Iterable[str] = (), ckpt: str = "
     trainer, _ = build_trainer(config)
     trainer.test(run.module, datamodule=run.data, verbose=False)
     run.metrics = {f"test/{k}": v for k, v in run.module.test_metrics.items()}
-    where = run.checkpoint.name if run.checkpoint else "in-memory weights"
-    print_summary(run.module.run_title(), run.metrics, run.module.output_dir, note=f"tested: {where}")
+    note = f"tested: {run.checkpoint.name if run.checkpoint else 'in-memory weights'}"
+    steps = run.data.states["test"].shape[1] - 1
+    if steps > run.module.horizon:
+        note += (f"; traj_rel_err sums the first {run.module.horizon} of {steps} test steps "
+                 f"(add horizon={steps} to score the whole trajectory)")
+    print_summary(run.module.run_title(), run.metrics, run.module.output_dir, note=note)
     return run.metrics

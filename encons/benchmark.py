@@ -27,6 +27,7 @@ from rich.table import Table
 
 from encons import api
 from encons.errors import EnconsError
+from encons.report import Progress
 
 GRID_KEYS = ("systems", "models", "seeds", "out")
 
@@ -48,29 +49,6 @@ def run_grid(systems: list[str], models: list[str], seeds: list[int], out: Path,
                      "run_dir": str(run_dir), "error": error, **results})
     progress.done()
     return rows
-
-
-class Progress:
-    """``<what> k of n (label), elapsed, ETA`` lines on stderr for a loop of ``total`` similar items."""
-
-    def __init__(self, total: int, what: str):
-        self.total, self.what, self.count, self.started = total, what, 0, time.perf_counter()
-
-    def start(self, label: str) -> None:
-        elapsed = time.perf_counter() - self.started
-        eta = f", ETA {_duration(elapsed / self.count * (self.total - self.count))}" if self.count else ""
-        self.count += 1
-        print(f"{self.what} {self.count} of {self.total} ({label}), elapsed {_duration(elapsed)}{eta}",
-              file=sys.stderr, flush=True)
-
-    def done(self) -> None:
-        print(f"{self.total} {self.what}s in {_duration(time.perf_counter() - self.started)}",
-              file=sys.stderr, flush=True)
-
-
-def _duration(seconds: float) -> str:
-    minutes, secs = divmod(int(seconds), 60)
-    return f"{minutes // 60}h{minutes % 60:02d}m" if minutes >= 60 else f"{minutes}m{secs:02d}s"
 
 
 def summarise(rows: list[dict], metrics: tuple[str, ...] = ("test/traj_rel_err", "test/energy_abs_err",
