@@ -78,6 +78,7 @@ def quiet_upstream() -> None:
     import warnings
 
     warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\)")
+    warnings.filterwarnings("ignore", message="The dirpath has changed from")  # a resume: see RunCheckpoints
     for name in ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.rank_zero"):
         logging.getLogger(name).addFilter(_DropTips())  # the loggers rank_zero_info writes to
 
@@ -234,13 +235,37 @@ def build_trainer(cfg: DictConfig):
 def _config_in_checkpoints(config: DictConfig):
     from lightning.pytorch.callbacks import Callback
 
-    class ConfigInCheckpoint(Callback):
-        """Stores the resolved run config in every checkpoint under ``encons_config``."""
+    class RunCheckpoints(Callback):
+        """Stores the resolved run config in every checkpoint under ``encons_config``; on a resume
+        into a new run folder, carries the earlier run's best checkpoint over so that the best is
+        chosen among all epochs (Lightning keeps only its path when the folder changes)."""
 
         def on_save_checkpoint(self, trainer, pl_module, checkpoint: dict) -> None:
             checkpoint[CONFIG_KEY] = OmegaConf.to_container(config)
 
-    return ConfigInCheckpoint()
+        def on_train_start(self, trainer, pl_module) -> None:
+            best = next((cb for cb in trainer.checkpoint_callbacks if cb.monitor), None)
+            if trainer.ckpt_path is None or best is None:
+                return
+            import shutil
+
+            import torch
+
+            state = torch.load(trainer.ckpt_path, map_location="cpu", weights_only=True)["callbacks"]
+            state = state.get(best.state_key, {})
+            old = Path(state.get("best_model_path") or "")
+            if state.get("dirpath") == best.dirpath or not old.is_file() or state.get("best_model_score") is None:
+                return
+            new = Path(best.dirpath) / old.name
+            if trainer.is_global_zero:
+                new.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(old, new)
+            trainer.strategy.barrier()
+            best.best_model_path = best.kth_best_model_path = str(new)
+            best.best_model_score = best.kth_value = state["best_model_score"]
+            best.best_k_models = {str(new): state["best_model_score"]}
+
+    return RunCheckpoints()
 
 
 def _best_checkpoint(trainer):

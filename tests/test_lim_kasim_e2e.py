@@ -16,5 +16,5 @@ TINY = ["data.test_steps=12", "data.substeps=2", "model.hidden=8"]
 ])
 def test_regularised_runs_log_their_penalty(train_run, overrides):
     results = train_run([*overrides, *TINY])
-    assert results["train/regulariser"] >= 0
+    assert results["train/regulariser"] > 0  # an untrained field is not exactly Hamiltonian / dissipative
     assert math.isfinite(results["test/energy_rmse_p97_5"])
