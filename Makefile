@@ -23,6 +23,7 @@ train:  ## e.g. make train ARGS="model=chnn system=gyroscope"
 
 bench:  ## speed of a training step per model, and dataset generation
 	$(BIN)/python benchmarks/speed.py $(ARGS)
+	$(BIN)/python benchmarks/symo_speed.py --threads 1
 
 clean:
 	rm -rf outputs multirun .cache/encons .pytest_cache build dist *.egg-info

@@ -198,7 +198,7 @@ def build(cfg: DictConfig) -> tuple[TrajectoryDataModule, DynamicsModule]:
     from hydra.utils import execution_whitelist, instantiate
 
     _route_lightning_logs()
-    from encons.config import build_model, build_system, check_config
+    from encons.config import build_model, build_system, check_config, objective_of
     from encons.data.datamodule import TrajectoryDataModule
     from encons.module import DynamicsModule
 
@@ -208,12 +208,14 @@ def build(cfg: DictConfig) -> tuple[TrajectoryDataModule, DynamicsModule]:
     with execution_whitelist(trusted_targets()):
         system = build_system(cfg)
         model = build_model(cfg, system)
+        objective = objective_of(cfg)
+        data_cfg = {**OmegaConf.to_container(cfg.data, resolve=True), "objective": objective}
         data = TrajectoryDataModule(system, model.chart, OmegaConf.to_container(cfg.system, resolve=True),
-                                    cache_dir=cfg.paths.cache_dir, **cfg.data)
+                                    cache_dir=cfg.paths.cache_dir, **data_cfg)
         data.prepare_data()
         data.setup()
         regulariser = instantiate(cfg.regulariser) if cfg.get("regulariser") else None
-        module = DynamicsModule(model, system, data.dt, instantiate(cfg.integrator), objective=cfg.objective,
+        module = DynamicsModule(model, system, data.dt, instantiate(cfg.integrator), objective=objective,
                                 regulariser=regulariser, horizon=cfg.horizon, output_dir=cfg.paths.output_dir,
                                 **cfg.optim)
     return data, module

@@ -65,12 +65,39 @@ def build_model(cfg: DictConfig, system: System) -> DynamicsModel:
     if getattr(cls, "needs_constraints", False) and system.layout is None:
         raise ConfigError(f"model {model_name} needs holonomic constraints, which system '{system.name}' "
                           f"does not declare; use a model in generalised coordinates")
+    check_capabilities(cfg, cls, system)
     try:
         return instantiate(cfg.model, system=system)
     except InstantiationException as err:
         if isinstance(err.__cause__, (ConfigError, ValueError)):
             raise ConfigError(str(err.__cause__)) from None
         raise
+
+
+def objective_of(cfg: DictConfig) -> str:
+    """The run's objective: ``cfg.objective``, or when null the model's default (its first)."""
+    return cfg.objective or get_class(cfg.model._target_).objectives[0]
+
+
+def check_capabilities(cfg: DictConfig, cls: type[DynamicsModel], system: System) -> None:
+    """Refuse a model × system × objective × regulariser × integrator it does not support (the
+    model's class attributes, ``encons.models.base``)."""
+    name = HydraConfig.get().runtime.choices.get("model") if HydraConfig.initialized() else None
+    name = name or cls.__name__
+    objective = objective_of(cfg)
+    if objective not in cls.objectives:
+        raise ConfigError(f"objective={objective} does not apply to model={name}; allowed: {', '.join(cls.objectives)}")
+    if cfg.get("regulariser") and cls.discrete:
+        raise ConfigError(f"regulariser={cfg.regulariser._target_.rsplit('.', 1)[-1].lower()} needs a vector field, "
+                          f"and model={name} is discrete (it steps itself); allowed: regulariser=none")
+    if system.n_controls and not cls.supports_controls:
+        raise ConfigError(f"model={name} cannot take control inputs, and system '{system.name}' has "
+                          f"{system.n_controls}; allowed: a model that supports controls (e.g. node, lnode, symo)")
+    if cls.discrete and HydraConfig.initialized():
+        overridden = [o for o in HydraConfig.get().overrides.task if o.lstrip("+~").startswith("integrator")]
+        if overridden:
+            raise ConfigError(f"{overridden[0]} does not apply to model={name}: a discrete model advances by its "
+                              f"own step; allowed: no integrator override")
 
 
 def resolve_checkpoint(cfg: DictConfig) -> str | None:

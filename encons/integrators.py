@@ -1,8 +1,14 @@
-"""Rollouts: the one way every model is integrated, through torchdiffeq."""
+"""Rollouts: the one way every model is advanced.
+
+Continuous vector fields are integrated by torchdiffeq with the ``integrator`` group's method;
+discrete models (``DiscreteModel``) advance by their own step. Inputs ``u`` are given per data
+step, shape (..., T, m), and held constant over each step (zero-order hold).
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import torch
 from torch import Tensor
@@ -39,16 +45,42 @@ class Integrator:
         return {"method": self.method, "rtol": self.rtol, "atol": self.atol}
 
 
-def rollout(model: DynamicsModel, s0: Tensor, t: Tensor, integrator: Integrator) -> Tensor:
-    """Integrate ``model`` from data-chart states ``s0`` (..., 2n) over times ``t`` (T,).
+def odeint_held(field: Callable[[Tensor, Tensor, Tensor], Tensor], z0: Tensor, t: Tensor, u: Tensor,
+                **options) -> Tensor:
+    """``odeint`` of ``field(t, z, u_k)`` with inputs ``u`` (..., T, m) held constant on each
+    [t_k, t_{k+1}]: one solve per data step, so no solver stage sees the next step's input (a
+    field cannot tell the end of one step from the start of the next by ``t`` alone).
+    Returns (T, ..., d) like ``odeint``."""
+    states = [z0]
+    for k in range(len(t) - 1):
+        uk = u[..., k, :]
+        states.append(odeint(lambda time, z: field(time, z, uk), states[-1], t[k:k + 2], **options)[-1])
+    return torch.stack(states)
 
-    Returns data-chart states (..., T, 2n); index 0 along time is ``decode(encode(s0))``.
+
+def rollout(model: DynamicsModel, start: Tensor, t: Tensor, integrator: Integrator | None = None,
+            u: Tensor | None = None) -> Tensor:
+    """Roll ``model`` out over times ``t`` (T,) under inputs ``u`` (..., T, m) or None.
+
+    ``start`` is the data-chart state (..., 2n) for a continuous model, the first ``history``
+    states (..., history, 2n) for a discrete one. Returns data-chart states (..., T, 2n); for a
+    continuous model index 0 along time is ``decode(encode(start))``.
     """
-    z = odeint(model, model.encode(s0), t.to(s0), **integrator.options(t))
+    t = t.to(start)
+    if model.discrete:
+        return model.rollout(start, t, u)
+    if integrator is None:
+        raise ConfigError(f"{type(model).__name__} is a continuous model: its rollout needs an integrator")
+    options = integrator.options(t)
+    if u is None:  # models without inputs may define forward(t, z) only
+        z = odeint(model, model.encode(start), t, **options)
+    else:
+        z = odeint_held(model, model.encode(start), t, u.to(start), **options)
     return model.decode(z).movedim(0, -2)
 
 
-def state_derivative(model: DynamicsModel, s: Tensor) -> Tensor:
+def state_derivative(model: DynamicsModel, s: Tensor, u: Tensor | None = None) -> Tensor:
     """ds/dt in the data chart: the model's field pushed through ``decode`` (chain rule by jvp)."""
     z = model.encode(s)
-    return jvp(model.decode, (z,), (model(torch.zeros(()), z),))[1]
+    t = torch.zeros(())
+    return jvp(model.decode, (z,), (model(t, z) if u is None else model(t, z, u),))[1]

@@ -59,3 +59,19 @@ def summarise(pred: Tensor, true: Tensor, pred_energy: Tensor | None, true_energ
         lo, med, hi = percentiles(energy_deviation_rmse(pred_energy, true_energy))
         out.update(energy_rmse_median=med, energy_rmse_p2_5=lo, energy_rmse_p97_5=hi)
     return out
+
+
+# Santos, Ekal & Ventura §7: mean squared errors in configuration space, energy and inertia.
+def configuration_mse(pred_q: Tensor, true_q: Tensor) -> Tensor:
+    """MSE over every step and coordinate of configurations (N, T, n) (Santos et al. §7); a scalar."""
+    return ((pred_q - true_q) ** 2).mean()
+
+
+def energy_mse(pred_energy: Tensor, true_energy: Tensor) -> Tensor:
+    """Per-trajectory MSE over time of the true energy of ŝ_t against E(s_t), averaged over trajectories."""
+    return ((pred_energy - true_energy) ** 2).mean(-1).mean()
+
+
+def mass_matrix_mse(pred_mass: Tensor, true_mass: Tensor) -> Tensor:
+    """MSE over entries of learned against true M(q), (..., n, n) (Santos et al. §7 "inertial loss")."""
+    return ((pred_mass - true_mass) ** 2).mean()

@@ -1,9 +1,12 @@
 """The one LightningModule that trains any model on any system.
 
 Objectives: ``rollout`` (Zhong et al. §4.1: L1 loss summed over a window rolled out from its
-first state) or ``derivative`` (Lim & Kasim eq. (2): squared error of the field against the
-state derivatives the data module pairs with the states). An optional regulariser adds a
-weighted penalty.
+first state, or first ``model.history`` states), ``derivative`` (Lim & Kasim eq. (2): squared
+error of the field against the state derivatives the data module pairs with the states) or
+``residual`` (the squared norm of a discrete model's own residual, e.g. SyMo's DEL equations).
+A model lists the objectives it supports in ``objectives``. An optional regulariser adds a
+weighted penalty. Batches are dicts (see ``encons.data.datamodule``): ``states`` and, where
+present, inputs ``u`` and ``rates``.
 """
 
 from __future__ import annotations
@@ -25,8 +28,9 @@ from encons.models.base import DynamicsModel
 from encons.systems.base import System
 
 log = logging.getLogger(__name__)
-OBJECTIVES = ("rollout", "derivative")
-Regulariser = Callable[[DynamicsModel, Tensor], Tensor]
+OBJECTIVES = ("rollout", "derivative", "residual")
+Regulariser = Callable[[DynamicsModel, Tensor, Tensor | None], Tensor]
+Batch = dict[str, Tensor]
 
 
 class DynamicsModule(pl.LightningModule):
@@ -34,17 +38,23 @@ class DynamicsModule(pl.LightningModule):
 
     def __init__(self, model: DynamicsModel, system: System, dt: float, integrator: Integrator,
                  lr: float = 1e-3, weight_decay: float = 1e-2, scheduler: str | None = None,
-                 objective: str = "rollout", regulariser: Regulariser | None = None,
+                 patience: int = 50, factor: float = 0.7,
+                 objective: str | None = None, regulariser: Regulariser | None = None,
                  horizon: int = 4, output_dir: str | None = None):
         super().__init__()
-        if objective not in OBJECTIVES:
-            raise ConfigError(f"objective={objective!r} is unknown; allowed: {', '.join(OBJECTIVES)}")
-        if scheduler not in (None, "cosine"):
-            raise ConfigError(f"optim.scheduler={scheduler!r} is unknown; allowed: null, cosine")
+        objective = objective or model.objectives[0]
+        if objective not in model.objectives:
+            raise ConfigError(f"objective={objective} does not apply to {type(model).__name__}; "
+                              f"allowed: {', '.join(model.objectives)}")
+        if scheduler not in (None, "cosine", "plateau"):
+            raise ConfigError(f"optim.scheduler={scheduler!r} is unknown; allowed: null, cosine, plateau")
+        if patience < 0 or not 0 < factor < 1:
+            raise ConfigError(f"optim.patience={patience} must be >= 0 and optim.factor={factor} in (0, 1)")
         if lr <= 0:
             raise ConfigError(f"optim.lr={lr} must be > 0")
         self.model, self.system, self.dt, self.integrator = model, system, dt, integrator
         self.lr, self.weight_decay, self.scheduler_name = lr, weight_decay, scheduler
+        self.patience, self.factor = patience, factor
         self.objective, self.regulariser, self.horizon = objective, regulariser, horizon
         self.output_dir = Path(output_dir) if output_dir else None
         self.test_metrics: dict[str, float] = {}
@@ -53,28 +63,33 @@ class DynamicsModule(pl.LightningModule):
     def times(self, length: int, like: Tensor) -> Tensor:
         return torch.arange(length, dtype=like.dtype, device=like.device) * self.dt
 
-    def predict(self, states: Tensor) -> Tensor:
-        """Roll out from the first state of each window (N, T, 2n) over its length."""
-        return rollout(self.model, states[:, 0], self.times(states.shape[1], states), self.integrator)
+    def predict(self, batch: Batch) -> Tensor:
+        """Roll out from the first state (``history`` states) of each window (N, T, 2n) over its length."""
+        states, history = batch["states"], self.model.history
+        start = states[:, 0] if history == 1 else states[:, :history]
+        return rollout(self.model, start, self.times(states.shape[1], states), self.integrator, batch.get("u"))
 
     def to_common(self, states: Tensor) -> Tensor:
         return self.system.to_chart(states, self.model.chart, self.system.common_chart)
 
-    def loss(self, states: Tensor, rates: Tensor | None = None) -> Tensor:
-        """The objective on windows ``states`` (N, T, 2n); ``rates`` are their ds/dt (derivative)."""
+    def loss(self, batch: Batch) -> Tensor:
+        """The objective on a batch of windows (see the module docstring)."""
+        states, u = batch["states"], batch.get("u")
         if self.objective == "rollout":
-            return (self.predict(states) - states).abs().sum((-1, -2)).mean()
-        return ((state_derivative(self.model, states) - rates) ** 2).sum(-1).mean()
-
-    def training_step(self, batch: Tensor | tuple[Tensor, Tensor], batch_idx: int) -> Tensor:
-        if self.objective == "derivative" and isinstance(batch, Tensor):
-            raise ConfigError("objective=derivative needs (states, rates) batches: build the data module "
+            return (self.predict(batch) - states).abs().sum((-1, -2)).mean()
+        if self.objective == "residual":
+            return (self.model.residual(states, self.times(states.shape[1], states), u) ** 2).sum(-1).mean()
+        if "rates" not in batch:
+            raise ConfigError("objective=derivative needs batches with rates: build the data module "
                               "with objective='derivative' (data.objective: ${objective})")
-        states, rates = batch if self.objective == "derivative" else (batch, None)
-        loss = self.loss(states, rates)
+        return ((state_derivative(self.model, states, u) - batch["rates"]) ** 2).sum(-1).mean()
+
+    def training_step(self, batch: Batch, batch_idx: int) -> Tensor:
+        states, u = batch["states"], batch.get("u")
+        loss = self.loss(batch)
         self.log("train/loss", loss, prog_bar=True, batch_size=states.shape[0])
         if self.regulariser is not None:
-            penalty = self.regulariser(self.model, states.flatten(0, 1))
+            penalty = self.regulariser(self.model, states.flatten(0, 1), None if u is None else u.flatten(0, 1))
             self.log("train/regulariser", penalty, batch_size=states.shape[0])
             loss = loss + penalty
         if not torch.isfinite(loss):
@@ -84,14 +99,15 @@ class DynamicsModule(pl.LightningModule):
                 f"model.mass_eps, then resume with ckpt_path=last")
         return loss
 
-    def validation_step(self, batch: Tensor, batch_idx: int) -> None:
-        pred = self.predict(batch)
-        tre = metrics.trajectory_relative_error(self.to_common(pred), self.to_common(batch), self.horizon)
-        self.log("val/loss", (pred - batch).abs().sum((-1, -2)).mean(), batch_size=batch.shape[0], sync_dist=True)
-        self.log("val/traj_rel_err", tre.mean(), prog_bar=True, batch_size=batch.shape[0], sync_dist=True)
+    def validation_step(self, batch: Batch, batch_idx: int) -> None:
+        states, pred = batch["states"], self.predict(batch)
+        tre = metrics.trajectory_relative_error(self.to_common(pred), self.to_common(states), self.horizon)
+        size = states.shape[0]
+        self.log("val/loss", (pred - states).abs().sum((-1, -2)).mean(), batch_size=size, sync_dist=True)
+        self.log("val/traj_rel_err", tre.mean(), prog_bar=True, batch_size=size, sync_dist=True)
 
-    def test_step(self, batch: Tensor, batch_idx: int) -> None:
-        self._test_batches.append(torch.stack([batch, self.predict(batch)]))
+    def test_step(self, batch: Batch, batch_idx: int) -> None:
+        self._test_batches.append(torch.stack([batch["states"], self.predict(batch)]))
 
     def on_test_epoch_end(self) -> None:
         batches = torch.cat(self._test_batches, 1)
@@ -125,5 +141,8 @@ class DynamicsModule(pl.LightningModule):
         opt = torch.optim.AdamW(self.parameters(), lr=self.lr, weight_decay=self.weight_decay)
         if self.scheduler_name is None:
             return opt
+        if self.scheduler_name == "plateau":  # on the validation loss, every epoch (Santos et al. §7)
+            sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, patience=self.patience, factor=self.factor)
+            return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "monitor": "val/loss"}}
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, self.trainer.max_epochs or 1))
         return {"optimizer": opt, "lr_scheduler": sched}

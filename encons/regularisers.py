@@ -1,6 +1,7 @@
 """Soft dynamics constraints of Lim & Kasim (TMLR 2023) as weighted loss penalties.
 
-A regulariser is called as ``regulariser(model, s)`` on data-chart states ``s`` (B, 2n) and
+A regulariser is called as ``regulariser(model, s, u)`` on data-chart states ``s`` (B, 2n)
+(and their inputs ``u`` (B, m), or None) and
 returns ``weight`` times its constraint averaged over the batch. It acts on the field a model
 exposes through ``DynamicsModel.constrained_field`` (by default the internal field at
 ``encode(s)``), whose Jacobians come from ``torch.func`` (jacfwd or jacrev under vmap) and stay
@@ -22,13 +23,17 @@ from encons.models.base import DynamicsModel
 JACOBIANS = {"forward": jacfwd, "reverse": jacrev}
 
 
-def field_jacobian(field: Callable[[Tensor], Tensor], z: Tensor, mode: str = "reverse") -> Tensor:
-    """∂f/∂z of a per-sample field ``f`` at points ``z`` (B, d); shape (B, d, d).
+def field_jacobian(field: Callable[..., Tensor], z: Tensor, mode: str = "reverse",
+                   u: Tensor | None = None) -> Tensor:
+    """∂f/∂z of a per-sample field ``f(z_i)`` (``f(z_i, u_i)`` with inputs ``u`` (B, m)) at points
+    ``z`` (B, d); shape (B, d, d).
 
     ``mode="forward"`` (jacfwd) is wrong in torch 2.13 for fields calling ``torch.linalg.solve``
     (vmap of jacfwd of solve); ``"reverse"`` (jacrev) has no such limit.
     """
-    return vmap(JACOBIANS[mode](field))(z)
+    if u is None:
+        return vmap(JACOBIANS[mode](field))(z)
+    return vmap(JACOBIANS[mode](field))(z, u)  # differentiates the first argument only
 
 
 def hamiltonian_violation(jac: Tensor) -> Tensor:
@@ -65,9 +70,10 @@ class JacobianPenalty:
         """The constraint per Jacobian (B, d, d) -> (B,)."""
         raise NotImplementedError
 
-    def __call__(self, model: DynamicsModel, s: Tensor) -> Tensor:
-        z, field = model.constrained_field(s)
-        jac = field_jacobian(field, z.reshape(-1, z.shape[-1]), self.jacobian)
+    def __call__(self, model: DynamicsModel, s: Tensor, u: Tensor | None = None) -> Tensor:
+        z, field = model.constrained_field(s, u)
+        jac = field_jacobian(field, z.reshape(-1, z.shape[-1]), self.jacobian,
+                             None if u is None else u.reshape(-1, u.shape[-1]))
         return self.weight * self.violation(jac).mean()
 
 

@@ -51,12 +51,13 @@ def test_served_chart_is_the_mapped_base_chart(tmp_path):
     assert torch.allclose(mapped.float(), cart.states["test"], atol=1e-5)
 
 
-def test_noise_only_on_train_and_val(tmp_path):
+def test_noise_only_on_train_validation_sees_clean_truth(tmp_path):
     clean, noisy = make(tmp_path, noise=0.0), make(tmp_path, noise=0.5)
     for dm in (clean, noisy):
         dm.prepare_data()
         dm.setup()
     assert torch.equal(clean.states["test"], noisy.states["test"])
+    assert torch.equal(clean.states["val"], noisy.states["val"])
     spread = (noisy.states["train"] - clean.states["train"]).std().item()
     assert 0.45 < spread < 0.55
 
@@ -88,9 +89,9 @@ def test_train_batches_are_windows_of_chunk_len(tmp_path):
     dm.prepare_data()
     dm.setup()
     batch = next(iter(dm.train_dataloader()))
-    assert batch.shape == (5, 5, 4)
+    assert set(batch) == {"states"} and batch["states"].shape == (5, 5, 4)
     i, start = next(iter(dm.train_dataloader().sampler))
-    assert torch.equal(batch[0], dm.states["train"][i, start:start + 5])
+    assert torch.equal(batch["states"][0], dm.states["train"][i, start:start + 5])
 
 
 def write(path, **arrays):

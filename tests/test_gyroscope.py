@@ -20,7 +20,7 @@ T = torch.arange(101, dtype=torch.float64) * 0.02
 @pytest.fixture(scope="module")
 def gyro():
     system = Gyroscope()
-    traj, _ = sample_trajectories(system, 100, T, torch.Generator().manual_seed(0))
+    traj, _, _ = sample_trajectories(system, 100, T, torch.Generator().manual_seed(0))
     return system, traj
 
 

@@ -82,7 +82,8 @@ def derivative_data(tmp_path, system, chart, **kwargs) -> TrajectoryDataModule:
 def test_derivative_targets_are_the_true_field_in_the_served_chart(tmp_path):
     system = NPendulum(n_links=2)
     dm = derivative_data(tmp_path, system, "cartesian")
-    states, rates = next(iter(dm.train_dataloader()))
+    batch = next(iter(dm.train_dataloader()))
+    states, rates = batch["states"], batch["rates"]
     assert states.shape == rates.shape == (6, 5, 8)
     assert torch.allclose(rates.double(), system.vector_field(states.double(), "cartesian"), atol=1e-4)
 
@@ -95,5 +96,6 @@ def test_derivative_targets_of_loaded_data_are_central_differences(tmp_path):
     store.save(tmp_path / "user.npz", t, {"train": traj, "test": traj[:2]}, "angle")
     dm = derivative_data(tmp_path, system, "angle", path=str(tmp_path / "user.npz"))
     true = system.vector_field(dm.states["train"].double(), "angle")
-    assert torch.allclose(dm.rates.double(), true, atol=1e-4)
-    assert not torch.allclose(dm.rates.double(), true, atol=1e-6)
+    rates = dm.arrays["train"]["rates"].double()
+    assert torch.allclose(rates, true, atol=1e-4)
+    assert not torch.allclose(rates, true, atol=1e-6)

@@ -3,10 +3,13 @@
 Training yields random windows of ``chunk_len`` states, one per trajectory per epoch, drawn
 from ``(seed, epoch)`` so a resumed run sees the same windows as an uninterrupted one.
 Validation yields fixed windows; test yields whole trajectories. Noise (σ = ``noise``) is
-added to train and validation states only: test metrics compare against clean truth.
-For ``objective="derivative"`` (Lim & Kasim eq. (2)) training windows come as ``(states, rates)``:
-rates ds/dt are the true field at the clean simulated states (the authors' protocol), or
-central differences of the observed states for loaded data.
+added to training states only: validation and test compare rollouts with the clean simulated
+trajectories (for a loaded file, with what the file holds), so the validation error that sweeps,
+pruners and the best checkpoint steer by sees the model, not the noise floor.
+Batches are dicts: ``states`` (B, T, 2n); ``u`` (B, T, m), the inputs of each step, when the
+system takes inputs; and for ``objective="derivative"`` (Lim & Kasim eq. (2)) ``rates``: ds/dt,
+the true field at the clean simulated states (the authors' protocol), or central differences
+of the observed states for loaded data.
 """
 
 from __future__ import annotations
@@ -30,20 +33,20 @@ log = logging.getLogger(__name__)
 
 
 class Windows(Dataset):
-    """Windows ``states[i, start : start + length]`` addressed by ``(i, start)`` pairs, with the
-    matching windows of ``rates`` when given."""
+    """Windows ``array[i, start : start + length]`` of every array (states, inputs, rates), addressed
+    by ``(i, start)`` pairs; a batch is a dict of (B, length, ...) tensors."""
 
-    def __init__(self, states: Tensor, length: int, rates: Tensor | None = None):
-        self.states, self.length, self.rates = states, length, rates
+    def __init__(self, arrays: dict[str, Tensor], length: int):
+        self.arrays, self.length = arrays, length
         self.offsets = torch.arange(length)
 
     def __len__(self) -> int:
-        return self.states.shape[0]
+        return self.arrays["states"].shape[0]
 
-    def __getitems__(self, index: list[tuple[int, int]]) -> Tensor | tuple[Tensor, Tensor]:
+    def __getitems__(self, index: list[tuple[int, int]]) -> dict[str, Tensor]:
         traj, start = torch.tensor(index).T
         at = (traj[:, None], start[:, None] + self.offsets)
-        return self.states[at] if self.rates is None else (self.states[at], self.rates[at])
+        return {key: array[at] for key, array in self.arrays.items()}
 
 
 class WindowSampler(Sampler):
@@ -101,7 +104,7 @@ class TrajectoryDataModule(pl.LightningDataModule):
     def prepare_data(self) -> None:
         if self.path is None and not self.cache_file.exists():
             gen = torch.Generator().manual_seed(self.seed)
-            splits = {}
+            splits, inputs = {}, {}
             steps_of = {name: self.test_steps if name == "test" else self.n_steps for name in self.sizes}
             progress = Progress(sum(1 for n in self.sizes.values() if n), f"simulating {self.system.name}: split",
                                 log, work=sum(n * steps_of[k] for k, n in self.sizes.items()))
@@ -110,11 +113,13 @@ class TrajectoryDataModule(pl.LightningDataModule):
                     steps = steps_of[name]
                     progress.start(f"{name}, {n} trajectories × {steps} steps", n * steps)
                     t = torch.arange(steps + 1, dtype=torch.float64) * self.dt
-                    splits[name], rejected = sample_trajectories(self.system, n, t, gen, self.substeps)
+                    splits[name], u, rejected = sample_trajectories(self.system, n, t, gen, self.substeps)
+                    if u is not None:
+                        inputs[name] = u
                     if rejected:
                         log.info("%s: redrew %d of %d %s trajectories (%s)", self.system.name, rejected, n, name,
                                  getattr(self.system, "rejection_reason", "invalid"))
-            store.save(self.cache_file, t[: self.n_steps + 1], splits, self.system.base_chart)
+            store.save(self.cache_file, t[: self.n_steps + 1], splits, self.system.base_chart, inputs)
             progress.done()
             log.info("simulated %s into %s", self.system.name, self.cache_file)
 
@@ -132,40 +137,54 @@ class TrajectoryDataModule(pl.LightningDataModule):
             if arr.shape[-1] != width:
                 raise DataError(f"data file {str(source)!r}: '{name}' has {arr.shape[-1]} state entries; "
                                 f"the {chart} chart of '{self.system.name}' needs {width}")
+        inputs = store.load_inputs(source, splits, self.system.n_controls)
         if "val" not in splits:
             n_val = max(1, splits["train"].shape[0] // 10)
-            splits["val"], splits["train"] = splits["train"][:n_val], splits["train"][n_val:]
+            for arrays in (splits, inputs):
+                if "train" in arrays:
+                    arrays["val"], arrays["train"] = arrays["train"][:n_val], arrays["train"][n_val:]
         self.t = t
         self.dt = float(t[1] - t[0])
         gen = torch.Generator().manual_seed(self.seed + 1)
         served = {k: self.system.to_chart(v, chart, self.chart) for k, v in splits.items()}
-        for name in ("train", "val"):
-            served[name] = served[name] + self.noise * torch.randn(served[name].shape, generator=gen,
-                                                                    dtype=torch.float64)
-        self.states = {k: v.float() for k, v in served.items()}
-        self.rates = self._rates(splits["train"], chart, served["train"]).float() \
-            if self.objective == "derivative" else None
+        served["train"] = served["train"] + self.noise * torch.randn(served["train"].shape, generator=gen,
+                                                                      dtype=torch.float64)
+        self.arrays = {k: {"states": v.float()} for k, v in served.items()}
+        for name, u in inputs.items():
+            self.arrays[name]["u"] = u.float()
+        if self.objective == "derivative":
+            self.arrays["train"]["rates"] = self._rates(splits["train"], chart, served["train"],
+                                                        inputs.get("train")).float()
         if self.chunk_len > len(t):
             raise DataError(f"data.chunk_len={self.chunk_len} exceeds the {len(t)} states per trajectory")
 
-    def _rates(self, clean: Tensor, chart: str, observed: Tensor) -> Tensor:
+    @property
+    def states(self) -> dict[str, Tensor]:
+        """The served states of each split (float32, noisy where noise applies)."""
+        return {name: arrays["states"] for name, arrays in self.arrays.items()}
+
+    def _rates(self, clean: Tensor, chart: str, observed: Tensor, u: Tensor | None) -> Tensor:
         """ds/dt of the training states in the served chart, float64 (see the module docstring)."""
         if self.path is None and self.system.known_physics:
-            field = self.system.vector_field(clean, chart)
+            field = self.system.field(clean, chart, u)
             return jvp(lambda s: self.system.to_chart(s, chart, self.chart), (clean,), (field,))[1]
         return torch.gradient(observed, spacing=self.dt, dim=1, edge_order=2)[0]
 
-    def _windows(self, split: str, shuffle: bool, rates: Tensor | None = None) -> DataLoader:
-        states = self.states[split]
-        sampler = WindowSampler(states.shape[0], states.shape[1] - self.chunk_len + 1, self.seed, shuffle)
-        return DataLoader(Windows(states, self.chunk_len, rates), sampler=sampler, batch_size=self.batch_size,
+    def _windows(self, split: str, shuffle: bool) -> DataLoader:
+        arrays = self.arrays[split]
+        n, steps = arrays["states"].shape[:2]
+        sampler = WindowSampler(n, steps - self.chunk_len + 1, self.seed, shuffle)
+        return DataLoader(Windows(arrays, self.chunk_len), sampler=sampler, batch_size=self.batch_size,
                           collate_fn=_identity)
 
     def train_dataloader(self) -> DataLoader:
-        return self._windows("train", shuffle=True, rates=self.rates)
+        return self._windows("train", shuffle=True)
 
     def val_dataloader(self) -> DataLoader:
         return self._windows("val", shuffle=False)
 
     def test_dataloader(self) -> DataLoader:
-        return DataLoader(self.states["test"], batch_size=len(self.states["test"]), collate_fn=torch.stack)
+        arrays = self.arrays["test"]
+        n, steps = arrays["states"].shape[:2]
+        return DataLoader(Windows(arrays, steps), sampler=[(i, 0) for i in range(n)], batch_size=n,
+                          collate_fn=_identity)

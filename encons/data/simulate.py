@@ -7,30 +7,40 @@ from torch import Tensor
 from torchdiffeq import odeint
 
 from encons.errors import DataError
+from encons.integrators import odeint_held
 from encons.systems.base import System
 
 
-def simulate(system: System, s0: Tensor, t: Tensor, substeps: int = 10) -> Tensor:
-    """Trajectories (N, T, 2n) in the base chart from states ``s0`` (N, 2n) over times ``t``."""
-    step = float(t[1] - t[0]) / substeps
-    traj = odeint(lambda _, s: system.vector_field(s, system.base_chart), s0, t,
-                  method="rk4", options={"step_size": step})
+def simulate(system: System, s0: Tensor, t: Tensor, substeps: int = 10, u: Tensor | None = None) -> Tensor:
+    """Trajectories (N, T, 2n) in the base chart from states ``s0`` (N, 2n) over times ``t``,
+    under inputs ``u`` (N, T, m) held over each data step, or None."""
+    options = {"method": "rk4", "options": {"step_size": float(t[1] - t[0]) / substeps}}
+    if u is None:
+        traj = odeint(lambda _, s: system.vector_field(s, system.base_chart), s0, t, **options)
+    else:
+        traj = odeint_held(lambda _, s, uk: system.vector_field(s, system.base_chart, uk), s0, t, u, **options)
     return traj.movedim(0, 1)
 
 
 def sample_trajectories(system: System, n: int, t: Tensor, generator: torch.Generator,
-                        substeps: int = 10, max_tries: int = 5) -> tuple[Tensor, int]:
-    """``n`` valid trajectories (see ``System.valid``) and how many were rejected and redrawn."""
-    kept: list[Tensor] = []
+                        substeps: int = 10, max_tries: int = 5) -> tuple[Tensor, Tensor | None, int]:
+    """``n`` valid trajectories (see ``System.valid``), their inputs (n, T, m) (None without
+    inputs), and how many were rejected and redrawn."""
+    kept: list[tuple[Tensor, Tensor | None]] = []
     count, rejected = 0, 0
     for _ in range(max_tries):
         need = n - count
-        traj = simulate(system, system.sample_initial(need + need // 4 + 1, generator), t, substeps)
+        draw = need + need // 4 + 1
+        s0 = system.sample_initial(draw, generator)
+        u = system.sample_controls(draw, generator)
+        u = u[:, None].expand(-1, len(t), -1) if u is not None else None
+        traj = simulate(system, s0, t, substeps, u)
         ok = system.valid(traj) & torch.isfinite(traj).flatten(1).all(1)
-        rejected += int((~ok[: need + need // 4 + 1]).sum())
-        kept.append(traj[ok][:need])
-        count += kept[-1].shape[0]
+        rejected += int((~ok).sum())
+        kept.append((traj[ok][:need], u[ok][:need] if u is not None else None))
+        count += kept[-1][0].shape[0]
         if count == n:
-            return torch.cat(kept), rejected
+            states = torch.cat([k[0] for k in kept])
+            return states, (torch.cat([k[1] for k in kept]) if u is not None else None), rejected
     raise DataError(f"system '{system.name}': only {count} of {n} sampled trajectories were valid "
                     f"after {max_tries} draws; widen the initial-condition ranges")

@@ -2,7 +2,9 @@
 
 Keys: ``t`` (T,) times, equally spaced; ``train``, ``val`` (optional), ``test`` arrays of
 shape (N, T, 2n) holding states ``(q, q̇)`` sampled at ``t`` (``test`` may run longer, at the
-same spacing); ``chart`` a string naming their chart.
+same spacing); ``chart`` a string naming their chart. Controlled systems add ``u_train``,
+``u_val``, ``u_test``: the inputs of each trajectory, (N, m) constant over the trajectory or
+(N, T, m) per step (``u[:, k]`` acts from ``t_k`` to ``t_{k+1}``; the last entry is unused).
 Files are written to a temporary name and renamed, so a half-written file is never read.
 """
 
@@ -28,13 +30,17 @@ def config_hash(config: dict) -> str:
     return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def save(path: Path, t: Tensor, splits: dict[str, Tensor], chart: str) -> None:
-    """Write trajectories atomically (temporary file in the same folder, then rename)."""
+def save(path: Path, t: Tensor, splits: dict[str, Tensor], chart: str,
+         inputs: dict[str, Tensor] | None = None) -> None:
+    """Write trajectories (and their inputs per split, if any) atomically: a temporary file in
+    the same folder, then rename."""
+    arrays = {k: v.numpy() for k, v in splits.items()}
+    arrays.update({f"u_{k}": v.numpy() for k, v in (inputs or {}).items()})
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
     try:
         with os.fdopen(fd, "wb") as f:
-            np.savez(f, t=t.numpy(), chart=np.array(chart), **{k: v.numpy() for k, v in splits.items()})
+            np.savez(f, t=t.numpy(), chart=np.array(chart), **arrays)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -42,7 +48,9 @@ def save(path: Path, t: Tensor, splits: dict[str, Tensor], chart: str) -> None:
 
 
 def load(path: str | Path) -> tuple[Tensor, dict[str, Tensor], str | None]:
-    """Read and check a trajectory file; raise ``DataError`` naming what is wrong and how to fix it."""
+    """Read and check a trajectory file; raise ``DataError`` naming what is wrong and how to fix it.
+
+    Returns the times, the state splits and the chart; ``load_inputs`` reads the inputs."""
     path = Path(path)
     if not path.is_file():
         raise DataError(f"data file {str(path)!r} does not exist; set system.path to an .npz file (see README)")
@@ -73,3 +81,28 @@ def load(path: str | Path) -> tuple[Tensor, dict[str, Tensor], str | None]:
         splits[name] = torch.from_numpy(np.asarray(arr, dtype=np.float64))
     chart = str(arrays["chart"]) if "chart" in arrays else None
     return t, splits, chart
+
+
+def load_inputs(path: str | Path, splits: dict[str, Tensor], n_controls: int) -> dict[str, Tensor]:
+    """The inputs ``u_<split>`` of a file whose states ``splits`` were read by ``load``, each as
+    (N, T, m) per step (constant inputs expanded); empty when ``n_controls`` is 0."""
+    if n_controls == 0:
+        return {}
+    with np.load(path, allow_pickle=False) as f:
+        arrays = {k: f[k] for k in f.files if k.startswith("u_")}
+    inputs = {}
+    for name, states in splits.items():
+        key, (n, steps) = f"u_{name}", states.shape[:2]
+        if key not in arrays:
+            raise DataError(f"data file {str(path)!r} lacks '{key}': the system takes {n_controls} input(s); "
+                            f"allowed: an array (N, {n_controls}) constant per trajectory or (N, T, {n_controls})")
+        u = torch.from_numpy(np.asarray(arrays[key], dtype=np.float64))
+        if u.ndim == 2 and u.shape == (n, n_controls):
+            u = u[:, None].expand(n, steps, n_controls)
+        elif not (u.ndim == 3 and u.shape == (n, steps, n_controls)):
+            raise DataError(f"data file {str(path)!r}: '{key}' has shape {tuple(u.shape)}; allowed: "
+                            f"({n}, {n_controls}) constant per trajectory or ({n}, {steps}, {n_controls}) per step")
+        if not bool(torch.isfinite(u).all()):
+            raise DataError(f"data file {str(path)!r}: '{key}' contains NaN or inf")
+        inputs[name] = u
+    return inputs

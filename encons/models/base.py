@@ -1,8 +1,15 @@
-"""The Model seam: a learned continuous vector field ż = f(t, z) on an internal state z.
+"""The Model seam: a learned continuous vector field ż = f(t, z, u), or a model that steps itself.
 
 Data come as ``s = (q, q̇)`` in the model's chart; ``encode`` maps them to the internal
-state the field acts on (e.g. ``(q, p)`` for Hamiltonian models) and ``decode`` maps back.
-The rollout (``encons.integrators.rollout``) is the only place that integrates a model.
+state a continuous field acts on (e.g. ``(q, p)`` for Hamiltonian models) and ``decode`` maps
+back. Exogenous inputs ``u`` (controls, per-trajectory parameters; shape (..., m)) travel beside
+the state in one argument, never inside it. ``encons.integrators.rollout`` is the one way to roll
+any model out: continuous fields through torchdiffeq, discrete models (``DiscreteModel``) by their
+own ``rollout``.
+
+What a model supports is declared by class attributes, checked once when a run is built
+(``encons.config.check_model``): ``discrete``, ``supports_controls``, ``needs_constraints``,
+``history`` and ``objectives``.
 """
 
 from __future__ import annotations
@@ -16,21 +23,27 @@ from encons.systems.base import System
 
 
 class DynamicsModel(nn.Module):
-    """Base of every continuous-time model.
+    """Base of every model; subclasses of it alone are continuous vector fields.
 
-    Subclasses set ``default_chart`` (``None``: the system's base chart), may set
-    ``needs_constraints`` (True for models that use the system's known Φ), and implement
-    ``forward(t, z)``. ``encode``/``decode`` default to the identity.
+    Subclasses set ``default_chart`` (``None``: the system's base chart) and the capability
+    attributes below, and implement ``forward(t, z, u=None)`` (``forward(t, z)`` suffices for a
+    model without inputs: it is called with ``u`` only when there are inputs). ``encode``/``decode``
+    default to the identity.
     """
 
     default_chart: ClassVar[str | None] = None
-    needs_constraints: ClassVar[bool] = False
+    needs_constraints: ClassVar[bool] = False   # uses the system's holonomic constraints Φ(x) = 0
+    supports_controls: ClassVar[bool] = False   # accepts exogenous inputs u
+    discrete: ClassVar[bool] = False            # False: a vector field rolled out by the integrator group
+    history: ClassVar[int] = 1                  # data states a rollout starts from
+    objectives: ClassVar[tuple[str, ...]] = ("rollout", "derivative")  # supported; the first is the default
 
     def __init__(self, system: System, chart: str | None = None):
         super().__init__()
         self.chart = chart or self.default_chart or system.base_chart
         system.check_chart(self.chart)
         self.n = system.coord_dim(self.chart)
+        self.n_controls = system.n_controls
 
     def encode(self, s: Tensor) -> Tensor:
         """Data-chart state (..., 2n) -> internal state."""
@@ -40,15 +53,41 @@ class DynamicsModel(nn.Module):
         """Internal state -> data-chart state (..., 2n)."""
         return z
 
-    def forward(self, t: Tensor, z: Tensor) -> Tensor:  # noqa: D401 - torchdiffeq signature
-        """dz/dt at internal states ``z`` of any batch shape."""
+    def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:  # noqa: D401 - torchdiffeq
+        """dz/dt at internal states ``z`` of any batch shape, under inputs ``u`` (..., m) or None."""
         raise NotImplementedError
 
-    def constrained_field(self, s: Tensor) -> tuple[Tensor, Callable[[Tensor], Tensor]]:
-        """Points and per-sample field that soft dynamics constraints (``encons.regularisers``) act on.
+    def constrained_field(self, s: Tensor, u: Tensor | None = None) -> tuple[Tensor, Callable[..., Tensor]]:
+        """Points, per-point inputs and the per-sample field that soft dynamics constraints act on.
 
-        Default: the internal field at ``encode(s)``; for a model whose ``encode`` is a learned
-        invertible map this is the latent field, as in Lim & Kasim eq. (7).
+        Returns ``(z, field)`` with ``field(z_i, u_i)`` (``u_i`` None without inputs). Default: the
+        internal field at ``encode(s)``; for a model whose ``encode`` is a learned invertible map
+        this is the latent field, as in Lim & Kasim eq. (7).
         """
         t = torch.zeros((), dtype=s.dtype, device=s.device)
-        return self.encode(s), lambda z: self(t, z)
+        return self.encode(s), lambda z, ui=None: self(t, z) if ui is None else self(t, z, ui)
+
+
+class DiscreteModel(DynamicsModel):
+    """A model that advances itself by discrete steps from its last ``history`` states.
+
+    It has no vector field, so ``objective=derivative`` and the Jacobian regularisers do not apply;
+    the integrator group does not apply either. Subclasses implement ``rollout`` and, when
+    ``"residual"`` is among their ``objectives``, ``residual``.
+    """
+
+    discrete = True
+    history = 2
+    objectives = ("rollout",)
+
+    def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
+        raise TypeError(f"{type(self).__name__} is a discrete model: it has no vector field")
+
+    def rollout(self, start: Tensor, t: Tensor, u: Tensor | None = None) -> Tensor:
+        """States (..., T, 2n) on times ``t`` (T,) from the first ``history`` states ``start``
+        (..., history, 2n), which are returned unchanged; ``u`` (..., T, m) per step or None."""
+        raise NotImplementedError
+
+    def residual(self, states: Tensor, t: Tensor, u: Tensor | None = None) -> Tensor:
+        """Residual vectors (..., K) of the model's own equations on windows ``states`` (..., T, 2n)."""
+        raise NotImplementedError

@@ -23,21 +23,36 @@ def mlp(in_dim: int, out_dim: int, hidden: int = 256, depth: int = 3, activation
     return nn.Sequential(*layers)
 
 
-def embed_angles(q: Tensor, angular: bool) -> Tensor:
-    """(cos q, sin q) for angle-aware models (Zhong et al. §3, "-angle" variants), else q."""
-    return torch.cat([torch.cos(q), torch.sin(q)], -1) if angular else q
+Angular = bool | tuple[bool, ...]
+
+
+def embed_angles(q: Tensor, angular: Angular) -> Tensor:
+    """(cos q, sin q) for angle-aware models (Zhong et al. §3, "-angle" variants), else q.
+
+    ``angular`` may mark each coordinate (a tuple of bools): then the translations come first,
+    unchanged, followed by (cos, sin) of the marked angles (Santos et al. §5.3, "embeddings").
+    """
+    if isinstance(angular, bool):
+        return torch.cat([torch.cos(q), torch.sin(q)], -1) if angular else q
+    angles = q[..., [i for i, a in enumerate(angular) if a]]
+    return torch.cat([q[..., [i for i, a in enumerate(angular) if not a]], torch.cos(angles), torch.sin(angles)], -1)
+
+
+def embedded_width(n: int, angular: Angular) -> int:
+    """Width of ``embed_angles`` of n coordinates."""
+    return n + (n * angular if isinstance(angular, bool) else sum(angular))
 
 
 class CholeskyMass(nn.Module):
     """M(q) = L(q) L(q)ᵀ with L lower triangular, softplus diagonal + ``eps`` (Zhong et al. §3)."""
 
-    def __init__(self, n: int, angular: bool, hidden: int, depth: int, activation: str, eps: float):
+    def __init__(self, n: int, angular: Angular, hidden: int, depth: int, activation: str, eps: float):
         super().__init__()
         self.n, self.angular, self.eps = n, angular, eps
         rows, cols = torch.tril_indices(n, n)
         self.register_buffer("diag", rows == cols, persistent=False)
         self.register_buffer("scatter", nn.functional.one_hot(rows * n + cols, n * n).float(), persistent=False)
-        self.net = mlp(2 * n if angular else n, len(rows), hidden, depth, activation)
+        self.net = mlp(embedded_width(n, angular), len(rows), hidden, depth, activation)
 
     def cholesky(self, q: Tensor) -> Tensor:
         """L(q), shape (..., n, n)."""
@@ -58,10 +73,10 @@ class CholeskyMass(nn.Module):
 class Potential(nn.Module):
     """V(q): an MLP to a scalar, angles embedded on S¹ when ``angular`` (Zhong et al. §3)."""
 
-    def __init__(self, n: int, angular: bool, hidden: int, depth: int, activation: str):
+    def __init__(self, n: int, angular: Angular, hidden: int, depth: int, activation: str):
         super().__init__()
         self.angular = angular
-        self.net = mlp(2 * n if angular else n, 1, hidden, depth, activation)
+        self.net = mlp(embedded_width(n, angular), 1, hidden, depth, activation)
 
     def forward(self, q: Tensor) -> Tensor:
         """V(q), shape ``q.shape[:-1]``."""

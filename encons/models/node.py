@@ -1,7 +1,8 @@
-"""Neural ODE baseline (Chen et al. 2018): ṡ = f_θ(s), an MLP on the data chart."""
+"""Neural ODE baseline (Chen et al. 2018): ṡ = f_θ(s, u), an MLP on the data chart."""
 
 from __future__ import annotations
 
+import torch
 from torch import Tensor
 
 from encons.models.base import DynamicsModel
@@ -10,12 +11,17 @@ from encons.systems.base import System
 
 
 class NODE(DynamicsModel):
-    """Unstructured vector field; works in any chart (default: the system's base chart)."""
+    """Unstructured vector field; works in any chart (default: the system's base chart).
+
+    With a controlled system the inputs u (..., m) are concatenated to the state at the MLP's input
+    (the NODE baseline of Santos et al. §4)."""
+
+    supports_controls = True
 
     def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
                  activation: str = "softplus"):
         super().__init__(system, chart)
-        self.net = mlp(2 * self.n, 2 * self.n, hidden, depth, activation)
+        self.net = mlp(2 * self.n + self.n_controls, 2 * self.n, hidden, depth, activation)
 
-    def forward(self, t: Tensor, z: Tensor) -> Tensor:
-        return self.net(z)
+    def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
+        return self.net(z if u is None else torch.cat([z, u.to(z)], -1))

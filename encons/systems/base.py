@@ -75,6 +75,7 @@ class System(abc.ABC):
     common_chart: str
     layout: CartesianLayout | None = None
     known_physics: bool = True
+    n_controls: int = 0            # width m of the exogenous inputs u the dynamics take
 
     @property
     def base_chart(self) -> str:
@@ -91,8 +92,9 @@ class System(abc.ABC):
         """Number of coordinates n in ``chart`` (the state has 2n entries)."""
 
     @abc.abstractmethod
-    def vector_field(self, s: Tensor, chart: str) -> Tensor:
-        """True ds/dt at states ``s`` in ``chart``."""
+    def vector_field(self, s: Tensor, chart: str, u: Tensor | None = None) -> Tensor:
+        """True ds/dt at states ``s`` in ``chart`` under inputs ``u`` (..., m); systems without
+        inputs (``n_controls == 0``) may omit ``u``: it is passed only when there are inputs."""
 
     @abc.abstractmethod
     def energy(self, s: Tensor, chart: str) -> Tensor:
@@ -101,6 +103,14 @@ class System(abc.ABC):
     @abc.abstractmethod
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
         """``n`` initial states in the base chart, float64."""
+
+    def sample_controls(self, n: int, generator: torch.Generator) -> Tensor | None:
+        """Inputs (n, m) held constant over each of ``n`` trajectories, float64; None without inputs."""
+        return None
+
+    def field(self, s: Tensor, chart: str, u: Tensor | None = None) -> Tensor:
+        """``vector_field``, passing ``u`` only when there are inputs."""
+        return self.vector_field(s, chart) if u is None else self.vector_field(s, chart, u)
 
     def to_chart(self, s: Tensor, src: str, dst: str) -> Tensor:
         """Map states from chart ``src`` to chart ``dst`` (at least base → every chart)."""

@@ -6,6 +6,7 @@ error metrics are computed in the file's chart.
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -24,6 +25,8 @@ class FileSystem(System):
         self.charts = (chart or file_chart or "angle",)
         self.common_chart = self.charts[0]
         self.n = splits["train"].shape[-1] // 2
+        with np.load(path, allow_pickle=False) as f:  # inputs, if any: checked in full by the data module
+            self.n_controls = int(f["u_train"].shape[-1]) if "u_train" in f.files else 0
 
     def coord_dim(self, chart: str) -> int:
         self.check_chart(chart)

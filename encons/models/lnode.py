@@ -1,0 +1,48 @@
+"""L-NODE (Santos, Ekal & Ventura §4): learned M(q), V(q) in the forced Euler–Lagrange equation (4).
+
+    q̈ = M(q)⁻¹ (B u − Ṁ q̇ + ½ ∇_q(q̇ᵀ M q̇) − ∇V(q)),
+
+a continuous field rolled out by the ``integrator`` group (the paper's RK4 and midpoint), inputs u
+held over each data step. M = L Lᵀ through a Cholesky factor, the system's angles embedded as
+(cos q, sin q) when ``angular``; B is the system's input matrix (constant, control-affine).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+from torch.func import grad, jvp
+
+from encons.models.base import DynamicsModel
+from encons.models.networks import CholeskyMass, Potential
+from encons.models.symo import angle_mask, input_matrix
+from encons.systems.base import System, split_state
+
+
+class LNode(DynamicsModel):
+    """M(q) and V(q) networks (tanh 2 × 128 by default, Santos et al. §7) in eq. (4)."""
+
+    default_chart = "angle"
+    supports_controls = True
+
+    def __init__(self, system: System, chart: str | None = None, hidden: int = 128, depth: int = 2,
+                 activation: str = "tanh", mass_eps: float = 1e-3, angular: bool = True):
+        super().__init__(system, chart)
+        angles = angle_mask(system, angular)
+        self.mass = CholeskyMass(self.n, angles, hidden, depth, activation, mass_eps)
+        self.potential = Potential(self.n, angles, hidden, depth, activation)
+        self.register_buffer("input_matrix", input_matrix(system), persistent=False)
+
+    def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
+        q, qd = split_state(s)
+
+        def lagrangian(qi: Tensor) -> tuple[Tensor, tuple[Tensor, Tensor]]:
+            mass, mass_dot = jvp(self.mass, (qi,), (qd,))  # M and Ṁ = dM/dt along q̇ from one jvp
+            kinetic = 0.5 * (qd * (mass @ qd.unsqueeze(-1)).squeeze(-1)).sum(-1)
+            return (kinetic - self.potential(qi)).sum(), (mass, mass_dot)
+
+        dl_dq, (mass, mass_dot) = grad(lagrangian, has_aux=True)(q)
+        rhs = dl_dq - (mass_dot @ qd.unsqueeze(-1)).squeeze(-1)
+        if u is not None:
+            rhs = rhs + u.to(s) @ self.input_matrix.T
+        return torch.cat([qd, torch.linalg.solve(mass, rhs)], -1)

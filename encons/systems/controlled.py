@@ -1,0 +1,154 @@
+"""Mechanical systems driven by a control input u (Santos, Ekal & Ventura, §3.1 and §7).
+
+The state is s = (q, q̇) in generalised coordinates (one chart, ``angle``); the control enters the
+forced Euler–Lagrange equations (Santos et al. eq. (3)–(4)) as the generalised force F = B u with a
+constant input matrix B (``input_matrix``):
+
+    M(q) q̈ = B u − b(q, q̇),   b = C(q, q̇) + ∇V(q)   (Coriolis/centrifugal terms and gravity).
+
+Each system gives M(q), V(q) and b(q, q̇) in closed form. ``angles`` marks which coordinates are
+angles (embedded on S¹ by the models); the others are translations.
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+from collections.abc import Sequence
+
+import torch
+from torch import Tensor
+
+from encons.errors import ConfigError
+from encons.systems.base import System, split_state
+
+
+def _positive(**values: float) -> None:
+    for key, value in values.items():
+        if not value > 0:
+            raise ConfigError(f"system.{key}={value} must be > 0")
+
+
+class ControlledMechanical(System):
+    """Base of the controlled systems: M(q), V(q), b(q, q̇) and B in closed form, u ~ U(−u_max, u_max).
+
+    Initial states are uniform in ``[−init_range, init_range]`` per state entry; one constant control
+    is drawn per trajectory (Santos et al. §7).
+    """
+
+    charts = ("angle",)
+    common_chart = "angle"
+    n_controls = 1
+    angles: tuple[bool, ...]
+
+    def __init__(self, init_range: Sequence[float], u_max: float):
+        if len(init_range) != 2 * len(self.angles) or min(init_range) < 0:
+            raise ConfigError(f"system.init_range={list(init_range)} must hold {2 * len(self.angles)} "
+                              f"non-negative half-widths (q then q̇)")
+        if u_max < 0:
+            raise ConfigError(f"system.u_max={u_max} must be >= 0")
+        self.init_range = torch.tensor([float(r) for r in init_range], dtype=torch.float64)
+        self.u_max = float(u_max)
+
+    def coord_dim(self, chart: str) -> int:
+        self.check_chart(chart)
+        return len(self.angles)
+
+    @abc.abstractmethod
+    def mass_matrix(self, q: Tensor) -> Tensor: ...
+
+    @abc.abstractmethod
+    def potential(self, q: Tensor) -> Tensor: ...
+
+    @abc.abstractmethod
+    def bias(self, q: Tensor, qd: Tensor) -> Tensor:
+        """b(q, q̇) = C(q, q̇) + ∇V(q): M q̈ = B u − b."""
+
+    @abc.abstractmethod
+    def input_matrix(self) -> Tensor:
+        """B (n, m): the generalised force of input u is B u."""
+
+    def vector_field(self, s: Tensor, chart: str, u: Tensor | None = None) -> Tensor:
+        """(q̇, q̈) of the forced Euler–Lagrange equations, Santos et al. eq. (4); u None means u = 0."""
+        self.check_chart(chart)
+        q, qd = split_state(s)
+        rhs = -self.bias(q, qd)
+        if u is not None:
+            rhs = rhs + u.to(s) @ self.input_matrix().to(s).T
+        return torch.cat([qd, torch.linalg.solve(self.mass_matrix(q), rhs)], -1)
+
+    def energy(self, s: Tensor, chart: str) -> Tensor:
+        self.check_chart(chart)
+        q, qd = split_state(s)
+        return 0.5 * (qd[..., None, :] @ self.mass_matrix(q) @ qd[..., :, None])[..., 0, 0] + self.potential(q)
+
+    def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
+        unit = torch.rand(n, self.init_range.numel(), generator=generator, dtype=torch.float64)
+        return (2 * unit - 1) * self.init_range
+
+    def sample_controls(self, n: int, generator: torch.Generator) -> Tensor:
+        unit = torch.rand(n, self.n_controls, generator=generator, dtype=torch.float64)
+        return (2 * unit - 1) * self.u_max
+
+
+class ControlledPendulum(ControlledMechanical):
+    """Gym's Pendulum (Brockman et al. 2016): a uniform rod of mass m, length l on a torque-driven pivot.
+
+    θ is measured from the upright position; M = m l²/3, V = ½ m g l (1 + cos θ), B = 1, so that
+    θ̈ = 3 g/(2 l) sin θ + 3 u/(m l²) as in Gym's dynamics.
+    """
+
+    angles = (True,)
+
+    def __init__(self, mass: float = 1.0, length: float = 1.0, g: float = 9.81,
+                 init_range: Sequence[float] = (math.pi, 2 * math.pi), u_max: float = 2.0):
+        _positive(mass=mass, length=length, g=g)
+        super().__init__(init_range, u_max)
+        self.name = "pendulum_control"
+        self.m, self.l, self.g = float(mass), float(length), float(g)
+
+    def mass_matrix(self, q: Tensor) -> Tensor:
+        return torch.full((*q.shape, 1), self.m * self.l**2 / 3, dtype=q.dtype, device=q.device)
+
+    def potential(self, q: Tensor) -> Tensor:
+        return 0.5 * self.m * self.g * self.l * (1 + torch.cos(q[..., 0]))
+
+    def bias(self, q: Tensor, qd: Tensor) -> Tensor:
+        return -0.5 * self.m * self.g * self.l * torch.sin(q)
+
+    def input_matrix(self) -> Tensor:
+        return torch.ones(1, 1, dtype=torch.float64)
+
+
+class CartPole(ControlledMechanical):
+    """Gym's CartPole (Barto, Sutton & Anderson 1983; Florian 2007) with a continuous force u on the cart.
+
+    q = (x, θ): cart position and pole angle from upright; the pole is a uniform rod of mass m_p and
+    half-length l. M = [[m_c + m_p, m_p l cos θ], [m_p l cos θ, (4/3) m_p l²]], V = m_p g l cos θ,
+    B = (1, 0)ᵀ, C = (−m_p l sin θ θ̇², 0).
+    """
+
+    angles = (False, True)
+
+    def __init__(self, cart_mass: float = 1.0, pole_mass: float = 0.1, half_length: float = 0.5, g: float = 9.81,
+                 init_range: Sequence[float] = (0.5, 3.14, 0.05, 3.0), u_max: float = 2.0):
+        _positive(cart_mass=cart_mass, pole_mass=pole_mass, half_length=half_length, g=g)
+        super().__init__(init_range, u_max)
+        self.name = "cartpole"
+        self.mc, self.mp, self.l, self.g = float(cart_mass), float(pole_mass), float(half_length), float(g)
+
+    def mass_matrix(self, q: Tensor) -> Tensor:
+        off = self.mp * self.l * torch.cos(q[..., 1])
+        top = torch.stack([torch.full_like(off, self.mc + self.mp), off], -1)
+        bottom = torch.stack([off, torch.full_like(off, 4 / 3 * self.mp * self.l**2)], -1)
+        return torch.stack([top, bottom], -2)
+
+    def potential(self, q: Tensor) -> Tensor:
+        return self.mp * self.g * self.l * torch.cos(q[..., 1])
+
+    def bias(self, q: Tensor, qd: Tensor) -> Tensor:
+        sin = torch.sin(q[..., 1])
+        return torch.stack([-self.mp * self.l * sin * qd[..., 1] ** 2, -self.mp * self.g * self.l * sin], -1)
+
+    def input_matrix(self) -> Tensor:
+        return torch.tensor([[1.0], [0.0]], dtype=torch.float64)

@@ -1,0 +1,170 @@
+"""SyMo / E2E-SyMo (Santos et al. §5–6) against the true discrete mechanics, in float64.
+
+The models' learned M(q) and V(q) are swapped for the system's own: the DEL residual (eq. (15)) must
+vanish on the true variational integrator's trajectories and shrink as h³ on exact trajectories,
+Newton must converge on them, and the implicit gradient (Theorem 1, eq. (16)) must equal the
+gradient through unrolled Newton iterations and finite differences.
+"""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from torch import nn
+from torchdiffeq import odeint
+
+from encons.models.symo import E2ESyMo, SyMo
+from encons.systems.controlled import CartPole, ControlledPendulum
+from encons.systems.pendulum import NPendulum
+
+SYSTEMS = {"pendulum_control": ControlledPendulum, "cartpole": CartPole,
+           "pendulum3": lambda: NPendulum(3, masses=[1.0, 0.7, 0.5], lengths=[1.0, 0.8, 0.6])}
+
+
+class TrueCholesky(nn.Module):
+    """The system's M(q) behind ``CholeskyMass``'s interface (its Cholesky factor)."""
+
+    def __init__(self, system):
+        super().__init__()
+        self.system = system
+
+    def forward(self, q):
+        return self.system.mass_matrix(q)
+
+    def cholesky(self, q):
+        return torch.linalg.cholesky(self.system.mass_matrix(q))
+
+    def solve(self, q, p):
+        return torch.cholesky_solve(p.unsqueeze(-1), self.cholesky(q)).squeeze(-1)
+
+
+class TruePotential(nn.Module):
+    def __init__(self, system):
+        super().__init__()
+        self.system = system
+
+    def forward(self, q):
+        return self.system.potential(q)
+
+
+def true_symo(system, **newton):
+    model = SyMo(system, hidden=8, depth=1, **newton).double()
+    model.mass, model.potential = TrueCholesky(system), TruePotential(system)
+    return model
+
+
+def exact(system, s0, t, u=None):
+    """Trajectories (N, T, 2n) by RK4 with 50 substeps per step (float64), constant inputs u (N, m)."""
+    field = (lambda _, s: system.vector_field(s, "angle", u)) if u is not None else (
+        lambda _, s: system.vector_field(s, "angle"))
+    return odeint(field, s0, t, method="rk4", options={"step_size": float(t[1] - t[0]) / 50}).movedim(0, 1)
+
+
+def draw(system, n, seed=0):
+    gen = torch.Generator().manual_seed(seed)
+    s0 = system.sample_initial(n, gen) if system.n_controls else 0.5 * system.sample_initial(n, gen)
+    u = system.sample_controls(n, gen) if system.n_controls else None
+    return s0, u
+
+
+def per_step(u, steps):
+    return None if u is None else u[:, None].expand(-1, steps, -1)
+
+
+@pytest.mark.parametrize("name", SYSTEMS)
+def test_del_residual_vanishes_on_the_true_variational_integrator(name):
+    system = SYSTEMS[name]()
+    model = true_symo(system, eval_tol=1e-12, eval_iters=20).eval()
+    s0, u = draw(system, 8)
+    h, steps = 0.05, 40
+    t = torch.arange(steps, dtype=torch.float64) * h
+    start = exact(system, s0, t[:2], u)
+    traj = model.rollout(start, t, per_step(u, steps))
+    assert max(model.newton_iterations) < 20  # converged every step, not stopped by the cap
+    assert model.residual(traj, t, per_step(u, steps)).abs().max() < 1e-10
+
+
+@pytest.mark.parametrize("name", SYSTEMS)
+def test_true_variational_integrator_is_second_order(name):
+    """Global configuration error at t = 1 falls fourfold when h halves."""
+    system = SYSTEMS[name]()
+    model = true_symo(system, eval_tol=1e-12, eval_iters=20).eval()
+    s0, u = draw(system, 8, seed=3)
+    n, errors = system.coord_dim("angle"), []
+    for steps in (26, 51):
+        t = torch.linspace(0, 1, steps, dtype=torch.float64)
+        truth = exact(system, s0, t, u)
+        traj = model.rollout(truth[:, :2], t, per_step(u, steps))
+        errors.append((traj[:, -1, :n] - truth[:, -1, :n]).norm(dim=-1).max())
+    assert 3.2 < errors[0] / errors[1] < 4.8
+
+
+@pytest.mark.parametrize("name", SYSTEMS)
+def test_del_residual_of_exact_trajectories_shrinks_as_h_cubed(name):
+    system = SYSTEMS[name]()
+    model = true_symo(system)
+    s0, u = draw(system, 8, seed=1)
+    errors = []
+    for h in (0.02, 0.01):
+        t = torch.arange(3, dtype=torch.float64) * h
+        errors.append(model.residual(exact(system, s0, t, u), t, per_step(u, 3)).norm(dim=-1).max())
+    assert 6.5 < errors[0] / errors[1] < 9.5  # local error O(h³) of the midpoint rule
+
+
+def unrolled_newton(model, c, q, guess, h, iters):
+    """Newton differentiated through its iterations (the reference for the implicit gradient)."""
+    x = guess
+    for _ in range(iters):
+        d1, jac = model.d1_and_jacobian(q, x, h)
+        x = x - torch.linalg.solve(jac, (c + d1).unsqueeze(-1)).squeeze(-1)
+    return x
+
+
+def test_implicit_gradient_matches_unrolled_newton_and_finite_differences():
+    """Three degrees of freedom, float64: ∂L/∂θ of a root by eq. (16) vs. the two references."""
+    torch.manual_seed(0)
+    system = SYSTEMS["pendulum3"]()
+    model = E2ESyMo(system, hidden=16, depth=2, train_tol=1e-13, train_iters=30).double().train()
+    s0, _ = draw(system, 6, seed=2)
+    t = torch.arange(4, dtype=torch.float64) * 0.05
+    start = exact(system, s0, t[:2])
+    weights = torch.randn(6, 2, 3, dtype=torch.float64)
+    params = list(model.parameters())
+
+    def loss_implicit():
+        return (model.rollout(start, t)[:, 2:, :3] * weights).sum()
+
+    implicit = torch.autograd.grad(loss_implicit(), params, materialize_grads=True)
+    assert max(model.newton_iterations) < 30
+
+    def loss_unrolled():
+        h, q_prev, q = t[1] - t[0], start[:, 0, :3], start[:, 1, :3]
+        roots = []
+        for _ in range(2):
+            c = model.slot_derivatives(q_prev, q, h)[1]
+            q_prev, q = q, unrolled_newton(model, c, q, 2 * q - q_prev, h, 12)
+            roots.append(q)
+        return (torch.stack(roots, 1) * weights).sum()
+
+    unrolled = torch.autograd.grad(loss_unrolled(), params, materialize_grads=True)
+    flat = lambda grads: torch.cat([g.reshape(-1) for g in grads])  # noqa: E731
+    assert torch.allclose(flat(implicit), flat(unrolled), rtol=1e-5, atol=1e-5 * flat(unrolled).abs().max())
+
+    direction = [torch.randn_like(p) for p in params]
+    eps = 1e-6
+    with torch.no_grad():
+        values = []
+        for sign in (1, -1):
+            for p, d in zip(params, direction):
+                p.add_(sign * eps * d)
+            values.append(loss_implicit())
+            for p, d in zip(params, direction):
+                p.sub_(sign * eps * d)
+    finite = (values[0] - values[1]) / (2 * eps)
+    analytic = sum((g * d).sum() for g, d in zip(implicit, direction))
+    assert abs(finite - analytic) <= 1e-5 * abs(analytic)
+
+
+def test_symo_trains_on_the_residual_and_e2e_on_the_rollout():
+    assert SyMo.objectives[0] == "residual" and E2ESyMo.objectives[0] == "rollout"
+    assert SyMo.discrete and SyMo.history == 2 and SyMo.supports_controls
