@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import run_cli
+from tests.helpers import run_cli
+
+pytestmark = pytest.mark.slow  # each case starts the CLI in a subprocess
 
 FAST = ["debug=fast", "logger=none"]
 

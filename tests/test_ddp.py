@@ -8,7 +8,9 @@ import re
 
 import pytest
 
-from conftest import run_cli
+from tests.helpers import run_cli
+
+pytestmark = pytest.mark.slow  # two training processes (gloo) and a reference run
 
 RUN = ["model=node", "system=pendulum1", "debug=fast", "trainer.max_epochs=3"]
 

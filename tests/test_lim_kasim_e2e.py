@@ -6,6 +6,8 @@ import math
 
 import pytest
 
+pytestmark = pytest.mark.slow  # end-to-end runs
+
 TINY = ["data.test_steps=12", "data.substeps=2", "model.hidden=8"]
 
 

@@ -6,16 +6,9 @@ from __future__ import annotations
 import math
 
 import pytest
-from omegaconf import OmegaConf
-
 from encons import api
 from encons.errors import ConfigError, DivergenceError
-
-
-def simulated_systems() -> list[str]:
-    """Systems whose config is complete (``from_file`` needs the user's ``system.path``)."""
-    return [s for s in api.catalogue("system")
-            if not OmegaConf.missing_keys(api.compose(f"system={s}", output_dir=".").system)]
+from tests.helpers import simulated_systems
 
 
 @pytest.mark.slow

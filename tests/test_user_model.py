@@ -9,7 +9,7 @@ import textwrap
 
 import pytest
 
-from conftest import run_cli
+from tests.helpers import run_cli
 
 MODEL = '''
 """A linear vector field ż = A z (a test model)."""
