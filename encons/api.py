@@ -228,6 +228,9 @@ def build_trainer(cfg: DictConfig):
 
     with execution_whitelist(trusted_targets()):
         loggers = [instantiate(c) for c in (cfg.get("logger") or {}).values()]
+        for lg in loggers:  # Lightning 2.6 passes anonymous=None, which wandb 0.31 warns about on every run
+            if getattr(lg, "_wandb_init", {}).get("anonymous", False) is None:
+                del lg._wandb_init["anonymous"]
         callbacks = [instantiate(c) for c in (cfg.get("callbacks") or {}).values()]
         callbacks.append(_config_in_checkpoints(run_config(cfg)))
         trainer = instantiate(cfg.trainer, logger=loggers or False, callbacks=callbacks)
