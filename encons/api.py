@@ -31,7 +31,6 @@ if TYPE_CHECKING:
     from encons.module import DynamicsModule
 
 __all__ = ["Run", "compose", "build", "train", "load", "evaluate", "rollout", "catalogue"]
-log = logging.getLogger("encons")
 
 #: Targets a config may instantiate (Hydra 1.4 execution whitelist). Add your own packages with
 #: ``ENCONS_TRUSTED_TARGETS=mypkg.*,other.Class`` (comma-separated); configs are never trusted to widen it.

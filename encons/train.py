@@ -6,7 +6,6 @@ prints a summary table and returns the metric named by ``optimized_metric`` (for
 
 from __future__ import annotations
 
-import logging
 import os
 import sys
 
@@ -19,8 +18,6 @@ from omegaconf import DictConfig
 from encons import api
 from encons.errors import EnconsError
 from encons.paths import config_dir
-
-log = logging.getLogger("encons")
 
 
 @hydra.main(config_path=config_dir(), config_name="train", execution_whitelist=api.trusted_targets())
