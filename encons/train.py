@@ -1,7 +1,8 @@
 """Hydra entry point: ``python -m encons.train model=<model> system=<system> [overrides]``.
 
-Builds system → data → model → LightningModule from the composed config, trains, tests,
-prints a summary table and returns the metric named by ``optimized_metric`` (for sweeps).
+Builds system → data → model → LightningModule from the composed config (``encons.api.train``),
+trains, tests the best-by-validation checkpoint, prints a summary table and returns that
+checkpoint's ``optimized_metric`` value (for sweeps).
 """
 
 from __future__ import annotations
