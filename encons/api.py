@@ -375,7 +375,10 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
         run_dir, ckpt_file = path, find_checkpoint(path, ckpt)
     else:
         raise ConfigError(f"{str(path)!r} is not a training run folder (no checkpoints/) or a .ckpt file")
-    state = torch.load(ckpt_file, map_location="cpu", weights_only=True)
+    try:
+        state = torch.load(ckpt_file, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises several types for a file that is not a checkpoint
+        raise ConfigError(f"ckpt={str(ckpt_file)!r} is not a readable checkpoint ({type(err).__name__})") from None
     if CONFIG_KEY in state:
         cfg = OmegaConf.create(state[CONFIG_KEY])
     elif (run_dir / "config.yaml").is_file():
@@ -386,7 +389,11 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
     cfg.paths.output_dir = str(run_dir / "evaluation")
     cfg.logger, cfg.callbacks = None, None
     data, module = build(cfg)
-    module.load_state_dict(state["state_dict"])
+    try:
+        module.load_state_dict(state["state_dict"])
+    except RuntimeError:
+        raise ConfigError(f"overrides {list(overrides)} change the model, so the weights of {ckpt_file.name} no "
+                          f"longer fit; allowed: overrides of data.*, horizon, integrator.*") from None
     module.eval()
     return Run(module, data, cfg, run_dir, ckpt_file)
 

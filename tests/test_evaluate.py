@@ -37,9 +37,18 @@ def test_longer_test_horizon_and_whole_trajectory_score(train_run, tmp_path):
     assert (tmp_path / "run" / "evaluation" / "figures" / "rollout.png").is_file()
 
 
+def test_evaluate_refuses_overrides_that_change_the_model(train_run, tmp_path):
+    train_run(RUN, name="run")
+    with pytest.raises(ConfigError, match="change the model"):
+        api.evaluate(tmp_path / "run", ["model.hidden=7"])
+
+
 def test_evaluate_names_a_missing_run(tmp_path):
     with pytest.raises(ConfigError, match="not a training run folder"):
         api.evaluate(tmp_path)
     (tmp_path / "checkpoints").mkdir()
     with pytest.raises(ConfigError, match="ckpt='best': no such checkpoint"):
         api.evaluate(tmp_path)
+    (tmp_path / "junk.ckpt").write_text("not a checkpoint")
+    with pytest.raises(ConfigError, match="not a readable checkpoint"):
+        api.evaluate(tmp_path / "junk.ckpt")
