@@ -194,10 +194,10 @@ def run_config(cfg: DictConfig) -> DictConfig:
 def build(cfg: DictConfig) -> tuple[TrajectoryDataModule, DynamicsModule]:
     """System → data → model → LightningModule from a composed config, seeded by ``cfg.seed``."""
     import lightning.pytorch as pl
-    from hydra.utils import execution_whitelist, instantiate
+    from hydra.utils import execution_whitelist
 
     _route_lightning_logs()
-    from encons.config import build_model, build_system, check_config, objective_of
+    from encons.config import build_model, build_system, check_config, instantiate_node, objective_of
     from encons.data.datamodule import TrajectoryDataModule
     from encons.module import DynamicsModule
 
@@ -213,8 +213,12 @@ def build(cfg: DictConfig) -> tuple[TrajectoryDataModule, DynamicsModule]:
                                     cache_dir=cfg.paths.cache_dir, **data_cfg)
         data.prepare_data()
         data.setup()
-        regulariser = instantiate(cfg.regulariser) if cfg.get("regulariser") else None
-        module = DynamicsModule(model, system, data.dt, instantiate(cfg.integrator), objective=objective,
+        test_steps = data.states["test"].shape[1] - 1
+        if cfg.horizon > test_steps:
+            raise ConfigError(f"horizon={cfg.horizon} exceeds the {test_steps} steps of a test trajectory; "
+                              f"allowed: 1..{test_steps}")
+        regulariser = instantiate_node(cfg, "regulariser") if cfg.get("regulariser") else None
+        module = DynamicsModule(model, system, data.dt, instantiate_node(cfg, "integrator"), objective=objective,
                                 regulariser=regulariser, horizon=cfg.horizon, output_dir=cfg.paths.output_dir,
                                 **cfg.optim)
     return data, module

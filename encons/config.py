@@ -2,16 +2,21 @@
 
 from __future__ import annotations
 
+import inspect
+import types
+import typing
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import InstantiationException
 from hydra.utils import get_class, instantiate
-from omegaconf import DictConfig, open_dict
+from omegaconf import DictConfig, OmegaConf, open_dict
 
-from encons.errors import ConfigError
+from encons.errors import ConfigError, EnconsError
 from encons.models.base import DynamicsModel
 from encons.paths import config_dir
 from encons.systems.base import System
@@ -32,26 +37,118 @@ def compose_train(overrides: list[str], output_dir: str | Path, cache_dir: str |
     return cfg
 
 
+def _type_name(hint: Any) -> str:
+    if hint is type(None):
+        return "null"
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        return " or ".join(_type_name(h) for h in typing.get_args(hint))
+    if typing.get_origin(hint) in (list, tuple, Sequence):
+        args = typing.get_args(hint)
+        return f"a list of {_type_name(args[0])}" if args else "a list"
+    return getattr(hint, "__name__", str(hint))
+
+
+def _matches(value: Any, hint: Any) -> bool:
+    """Whether a config value fits a constructor annotation; annotations it cannot judge pass."""
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        return any(_matches(value, h) for h in typing.get_args(hint))
+    if origin in (list, tuple, Sequence):
+        args = [a for a in typing.get_args(hint) if a is not Ellipsis]
+        return isinstance(value, (list, tuple)) and all(_matches(v, args[0]) for v in value[: len(value) * bool(args)])
+    if hint is type(None):
+        return value is None
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if hint is str:
+        return isinstance(value, str)
+    return True
+
+
+def check_types(values: dict, target: Any, key: str) -> None:
+    """Refuse a value whose type does not fit ``target``'s constructor annotation, naming key, value and type."""
+    fn = target.__init__ if inspect.isclass(target) else target
+    try:
+        hints = typing.get_type_hints(fn)
+    except Exception:  # noqa: BLE001 - an annotation that cannot be resolved cannot be judged
+        return
+    for name, value in values.items():
+        if name in hints and not _matches(value, hints[name]):
+            raise ConfigError(f"{key}.{name}={value!r} has type {type(value).__name__}; allowed: "
+                              f"{_type_name(hints[name])}".removeprefix("."))
+
+
+def check_node_types(cfg: DictConfig, key: str) -> None:
+    """Type-check the values of node ``cfg[key]`` against its ``_target_``'s constructor (if importable:
+    an unimportable target is reported where it is instantiated)."""
+    values = OmegaConf.to_container(cfg[key], resolve=True)
+    try:
+        target = get_class(values["_target_"])
+    except Exception:  # noqa: BLE001
+        return
+    check_types({k: v for k, v in values.items() if not k.startswith("_")}, target, key)
+
+
+def instantiate_node(cfg: DictConfig, key: str, **kwargs: Any) -> Any:
+    """``instantiate(cfg[key])`` with its values type-checked against the target's constructor, and any
+    error the constructor raises turned into one ``ConfigError`` line naming the node.
+
+    Hydra 1.4 re-raises the target's own exception (adding a ``full_key`` note) rather than an
+    ``InstantiationException``, so both are caught here, at the one place configs become objects.
+    """
+    node = cfg[key]
+    values = OmegaConf.to_container(node, resolve=True)
+    check_node_types(cfg, key)
+    try:
+        return instantiate(node, **kwargs)
+    except EnconsError:
+        raise
+    except Exception as err:  # noqa: BLE001 - a constructor's own error is the user's config's doing
+        cause = err.__cause__ if isinstance(err, InstantiationException) and err.__cause__ else err
+        if isinstance(cause, EnconsError):
+            raise cause from None
+        message = str(cause).splitlines()[0] if str(cause) else type(cause).__name__
+        shown = ", ".join(f"{key}.{k}={v}" for k, v in values.items() if not k.startswith("_") and not isinstance(v, dict))
+        raise ConfigError(f"{shown or key}: {type(cause).__name__}: {message}; allowed: the values documented "
+                          f"in conf/{key}/ for {values.get('_target_', '?')}") from None
+
+
+def _top_level_keys(seed: int, horizon: int, test: bool) -> None:
+    """The annotated top-level keys of ``train.yaml`` (for ``check_types``)."""
+
+
 def check_config(cfg: DictConfig) -> None:
-    """Reject sizes and budgets that cannot work, naming the key and what is allowed."""
+    """Reject types, sizes and budgets that cannot work, naming the key and what is allowed."""
+    from encons.data.datamodule import TrajectoryDataModule
+    from encons.integrators import Integrator
+
+    from encons.module import DynamicsModule
+
+    check_types({k: cfg.get(k) for k in ("seed", "horizon", "test")}, _top_level_keys, "")
+    check_types(OmegaConf.to_container(cfg.data, resolve=True), TrajectoryDataModule, "data")
+    check_types(OmegaConf.to_container(cfg.optim, resolve=True), DynamicsModule, "optim")
+    for key in ("system", "model", "regulariser"):
+        if cfg.get(key):
+            check_node_types(cfg, key)
+    check_types(OmegaConf.to_container(cfg.integrator, resolve=True), Integrator, "integrator")
     for key in POSITIVE_MODEL_KEYS:
         value = cfg.model.get(key)
         if value is not None and value < 1:
-            raise ConfigError(f"model.{key}={value} must be a positive integer")
-    if cfg.trainer.get("max_epochs") is not None and cfg.trainer.max_epochs < 1:
-        raise ConfigError(f"trainer.max_epochs={cfg.trainer.max_epochs} must be >= 1")
+            raise ConfigError(f"model.{key}={value}; allowed: a positive integer")
+    epochs = cfg.trainer.get("max_epochs")
+    if epochs is not None and (not isinstance(epochs, int) or isinstance(epochs, bool) or epochs < 1):
+        raise ConfigError(f"trainer.max_epochs={epochs!r}; allowed: an integer >= 1")
     if cfg.horizon < 1:
-        raise ConfigError(f"horizon={cfg.horizon} must be >= 1")
+        raise ConfigError(f"horizon={cfg.horizon}; allowed: an integer >= 1 (steps)")
 
 
 def build_system(cfg: DictConfig) -> System:
-    try:
-        return instantiate(cfg.system)
-    except InstantiationException as err:
-        cause = err.__cause__
-        if isinstance(cause, (ConfigError, ValueError)) or type(cause).__name__ == "DataError":
-            raise cause from None
-        raise
+    """The system of ``cfg.system``."""
+    return instantiate_node(cfg, "system")
 
 
 def build_model(cfg: DictConfig, system: System) -> DynamicsModel:
@@ -66,12 +163,7 @@ def build_model(cfg: DictConfig, system: System) -> DynamicsModel:
         raise ConfigError(f"model {model_name} needs holonomic constraints, which system '{system.name}' "
                           f"does not declare; use a model in generalised coordinates")
     check_capabilities(cfg, cls, system)
-    try:
-        return instantiate(cfg.model, system=system)
-    except InstantiationException as err:
-        if isinstance(err.__cause__, (ConfigError, ValueError)):
-            raise ConfigError(str(err.__cause__)) from None
-        raise
+    return instantiate_node(cfg, "model", system=system)
 
 
 def objective_of(cfg: DictConfig) -> str:

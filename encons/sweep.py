@@ -31,6 +31,8 @@ from hydra_plugins.hydra_optuna_sweeper._impl import create_params_from_override
 from numpy.random import SeedSequence
 from omegaconf import DictConfig, OmegaConf
 from optuna.trial import TrialState
+from sqlalchemy.engine import make_url
+from sqlalchemy.exc import NoSuchModuleError, OperationalError
 
 from encons.errors import ConfigError
 
@@ -50,6 +52,9 @@ class OptunaSweeper(Sweeper):
                  enqueue: list | None = None):
         if direction not in ("minimize", "maximize"):
             raise ConfigError(f"hydra.sweeper.direction={direction!r} is unknown; allowed: minimize, maximize")
+        for key, value in dict(n_trials=n_trials, n_jobs=n_jobs).items():
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ConfigError(f"hydra.sweeper.{key}={value!r}; allowed: an integer >= 1")
         self.sampler_config, self.direction, self.storage, self.study_name = sampler, direction, storage, study_name
         self.n_trials, self.n_jobs, self.max_failure_rate = n_trials, n_jobs, max_failure_rate
         self.params = OmegaConf.to_container(params) if params else {}
@@ -67,8 +72,7 @@ class OptunaSweeper(Sweeper):
             space.pop(name, None)
         sweep_dir = Path(self.config.hydra.sweep.dir)
         sweep_dir.mkdir(parents=True, exist_ok=True)
-        study = optuna.create_study(storage=self.storage, study_name=self.study_name,
-                                    direction=self.direction, load_if_exists=True)
+        study = open_study(self.storage, self.study_name, self.direction)
         study.sampler = self._sampler(len(study.trials))
         study.set_user_attr("optimized_metric", str(self.config.get("optimized_metric", "objective")))
         for params in self.enqueue:
@@ -99,6 +103,30 @@ class OptunaSweeper(Sweeper):
             raise ConfigError(f"hydra.sweeper.sampler={config['_target_']} needs the search space up front; "
                               f"for a grid use Hydra's basic sweeper (see sweeps/model_grid.yaml)")
         return sampler
+
+
+def check_storage(storage: str) -> optuna.storages.BaseStorage:
+    """The Optuna storage of a URL; an SQLite file's folder is created first, and a storage whose
+    database driver is missing, or that cannot be opened, is one ``ConfigError`` naming the fix."""
+    url = make_url(storage)
+    if url.get_backend_name() == "sqlite" and url.database not in (None, "", ":memory:"):
+        Path(url.database).parent.mkdir(parents=True, exist_ok=True)
+    try:
+        return optuna.storages.get_storage(storage)
+    except (ImportError, NoSuchModuleError) as err:
+        extra = {"postgresql": "pip install 'encons[postgres]' (psycopg 3, SQLAlchemy's driver for postgresql://)",
+                 "mysql": "a mysql+pymysql:// URL with pip install pymysql"}.get(url.get_backend_name(), "its database driver")
+        raise ConfigError(f"sweeps.storage={storage!r}: its database driver is missing ({err.__cause__ or err}); "
+                          f"allowed: {extra}, or a sqlite:/// URL") from None
+    except OperationalError as err:
+        raise ConfigError(f"sweeps.storage={storage!r} cannot be opened ({str(err.orig).strip().splitlines()[0]}); "
+                          f"allowed: a reachable database URL, or sqlite:///PATH in a writable folder") from None
+
+
+def open_study(storage: str | None, study_name: str, direction: str) -> optuna.Study:
+    """Create the study, or load it when it exists (``check_storage`` first)."""
+    return optuna.create_study(storage=check_storage(storage) if storage else None, study_name=study_name,
+                               direction=direction, load_if_exists=True)
 
 
 def _tell(study: optuna.Study, trial: optuna.Trial, ret: JobReturn) -> TrialState:
@@ -141,7 +169,7 @@ def pruning_callback(storage: str, study_name: str, trial: int | None, monitor: 
         def on_fit_end(self, trainer, pl_module) -> None:
             self.check_pruned()  # under DDP the callback only stops the trainer; raise here
 
-    shared = optuna.storages.get_storage(storage)
+    shared = check_storage(storage)
     trial_id = shared.get_trial_id_from_study_id_trial_number(shared.get_study_id_from_name(study_name), trial)
     study = optuna.load_study(study_name=study_name, storage=shared, pruner=pruner or optuna.pruners.NopPruner())
     return Pruning(optuna.Trial(study, trial_id), monitor)

@@ -8,11 +8,13 @@ checkpoint's ``optimized_metric`` value (for sweeps).
 from __future__ import annotations
 
 import os
+import re
 import sys
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from hydra.errors import InstantiationException
+from hydra.errors import (ConfigCompositionException, InstantiationException, MissingConfigException,
+                          OverrideParseException)
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
@@ -42,7 +44,27 @@ def _one_line(err: Exception) -> str:
 def main() -> None:
     os.environ.setdefault("WANDB_SILENT", "true")
     api.quiet_upstream()
-    _hydra_main()
+    # Hydra then lets its own errors through to us (else it prints them with its search path and
+    # exits 1): a user's error becomes the last line printed, a bug keeps its traceback.
+    os.environ["HYDRA_FULL_ERROR"] = "1"
+    try:
+        _hydra_main()
+    except (EnconsError, ConfigCompositionException, OverrideParseException) as err:
+        print(f"encons: error: {_composition_line(err)}", file=sys.stderr)
+        sys.exit(2)
+
+
+def _composition_line(err: Exception) -> str:
+    if isinstance(err, MissingConfigException) and err.missing_cfg_file and err.options:
+        group, _, name = err.missing_cfg_file.rpartition("/")
+        return f"{group}={name} is unknown; allowed: {', '.join(sorted(err.options))}"
+    lines = str(err).strip().splitlines()
+    missing = re.match(r"Could not override '([^']+)'", lines[0])
+    if missing:
+        return (f"{missing.group(1)} is not a key of the config; allowed: the keys `--cfg job` prints, "
+                f"or +{missing.group(1)}=VALUE to add one")
+    return lines[0] + ("; allowed: key=value overrides (Hydra's override grammar)"
+                       if isinstance(err, OverrideParseException) else "")
 
 
 api._callable_module(__name__, api.train)  # ``encons.train(cfg)`` stays the API function

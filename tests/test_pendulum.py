@@ -9,6 +9,7 @@ import torch
 from torch.func import hessian
 
 from encons.data.simulate import simulate
+from encons.errors import ConfigError
 from encons.systems.constrained import constraint_jacobians
 from encons.systems.pendulum import NPendulum
 
@@ -94,7 +95,7 @@ def test_mass_matrix_is_the_lagrangian_hessian():
 
 
 def test_bad_parameters_are_rejected():
-    with pytest.raises(ValueError, match="system.masses"):
+    with pytest.raises(ConfigError, match="system.masses"):
         NPendulum(2, masses=[1.0])
-    with pytest.raises(ValueError, match="system.n_links"):
+    with pytest.raises(ConfigError, match="system.n_links"):
         NPendulum(0)

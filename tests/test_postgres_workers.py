@@ -60,7 +60,7 @@ def postgres_url():
         pg("initdb", "-D", str(data / "db"), "-U", "postgres", "--auth=trust", "--no-sync")
         pg("pg_ctl", "-D", str(data / "db"), "-l", str(data / "log"), "-w", "start",
            "-o", f"-p {port} -k {data} -c listen_addresses=127.0.0.1 -c fsync=off")
-        yield f"postgresql+psycopg2://postgres@127.0.0.1:{port}/postgres"
+        yield f"postgresql://postgres@127.0.0.1:{port}/postgres"
     finally:
         if (data / "db" / "postmaster.pid").exists():
             pg("pg_ctl", "-D", str(data / "db"), "-m", "immediate", "-w", "stop")

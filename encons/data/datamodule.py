@@ -80,7 +80,7 @@ class TrajectoryDataModule(pl.LightningDataModule):
                  n_train: int = 800, n_val: int = 100, n_test: int = 100, n_steps: int = 100,
                  test_steps: int | None = None, dt: float = 0.03,
                  noise: float = 0.01, substeps: int = 10, chunk_len: int = 5, batch_size: int = 200,
-                 seed: int = 0, cache_dir: str = ".cache/encons", objective: str = "rollout"):
+                 seed: int = 0, cache_dir: str = ".cache/encons", objective: str | None = "rollout"):
         super().__init__()
         for key, value in dict(n_train=n_train, n_test=n_test, n_steps=n_steps, substeps=substeps,
                                batch_size=batch_size).items():
@@ -88,6 +88,9 @@ class TrajectoryDataModule(pl.LightningDataModule):
                 raise ConfigError(f"data.{key}={value} must be >= 1")
         if dt <= 0 or noise < 0 or n_val < 0:
             raise ConfigError(f"data.dt={dt} must be > 0, data.noise={noise} and data.n_val={n_val} >= 0")
+        if test_steps is not None and test_steps < n_steps:
+            raise ConfigError(f"data.test_steps={test_steps} is shorter than data.n_steps={n_steps}; allowed: "
+                              f"null (= n_steps) or an integer >= {n_steps}")
         if not 2 <= chunk_len <= n_steps + 1:
             raise ConfigError(f"data.chunk_len={chunk_len} must lie in [2, n_steps + 1 = {n_steps + 1}]")
         system.check_chart(chart)
@@ -156,7 +159,13 @@ class TrajectoryDataModule(pl.LightningDataModule):
             self.arrays["train"]["rates"] = self._rates(splits["train"], chart, served["train"],
                                                         inputs.get("train")).float()
         if self.chunk_len > len(t):
-            raise DataError(f"data.chunk_len={self.chunk_len} exceeds the {len(t)} states per trajectory")
+            raise DataError(f"data.chunk_len={self.chunk_len} exceeds the {len(t)} states per trajectory; "
+                            f"allowed: 2..{len(t)}")
+        for name in ("train", "val"):
+            if self.arrays[name]["states"].shape[0] == 0:
+                raise DataError(f"data file {str(source)!r} leaves no {name} trajectories (train holds "
+                                f"{splits['train'].shape[0] + splits['val'].shape[0]} in all, 1 in 10 held out for "
+                                f"validation); allowed: >= 2 train trajectories, or a 'val' array")
 
     @property
     def states(self) -> dict[str, Tensor]:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from encons.errors import ConfigError
 from encons.models.base import DynamicsModel
 from encons.models.networks import mlp
 from encons.systems.base import System
@@ -36,9 +37,9 @@ class CouplingBlock(nn.Module):
     def __init__(self, dim: int, hidden: int, depth: int, activation: str, clamp: float):
         super().__init__()
         if dim < 2:
-            raise ValueError(f"model=inn_node needs a state of at least 2 entries, got {dim}")
+            raise ConfigError(f"model=inn_node on a state of {dim} entry; allowed: systems with >= 2 state entries")
         if clamp <= 0:
-            raise ValueError(f"model.clamp must be > 0, got {clamp}")
+            raise ConfigError(f"model.clamp={clamp}; allowed: > 0")
         self.split, self.clamp = dim - dim // 2, float(clamp)
         self.coupling = mlp(self.split, 2 * (dim // 2), hidden, depth, activation)
         nn.init.zeros_(self.coupling[-1].weight)
@@ -71,7 +72,7 @@ class InvertibleNet(nn.Module):
                  activation: str = "softplus", clamp: float = 2.0):
         super().__init__()
         if blocks < 1:
-            raise ValueError(f"model.blocks must be >= 1, got {blocks}")
+            raise ConfigError(f"model.blocks={blocks}; allowed: an integer >= 1")
         self.blocks = nn.ModuleList(CouplingBlock(dim, hidden, depth, activation, clamp) for _ in range(blocks))
 
     def forward(self, x: Tensor) -> Tensor:

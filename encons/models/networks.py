@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from encons.errors import ConfigError
 from encons.systems.base import CartesianLayout, point_mass_matrix
 
 ACTIVATIONS = {"softplus": nn.Softplus, "tanh": nn.Tanh, "relu": nn.ReLU, "silu": nn.SiLU}
@@ -13,7 +14,7 @@ ACTIVATIONS = {"softplus": nn.Softplus, "tanh": nn.Tanh, "relu": nn.ReLU, "silu"
 def mlp(in_dim: int, out_dim: int, hidden: int = 256, depth: int = 3, activation: str = "softplus") -> nn.Sequential:
     """``depth`` hidden layers of width ``hidden`` (Zhong et al. §4.1: 3 × 256, Softplus)."""
     if activation not in ACTIVATIONS:
-        raise ValueError(f"model.activation must be one of {sorted(ACTIVATIONS)}, got {activation!r}")
+        raise ConfigError(f"model.activation={activation!r} is unknown; allowed: {', '.join(sorted(ACTIVATIONS))}")
     layers: list[nn.Module] = []
     width = in_dim
     for _ in range(depth):

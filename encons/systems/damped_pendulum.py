@@ -14,6 +14,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
+from encons.errors import ConfigError
 from encons.systems.base import split_state
 from encons.systems.pendulum import NPendulum
 
@@ -28,7 +29,7 @@ class DampedPendulum(NPendulum):
                  init_scale: float = 1.0):
         super().__init__(n_links, masses, lengths, g, init_scale)
         if damping < 0:
-            raise ValueError(f"system.damping must be >= 0, got {damping}")
+            raise ConfigError(f"system.damping={damping}; allowed: >= 0")
         self.name = "damped_pendulum" if n_links == 1 else f"damped_pendulum{n_links}"
         self.damping = float(damping)
 

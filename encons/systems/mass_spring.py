@@ -9,6 +9,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from encons.errors import ConfigError
 from encons.systems.base import System, split_state
 
 
@@ -20,7 +21,7 @@ class MassSpring(System):
 
     def __init__(self, mass: float = 1.0, stiffness: float = 1.0, init_scale: float = 1.0):
         if mass <= 0 or stiffness <= 0:
-            raise ValueError(f"system.mass={mass} and system.stiffness={stiffness} must be > 0")
+            raise ConfigError(f"system.mass={mass}, system.stiffness={stiffness}; allowed: both > 0")
         self.name = "mass_spring"
         self.m, self.k, self.init_scale = float(mass), float(stiffness), float(init_scale)
 

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
+from encons.errors import ConfigError
 from encons.systems.base import CartesianLayout, System, apply_point_matrix, point_mass_matrix, split_state
 from encons.systems.constrained import constrained_acceleration
 
@@ -19,7 +20,8 @@ from encons.systems.constrained import constrained_acceleration
 def _per_link(value: float | Sequence[float], n: int, what: str) -> Tensor:
     vals = [float(value)] * n if isinstance(value, (int, float)) else [float(v) for v in value]
     if len(vals) != n or min(vals) <= 0:
-        raise ValueError(f"system.{what} must be one positive number or {n} of them, got {value!r}")
+        raise ConfigError(f"system.{what}={value!r} does not fit {n} link(s); allowed: one positive number "
+                          f"or {n} of them")
     return torch.tensor(vals, dtype=torch.float64)
 
 
@@ -32,7 +34,7 @@ class NPendulum(System):
     def __init__(self, n_links: int = 2, masses: float | Sequence[float] = 1.0,
                  lengths: float | Sequence[float] = 1.0, g: float = 9.81, init_scale: float = 1.0):
         if n_links < 1:
-            raise ValueError(f"system.n_links must be >= 1, got {n_links}")
+            raise ConfigError(f"system.n_links={n_links} is not a number of links; allowed: an integer >= 1")
         self.name = f"pendulum{n_links}"
         self.n = n_links
         self.m = _per_link(masses, n_links, "masses")
