@@ -57,7 +57,7 @@ def main() -> None:
 def _composition_line(err: Exception) -> str:
     if isinstance(err, MissingConfigException) and err.missing_cfg_file and err.options:
         group, _, name = err.missing_cfg_file.rpartition("/")
-        return f"{group}={name} is unknown; allowed: {', '.join(sorted(err.options))}"
+        return f"{group}={name} is unknown; allowed: {', '.join(sorted(o for o in err.options if not o.startswith('_')))}"
     lines = str(err).strip().splitlines()
     missing = re.match(r"Could not override '([^']+)'", lines[0])
     if missing:
