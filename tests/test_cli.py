@@ -13,9 +13,9 @@ FAST = ["debug=fast", "logger=none"]
 
 
 @pytest.mark.parametrize("args, needle", [
-    (["model=nosuchmodel"], "model/nosuchmodel"),
-    (["system=nosuchsystem"], "system/nosuchsystem"),
-    (["integrator=rk5"], "integrator/rk5"),
+    (["model=nosuchmodel"], "model=nosuchmodel is unknown; allowed: chnn,"),
+    (["system=nosuchsystem"], "system=nosuchsystem is unknown; allowed:"),
+    (["integrator=rk5"], "integrator=rk5 is unknown; allowed: dopri5, euler, midpoint, rk4\n"),
     (["integrator.method=rk5"], "integrator.method='rk5' is unknown; allowed:"),
     (["model.chart=polar"], "needs the 'polar' chart"),
     (["model.hidden=-4"], "model.hidden=-4; allowed: a positive integer"),
@@ -23,7 +23,7 @@ FAST = ["debug=fast", "logger=none"]
     (["data.chunk_len=1"], "data.chunk_len=1 must lie in"),
     (["trainer.max_epochs=0"], "trainer.max_epochs=0; allowed: an integer >= 1"),
     (["optim.lr=-1"], "optim.lr=-1"),
-    (["nosuchkey=3"], "Could not override 'nosuchkey'"),
+    (["nosuchkey=3"], "nosuchkey is not a key of the config"),
     (["system=from_file", "system.path=/nonexistent/data.npz"], "does not exist"),
     (["ckpt_path=last"], "no earlier run"),
 ])
