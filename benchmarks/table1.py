@@ -4,8 +4,8 @@ Every run trains with the paper's derivative objective (eq. (2), exact simulator
 noise σ = 0.1 on the states of Tasks 1, 2, 4) on the paper's data (conf/system/*.yaml), then
 rolls out 100 fresh initial conditions to t = 100 and reports the median [2.5th, 97.5th
 percentile] over trajectories of the RMSE of E(ŝ_t) − E(s_t), with the trajectory relative
-error (Σ over the first 4 steps). Regulariser weights are the paper's, rescaled to encons'
-sums (see conf/regulariser/*.yaml): w/2n for C_H, w for C_D.
+error (Σ over the first 4 steps). Regulariser weights are the paper's, rescaled to encons' sums by
+``encons.regularisers.from_paper_weight`` (w / 2n for C_H, w for C_D).
 
     python benchmarks/table1.py [--epochs 20] [--hidden 200] [--tasks 1 2 3 4] [--n-train-double 200]
         [--threads 1] [--out benchmarks/results/table1] [any train override ...]
@@ -24,38 +24,46 @@ import torch
 from rich.console import Console
 from rich.table import Table
 
-from encons.benchmark import write_csv
-from encons.config import compose_train
-from encons.errors import EnconsError
-from encons.paths import config_dir
+from hydra.utils import execution_whitelist
 
-# (task, system, label, overrides, paper's median RMSE)
+from encons import api
+from encons.benchmark import Progress, write_csv
+from encons.errors import EnconsError
+
+# (task, system, label, overrides, the paper's regulariser weight (Lim & Kasim §4.1), paper's median RMSE)
 RUNS = [
-    (1, "mass_spring", "NODE", ["model=node"], "0.086"),
-    (1, "mass_spring", "NODE + C_H (ours)", ["model=node", "regulariser=hamiltonian", "regulariser.weight=5e4"],
-     "0.0017"),
-    (1, "mass_spring", "HNN", ["model=hnn"], "0.0065"),
-    (1, "mass_spring", "LNN", ["model=lnn"], "0.0060"),
-    (1, "mass_spring", "NSF", ["model=nsf"], "0.014"),
-    (2, "pendulum", "NODE", ["model=node"], "∞"),
-    (2, "pendulum", "NODE + C_H (ours)", ["model=node", "regulariser=hamiltonian", "regulariser.weight=5e3"],
-     "0.024"),
-    (2, "pendulum", "HNN", ["model=hnn"], "0.015"),
-    (2, "pendulum", "LNN", ["model=lnn"], "0.032"),
-    (2, "pendulum", "NSF", ["model=nsf"], "0.027"),
-    (3, "double_pendulum", "NODE", ["model=node"], "∞"),
-    (3, "double_pendulum", "INN-NODE + C_H' (ours)",
-     ["model=inn_node", "regulariser=hamiltonian", "regulariser.weight=250"], "4.03"),
-    (4, "damped_pendulum", "NODE", ["model=node"], "0.18"),
-    (4, "damped_pendulum", "NODE + C_D (ours)", ["model=node", "regulariser=dissipative", "regulariser.weight=100"],
-     "0.12"),
+    (1, "mass_spring", "NODE", ["model=node"], None, "0.086"),
+    (1, "mass_spring", "NODE + C_H (ours)", ["model=node", "regulariser=hamiltonian"], 1e5, "0.0017"),
+    (1, "mass_spring", "HNN", ["model=hnn"], None, "0.0065"),
+    (1, "mass_spring", "LNN", ["model=lnn"], None, "0.0060"),
+    (1, "mass_spring", "NSF", ["model=nsf"], None, "0.014"),
+    (2, "pendulum", "NODE", ["model=node"], None, "∞"),
+    (2, "pendulum", "NODE + C_H (ours)", ["model=node", "regulariser=hamiltonian"], 1e4, "0.024"),
+    (2, "pendulum", "HNN", ["model=hnn"], None, "0.015"),
+    (2, "pendulum", "LNN", ["model=lnn"], None, "0.032"),
+    (2, "pendulum", "NSF", ["model=nsf"], None, "0.027"),
+    (3, "double_pendulum", "NODE", ["model=node"], None, "∞"),
+    (3, "double_pendulum", "INN-NODE + C_H' (ours)", ["model=inn_node", "regulariser=hamiltonian"], 1e3, "4.03"),
+    (4, "damped_pendulum", "NODE", ["model=node"], None, "0.18"),
+    (4, "damped_pendulum", "NODE + C_D (ours)", ["model=node", "regulariser=dissipative"], 1e2, "0.12"),
 ]
 
 
+def regulariser_weight(overrides: list[str], paper_weight: float, cfg) -> list[str]:
+    """``regulariser.weight`` equivalent to the paper's (``from_paper_weight``, on the system's state size)."""
+    from encons.config import build_system
+    from encons.regularisers import from_paper_weight
+
+    constraint = next(o.split("=", 1)[1] for o in overrides if o.startswith("regulariser="))
+    with execution_whitelist(api.trusted_targets()):
+        system = build_system(cfg)
+    weight = from_paper_weight(paper_weight, constraint, 2 * system.coord_dim(system.base_chart))
+    return [f"regulariser.weight={weight:g}"]
+
+
 def available(overrides: list[str]) -> bool:
-    """Whether the ``model=`` config of a run exists (``lnn`` may be missing from a checkout)."""
-    model = next(o.split("=", 1)[1] for o in overrides if o.startswith("model="))
-    return (Path(config_dir()) / "model" / f"{model}.yaml").is_file()
+    """Whether the ``model=`` config of a run is in the catalogue (``conf/model``)."""
+    return next(o.split("=", 1)[1] for o in overrides if o.startswith("model=")) in api.catalogue("model")
 
 
 def main() -> None:
@@ -71,30 +79,35 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
     os.environ.setdefault("WANDB_MODE", "disabled")
-    from encons.train import train
+    api.quiet_upstream()
 
     out = Path(args.out)
     common = ["logger=none", "objective=derivative", f"trainer.max_epochs={args.epochs}", "optim.lr=1e-3",
               "model.depth=2", f"model.hidden={args.hidden}", f"data.batch_size={args.batch_size}"]
+    todo = [run for run in RUNS if run[0] in args.tasks and available(run[3])]
+    progress = Progress(len(todo), "table 1 run")
     rows = []
-    for task, system, label, overrides, paper in RUNS:
-        if task not in args.tasks or not available(overrides):
-            continue
+    for task, system, label, overrides, paper_weight, paper in todo:
+        progress.start(f"task {task}: {label}")
         per_system = [f"data.chunk_len={300 if system == 'double_pendulum' else 30}"]
         if system == "double_pendulum":
             per_system.append(f"data.n_train={args.n_train_double}")
         run_dir = out / "runs" / f"task{task}-{label.split()[0].lower()}{'-reg' if '+' in label else ''}"
-        cfg = compose_train([f"system={system}", *overrides, *common, *per_system, *extra], run_dir,
-                            out / "cache")
+        overrides = [f"system={system}", *overrides, *common, *per_system]
+        cfg = api.compose(*overrides, *extra, output_dir=run_dir, cache_dir=out / "cache")
+        if paper_weight is not None:
+            overrides += regulariser_weight(overrides, paper_weight, cfg)
+            cfg = api.compose(*overrides, *extra, output_dir=run_dir, cache_dir=out / "cache")
         started = time.perf_counter()
         try:
-            results, error = train(cfg), ""
+            results, error = api.train(cfg).metrics, ""
         except EnconsError as err:
             results, error = {}, str(err)
         rows.append({"task": task, "system": system, "model": label, "paper_median": paper, "error": error,
-                     "wall_time_s": time.perf_counter() - started, "overrides": " ".join(overrides),
+                     "wall_time_s": time.perf_counter() - started, "overrides": " ".join(overrides[1:]),
                      **{k.removeprefix("test/"): v for k, v in results.items() if k.startswith("test/")}})
         write_csv(out / "table1.csv", rows)
+    progress.done()
     print_table(rows, args)
     print(f"CSV: {out / 'table1.csv'}")
 

@@ -3,6 +3,10 @@
     python -m encons.benchmark systems=[pendulum2,gyroscope] models=[node,hnn_angle,chnn] seeds=[0,1] \\
         [out=benchmarks/results/NAME] [any train override, e.g. trainer.max_epochs=50]
 
+``models=all`` / ``systems=all`` take every option of ``conf/model`` / ``conf/system``; a model a
+system cannot serve (chart, constraints) fails with its one-line reason in ``results.csv``.
+Each run prints ``benchmark run k of n (...), elapsed, ETA`` to stderr.
+
 Writes ``results.csv`` (one row per run), ``summary.csv`` (mean ± std over seeds) and the papers'
 comparison figures (trajectory relative error per model, Zhong et al. Fig. 2; relative error and
 energy error vs time, Figs. 3–4) under ``out``, and prints the summary table.
@@ -21,30 +25,29 @@ from omegaconf import OmegaConf
 from rich.console import Console
 from rich.table import Table
 
-from encons.config import compose_train
+from encons import api
 from encons.errors import EnconsError
-from encons.plots import comparison_figures
+from encons.report import Progress
 
 GRID_KEYS = ("systems", "models", "seeds", "out")
 
 
 def run_grid(systems: list[str], models: list[str], seeds: list[int], out: Path, overrides: list[str]) -> list[dict]:
     """Train every combination (the data of a system are shared: same data seed); one row each."""
-    from encons.train import train
-
+    grid = [(system, model, seed) for system in systems for model in models for seed in seeds]
+    progress = Progress(len(grid), "benchmark run")
     rows = []
-    for system in systems:
-        for model in models:
-            for seed in seeds:
-                run_dir = out / "runs" / f"{system}-{model}-seed{seed}"
-                cfg = compose_train([f"system={system}", f"model={model}", f"seed={seed}", *overrides], run_dir)
-                try:
-                    results = train(cfg)
-                    error = ""
-                except EnconsError as err:
-                    results, error = {}, str(err)
-                rows.append({"system": system, "model": model, "seed": seed, "run_dir": str(run_dir),
-                             "error": error, **results})
+    for system, model, seed in grid:
+        run_dir = out / "runs" / f"{system}-{model}-seed{seed}"
+        progress.start(f"{system} × {model} × seed {seed}")
+        cfg = api.compose(f"system={system}", f"model={model}", f"seed={seed}", *overrides, output_dir=run_dir)
+        try:
+            results, error = api.train(cfg).metrics, ""
+        except EnconsError as err:
+            results, error = {}, str(err)
+        rows.append({"system": system, "model": model, "seed": seed, "horizon": cfg.horizon,
+                     "run_dir": str(run_dir), "error": error, **results})
+    progress.done()
     return rows
 
 
@@ -75,9 +78,9 @@ def write_csv(path: Path, rows: list[dict]) -> None:
         writer.writerows(rows)
 
 
-def print_table(summary: list[dict]) -> None:
+def print_table(summary: list[dict], horizon: int = 4) -> None:
     table = Table(title="encons benchmark (mean ± std over seeds)")
-    for col in ("system", "model", "traj rel err (T=4)", "energy abs err", "wall time [s]"):
+    for col in ("system", "model", f"traj rel err (T={horizon})", "energy abs err", "wall time [s]"):
         table.add_column(col)
     for e in summary:
         cell = lambda k: f"{e[k]:.3g} ± {e[k + '_std']:.2g}" if k in e else "failed"
@@ -87,18 +90,23 @@ def print_table(summary: list[dict]) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
+    from encons.plots import comparison_figures
+
+    api.quiet_upstream()
     args = OmegaConf.from_dotlist([a for a in (argv or sys.argv[1:]) if a.split("=")[0] in GRID_KEYS])
     overrides = [a for a in (argv or sys.argv[1:]) if a.split("=")[0] not in GRID_KEYS]
     out = Path(args.get("out") or f"benchmarks/results/{time.strftime('%Y-%m-%d_%H-%M-%S')}")
     out.mkdir(parents=True, exist_ok=True)
-    rows = run_grid(list(args.get("systems", ["pendulum2"])), list(args.get("models", ["node", "hnn"])),
+    pick = lambda key, group, default: api.catalogue(group) if args.get(key) == "all" else list(args.get(key, default))
+    rows = run_grid(pick("systems", "system", ["pendulum2"]), pick("models", "model", ["node", "hnn"]),
                     list(args.get("seeds", [0])), out, ["logger=none", *overrides])
     summary = summarise(rows)
     write_csv(out / "results.csv", rows)
     write_csv(out / "summary.csv", summary)
     (out / "overrides.json").write_text(json.dumps(overrides))
-    comparison_figures(rows, summary, out)
-    print_table(summary)
+    horizon = rows[0]["horizon"] if rows else 4
+    comparison_figures(rows, summary, out, horizon)
+    print_table(summary, horizon)
     print(f"results: {out}")
 
 

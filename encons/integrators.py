@@ -15,12 +15,13 @@ from torch import Tensor
 from torch.func import jvp
 from torchdiffeq import odeint
 from torchdiffeq._impl.odeint import SOLVERS
+from torchdiffeq._impl.solvers import FixedGridODESolver
 
 from encons.errors import ConfigError
 from encons.models.base import DynamicsModel
 
 METHODS = tuple(sorted(SOLVERS))
-FIXED_STEP = ("euler", "midpoint", "heun2", "heun3", "rk4", "explicit_adams", "implicit_adams")
+FIXED_STEP = tuple(sorted(m for m, solver in SOLVERS.items() if issubclass(solver, FixedGridODESolver)))
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import csv
 
+import pytest
+
 from encons.benchmark import main
+
+pytestmark = pytest.mark.slow  # four end-to-end runs
 
 
 def test_grid_writes_tables_and_figures(tmp_path):

@@ -26,6 +26,7 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 from encons.data import store
 from encons.data.simulate import sample_trajectories
 from encons.errors import ConfigError, DataError
+from encons.report import Progress
 from encons.systems.base import System
 
 log = logging.getLogger(__name__)
@@ -107,9 +108,13 @@ class TrajectoryDataModule(pl.LightningDataModule):
         if self.path is None and not self.cache_file.exists():
             gen = torch.Generator().manual_seed(self.seed)
             splits, inputs = {}, {}
+            steps_of = {name: self.test_steps if name == "test" else self.n_steps for name in self.sizes}
+            progress = Progress(sum(1 for n in self.sizes.values() if n), f"simulating {self.system.name}: split",
+                                log, work=sum(n * steps_of[k] for k, n in self.sizes.items()))
             for name, n in self.sizes.items():
                 if n:
-                    steps = self.test_steps if name == "test" else self.n_steps
+                    steps = steps_of[name]
+                    progress.start(f"{name}, {n} trajectories × {steps} steps", n * steps)
                     t = torch.arange(steps + 1, dtype=torch.float64) * self.dt
                     splits[name], u, rejected = sample_trajectories(self.system, n, t, gen, self.substeps)
                     if u is not None:
@@ -118,6 +123,7 @@ class TrajectoryDataModule(pl.LightningDataModule):
                         log.info("%s: redrew %d of %d %s trajectories (%s)", self.system.name, rejected, n, name,
                                  getattr(self.system, "rejection_reason", "invalid"))
             store.save(self.cache_file, t[: self.n_steps + 1], splits, self.system.base_chart, inputs)
+            progress.done()
             log.info("simulated %s into %s", self.system.name, self.cache_file)
 
     def setup(self, stage: str | None = None) -> None:

@@ -77,7 +77,7 @@ def clean_orphans(folder: Path) -> list[Path]:
     return removed
 
 
-def load(path: str | Path, state_dim: int | None = None) -> tuple[Tensor, dict[str, Tensor], str | None]:
+def load(path: str | Path) -> tuple[Tensor, dict[str, Tensor], str | None]:
     """Read and check a trajectory file; raise ``DataError`` naming what is wrong and how to fix it.
 
     Returns the times, the state splits and the chart; ``load_inputs`` reads the inputs."""
@@ -103,11 +103,10 @@ def load(path: str | Path, state_dim: int | None = None) -> tuple[Tensor, dict[s
         if name not in arrays:
             continue
         arr = arrays[name]
-        width = state_dim or arr.shape[-1] if arr.ndim == 3 else None
         too_short = arr.ndim == 3 and (arr.shape[1] < len(t) if name == "test" else arr.shape[1] != len(t))
-        if arr.ndim != 3 or too_short or arr.shape[2] != width or arr.shape[2] % 2:
+        if arr.ndim != 3 or too_short or arr.shape[2] % 2:
             raise DataError(f"data file {str(path)!r}: '{name}' has shape {arr.shape}; allowed: "
-                            f"(N, {len(t)}, {state_dim or '2n'}) states (q, q̇)")
+                            f"(N, {len(t)}, 2n) states (q, q̇)")
         if not np.isfinite(arr).all():
             raise DataError(f"data file {str(path)!r}: '{name}' contains NaN or inf; allowed: finite states")
         splits[name] = torch.from_numpy(np.asarray(arr, dtype=np.float64))
