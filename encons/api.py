@@ -302,11 +302,14 @@ def train(cfg: DictConfig) -> Run:
 def _train(cfg: DictConfig) -> Run:
     import torch
 
-    from encons.config import resolve_checkpoint
+    from encons.config import check_checkpoint, resolve_checkpoint
     from encons.report import print_summary
 
     started = time.perf_counter()
     data, module = build(cfg)
+    resume = resolve_checkpoint(cfg)
+    if resume is not None:
+        check_checkpoint(module, resume)
     run_dir = Path(cfg.paths.output_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     config = run_config(cfg)
@@ -316,7 +319,7 @@ def _train(cfg: DictConfig) -> Run:
         lg.log_hyperparams(OmegaConf.to_container(config))
     tested = None
     try:
-        trainer.fit(module, datamodule=data, ckpt_path=resolve_checkpoint(cfg))
+        trainer.fit(module, datamodule=data, ckpt_path=resume)
         results = {k: float(v) for k, v in trainer.callback_metrics.items()}
         best = _best_checkpoint(trainer)
         if best is not None:

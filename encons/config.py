@@ -211,15 +211,59 @@ def check_capabilities(cfg: DictConfig, cls: type[DynamicsModel], system: System
                               f"own step; allowed: no integrator override")
 
 
+RESUME_KEYS = ("system", "model", "data", "integrator", "regulariser", "objective", "optim", "seed")
+
+
 def resolve_checkpoint(cfg: DictConfig) -> str | None:
-    """``ckpt_path=last``: the newest ``last.ckpt`` among earlier runs of this ``name``."""
+    """The checkpoint to resume from: ``cfg.ckpt_path``, or for ``last`` the newest ``last.ckpt`` among
+    the earlier runs beside this one whose saved config (system, model, data, integrator, regulariser,
+    objective, optim, seed) matches this run's; the training budget and paths may differ."""
     if cfg.ckpt_path != "last":
         if cfg.ckpt_path is not None and not Path(cfg.ckpt_path).is_file():
             raise ConfigError(f"ckpt_path={cfg.ckpt_path!r} does not exist; allowed: a .ckpt file, last or null")
         return cfg.ckpt_path
+    import torch
+
     runs = Path(cfg.paths.output_dir).parent
-    found = sorted(runs.glob("*/checkpoints/last.ckpt"), key=lambda p: p.stat().st_mtime)
+    found = sorted(runs.glob("*/checkpoints/last.ckpt"), key=lambda p: p.stat().st_mtime, reverse=True)
     if not found:
         raise ConfigError(f"ckpt_path=last: no earlier run of '{cfg.name}' has a checkpoint under {runs}; "
                           f"allowed: a .ckpt file, or null to start afresh")
-    return str(found[-1])
+    mine = OmegaConf.to_container(OmegaConf.masked_copy(cfg, [k for k in RESUME_KEYS if k in cfg]), resolve=True)
+    differences = []
+    for path in found:
+        saved = torch.load(path, map_location="cpu", weights_only=False, mmap=True).get("encons_config") or {}
+        diff = _first_difference({k: saved.get(k) for k in mine}, mine)
+        if diff is None:
+            return str(path)
+        differences.append(f"{path.parent.parent.name} has {diff[0]}={diff[1]!r} where this run has {diff[2]!r}")
+    raise ConfigError(f"ckpt_path=last: no earlier run under {runs} has this run's config (newest: {differences[0]}); "
+                      f"allowed: the same system/model/data/optim config, ckpt_path=PATH, or null")
+
+
+def _first_difference(a: Any, b: Any, key: str = "") -> tuple[str, Any, Any] | None:
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b)):
+            found = _first_difference(a.get(k), b.get(k), f"{key}.{k}".lstrip("."))
+            if found:
+                return found
+        return None
+    return None if a == b else (key, a, b)
+
+
+def check_checkpoint(module: Any, path: str) -> None:
+    """Refuse a checkpoint whose parameters do not fit ``module`` (another model or size), naming the first."""
+    import torch
+
+    try:
+        saved = torch.load(path, map_location="cpu", weights_only=False, mmap=True)["state_dict"]
+    except Exception as err:  # noqa: BLE001 - any unreadable file is the same user error
+        raise ConfigError(f"ckpt_path={path!r} is not a readable Lightning checkpoint ({type(err).__name__}); "
+                          f"allowed: a .ckpt written by encons") from None
+    own = module.state_dict()
+    for name in sorted(set(saved) | set(own)):
+        shapes = [tuple(d[name].shape) if name in d else None for d in (saved, own)]
+        if shapes[0] != shapes[1]:
+            said = ["absent" if s is None else f"shape {s}" for s in shapes]
+            raise ConfigError(f"ckpt_path={path!r}: parameter {name} is {said[0]} in the checkpoint and {said[1]} "
+                              f"in this model; allowed: a checkpoint of the same model config (model.*)")

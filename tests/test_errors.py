@@ -17,11 +17,11 @@ from encons.config import compose_train
 from encons.data import store
 from encons.errors import ConfigError, DataError, EnconsError
 
-from conftest import run_cli
+from tests.helpers import run_cli
 
 
 def build_with(tmp_path, *overrides: str):
-    from encons.train import build
+    from encons.api import build
 
     return build(compose_train(["debug=fast", *overrides], tmp_path / "run", tmp_path / "cache"))
 
@@ -105,6 +105,29 @@ def test_divergence_without_a_checkpoint_says_so(train_run, monkeypatch):
     assert "resume with ckpt_path=last" not in str(err.value)
 
 
+def test_resuming_a_checkpoint_of_another_shape_names_the_parameter(train_run, tmp_path):
+    train_run(["model=node", "system=pendulum1", "trainer.max_epochs=1"], name="small")
+    ckpt = tmp_path / "small" / "checkpoints" / "last.ckpt"
+    with pytest.raises(ConfigError, match=r"parameter model\.net\.0\.bias is shape \(16,\) in the checkpoint "
+                                          r"and shape \(32,\) in this model; allowed") as err:
+        train_run(["model=node", "system=pendulum1", "model.hidden=32", f"ckpt_path={ckpt}"], name="wide")
+    assert "\n" not in str(err.value)
+    (tmp_path / "junk.ckpt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ConfigError, match="not a readable Lightning checkpoint"):
+        train_run(["model=node", "system=pendulum1", f"ckpt_path={tmp_path / 'junk.ckpt'}"], name="junk")
+
+
+def test_ckpt_path_last_resumes_only_a_run_of_the_same_config(train_run, tmp_path):
+    train_run(["model=node", "system=pendulum1", "trainer.max_epochs=1"], name="node")
+    train_run(["model=hnn", "system=pendulum1", "trainer.max_epochs=1"], name="hnn")  # newer, another model
+    train_run(["model=node", "system=pendulum1", "trainer.max_epochs=2", "ckpt_path=last"], name="again")
+    # the node run's epoch 0 was resumed (the newer hnn checkpoint would not even load): one more epoch
+    assert torch.load(tmp_path / "again" / "checkpoints" / "last.ckpt", weights_only=False)["epoch"] == 1
+    with pytest.raises(ConfigError, match=r"ckpt_path=last: no earlier run .* has this run's config \(newest: "
+                                          r"again has model.hidden=16 where this run has 24\); allowed"):
+        train_run(["model=node", "system=pendulum1", "model.hidden=24", "ckpt_path=last"], name="other")
+
+
 # class 5: files and folders
 @pytest.mark.parametrize("where", ["output", "checkpoints", "figures", "cache"])
 def test_a_file_where_a_folder_belongs_is_one_line(tmp_path, where):
@@ -113,7 +136,7 @@ def test_a_file_where_a_folder_belongs_is_one_line(tmp_path, where):
     blocker.parent.mkdir(parents=True, exist_ok=True)
     blocker.write_text("not a folder")
     with pytest.raises(ConfigError, match="is a file, not a folder; allowed"):
-        from encons.train import build
+        from encons.api import build
 
         build(compose_train(["debug=fast"], out, cache))
 
@@ -142,6 +165,7 @@ def test_cache_files_are_group_readable_and_orphans_of_dead_writers_go(tmp_path)
 
 
 # classes 6–7 and the whole CLI path: exit 2, no traceback, the one line last
+@pytest.mark.slow
 @pytest.mark.parametrize("args, key", [
     (["model=nope"], "model=nope is unknown; allowed: chnn"),
     (["system=pendulum1", "system.n_links=2.5"], "system.n_links=2.5"),
@@ -157,6 +181,7 @@ def test_cli_ends_with_the_one_line(tmp_path, args, key):
     assert last.startswith("encons: error: ") and key in last and "allowed" in last, last
 
 
+@pytest.mark.slow
 def test_a_sweep_dir_without_sweeps_dir_creates_the_study_folder(tmp_path):
     proc = run_cli("-m", "sweeps=optuna", "debug=fast", "hydra.sweeper.n_trials=1", "trainer.max_epochs=1",
                    f"hydra.sweep.dir={tmp_path / 'elsewhere'}", f"sweeps.dir={tmp_path / 'new' / 'study'}",
