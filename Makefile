@@ -4,7 +4,7 @@ VENV    ?= .venv
 BIN     := $(VENV)/bin
 ARGS    ?=
 
-.PHONY: install test test-all train bench benchmark report clean
+.PHONY: install test test-fast train bench benchmark report clean
 
 install:  ## fresh virtual environment: CPU torch first (pinned), then encons with its dev extra
 	$(PY) -m venv $(VENV)
@@ -12,11 +12,11 @@ install:  ## fresh virtual environment: CPU torch first (pinned), then encons wi
 	$(BIN)/pip install -q torch==2.13.0
 	$(BIN)/pip install -q -e ".[dev]"
 
-test:  ## the test suite (slow tests excluded)
+test:  ## every test: the fast tier, then end-to-end, DDP, PostgreSQL and wheel tests (marked slow); what CI runs
 	$(BIN)/python -m pytest
 
-test-all:  ## every test, slow ones included
-	$(BIN)/python -m pytest -m "slow or not slow"
+test-fast:  ## unit and physics tests only (< 2 min on 2 cores)
+	$(BIN)/python -m pytest -m "not slow"
 
 train:  ## e.g. make train ARGS="model=chnn system=gyroscope"
 	$(BIN)/python -m encons.train $(ARGS)

@@ -8,7 +8,8 @@ its train overrides, e.g. a model with a regulariser) and as data-efficiency run
 each is trained ``len(seeds)`` times through the training entry point, on datasets cached under
 ``paths.cache_dir`` (one per system and data config, shared by every model and seed). A finished
 run leaves ``runs/<id>/result.json``; a rerun skips it, so an interrupted benchmark resumes where it
-stopped. Progress prints runs done / total with an ETA. The report (``encons.report``) is written
+stopped. Progress (stderr) prints ``benchmark run k of n (id), elapsed, ETA``. ``models=all`` /
+``systems=all`` take every option of ``conf/model`` / ``conf/system``. The report (``encons.report``) is written
 to ``out`` at the end and can be rebuilt alone with ``python -m encons.report OUT``.
 """
 
@@ -25,7 +26,6 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import MissingConfigException
 from omegaconf import DictConfig, OmegaConf
 
-from encons.config import compose_train
 from encons.errors import ConfigError, EnconsError
 from encons.paths import config_dir
 
@@ -71,7 +71,12 @@ def plain(cfg: DictConfig) -> dict:
 
 def expand(cfg: DictConfig) -> list[Run]:
     """Every run of the profile: grid, listed runs and data-efficiency runs, times seeds."""
+    from encons.api import catalogue
+
     c = plain(cfg)
+    for key, group in (("systems", "system"), ("models", "model")):
+        if c[key] == "all" or c[key] == ["all"]:
+            c[key] = catalogue(group)  # a model a system cannot serve fails with its one-line reason
     per_system = c.get("per_system") or {}
     entries = [(s, m, [f"model={m}"], None, {}) for s in c["systems"] for m in c["models"]]
     entries += [(r["system"], r["label"], list(r["overrides"]), None, r.get("paper", {})) for r in c["runs"]]
@@ -87,18 +92,21 @@ def expand(cfg: DictConfig) -> list[Run]:
             for system, label, ovr, n, paper in entries for seed in c["seeds"]]
 
 
-def run_one(run: Run, out: Path, cache_dir: str | None) -> dict:
-    """Train and test ``run`` (unless its ``result.json`` exists); return its result row."""
-    from encons.train import train
+def finished(run: Run, out: Path) -> Path:
+    """Where ``run`` leaves its result row; the run is finished when the file exists."""
+    return out / "runs" / run.id / "result.json"
 
-    run_dir = out / "runs" / run.id
-    done = run_dir / "result.json"
-    if done.is_file():
-        return {**json.loads(done.read_text()), "skipped": True}
-    cfg = compose_train(run.overrides, run_dir, cache_dir)
+
+def run_one(run: Run, out: Path, cache_dir: str | None) -> dict:
+    """Train and test ``run`` through ``encons.api``; write and return its result row."""
+    from encons import api
+
+    done = finished(run, out)
+    run_dir = done.parent
+    cfg = api.compose(*run.overrides, output_dir=run_dir, cache_dir=cache_dir)
     started = time.perf_counter()
     try:
-        results, error = train(cfg), ""
+        results, error = api.train(cfg).metrics, ""
     except EnconsError as err:
         results, error = {}, str(err)
     row = {"system": run.system, "model": run.label, "seed": run.seed, "n_train": cfg.data.n_train,
@@ -114,7 +122,7 @@ def run_one(run: Run, out: Path, cache_dir: str | None) -> dict:
 
 def run_profile(cfg: DictConfig) -> Path:
     """Run every run of ``cfg`` not yet finished under ``cfg.out``, then write the report there."""
-    from encons.report import write_report
+    from encons.report import Progress, write_report
 
     runs = expand(cfg)
     out = Path(cfg.out)
@@ -125,17 +133,17 @@ def run_profile(cfg: DictConfig) -> Path:
         import torch
 
         torch.set_num_threads(int(cfg.threads))
-    started, trained = time.perf_counter(), 0
-    for k, run in enumerate(runs, 1):
+    todo = [run for run in runs if not finished(run, out).is_file()]
+    progress = Progress(len(runs), "benchmark run", work=len(todo))  # the ETA counts runs still to train
+    for run in runs:
+        if finished(run, out).is_file():
+            progress.start(f"{run.id}: finished before, skipped", work=0)
+            continue
+        progress.start(run.id)
         row = run_one(run, out, cache_dir)
-        if row.get("skipped"):
-            status = "skipped (finished before)"
-        else:
-            trained += 1
-            status = f"{row['wall_time_s']:.0f} s" + (f", failed: {row['error'][:80]}" if row["error"] else "")
-        left = len(runs) - k
-        eta = (time.perf_counter() - started) / trained * left if trained else float("nan")
-        print(f"[{k}/{len(runs)}] {run.id}: {status}; ETA {eta / 60:.1f} min", flush=True)
+        if row["error"]:
+            print(f"{run.id} failed: {row['error']}", file=sys.stderr)
+    progress.done()
     write_report(out)
     return out
 

@@ -35,7 +35,7 @@ class SantosMetrics(pl.Callback):
 
     def __init__(self, n_trajectories: int = 16, steps: int = 500, seed: int = 1):
         if n_trajectories < 1 or steps < 2:
-            raise ConfigError(f"callbacks.santos.n_trajectories={n_trajectories} must be >= 1 and "
+            raise ConfigError(f"callbacks.santos.n_trajectories={n_trajectories}; allowed: >= 1 and "
                               f"callbacks.santos.steps={steps} >= 2")
         self.n_trajectories, self.steps, self.seed = n_trajectories, steps, seed
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import inspect
+import os
 import types
 import typing
 from collections.abc import Sequence
@@ -121,8 +122,25 @@ def _top_level_keys(seed: int, horizon: int, test: bool) -> None:
     """The annotated top-level keys of ``train.yaml`` (for ``check_types``)."""
 
 
+def check_folders(cfg: DictConfig) -> None:
+    """Create the run's output folders and the cache folder, refusing a path that is a file or unwritable."""
+    out = Path(cfg.paths.output_dir)
+    for key, folder in (("paths.output_dir", out), ("paths.output_dir", out / "checkpoints"),
+                        ("paths.output_dir", out / "figures"), ("paths.cache_dir", Path(cfg.paths.cache_dir))):
+        blocking = next((p for p in (folder, *folder.parents) if p.exists() and not p.is_dir()), None)
+        if blocking is not None:
+            raise ConfigError(f"{key}={str(folder)!r}: {str(blocking)!r} is a file, not a folder; "
+                              f"allowed: a folder path (move the file or pick another)")
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise ConfigError(f"{key}={str(folder)!r} cannot be created ({err.strerror}); allowed: a writable folder") from None
+        if not os.access(folder, os.W_OK | os.X_OK):
+            raise ConfigError(f"{key}={str(folder)!r} is not writable; allowed: a writable folder")
+
+
 def check_config(cfg: DictConfig) -> None:
-    """Reject types, sizes and budgets that cannot work, naming the key and what is allowed."""
+    """Reject types, sizes, budgets and folders that cannot work, naming the key and what is allowed."""
     from encons.data.datamodule import TrajectoryDataModule
     from encons.integrators import Integrator
 
@@ -144,6 +162,7 @@ def check_config(cfg: DictConfig) -> None:
         raise ConfigError(f"trainer.max_epochs={epochs!r}; allowed: an integer >= 1")
     if cfg.horizon < 1:
         raise ConfigError(f"horizon={cfg.horizon}; allowed: an integer >= 1 (steps)")
+    check_folders(cfg)
 
 
 def build_system(cfg: DictConfig) -> System:
@@ -158,10 +177,10 @@ def build_model(cfg: DictConfig, system: System) -> DynamicsModel:
     model_name = cfg.model._target_.rsplit(".", 1)[-1]
     if chart not in system.charts:
         raise ConfigError(f"model {model_name} needs the '{chart}' chart, which system '{system.name}' "
-                          f"lacks (it offers {list(system.charts)}); pick a model for those charts")
+                          f"lacks; allowed: a model for its charts {list(system.charts)}")
     if getattr(cls, "needs_constraints", False) and system.layout is None:
         raise ConfigError(f"model {model_name} needs holonomic constraints, which system '{system.name}' "
-                          f"does not declare; use a model in generalised coordinates")
+                          f"does not declare; allowed: a model in generalised coordinates")
     check_capabilities(cfg, cls, system)
     return instantiate_node(cfg, "model", system=system)
 
@@ -180,7 +199,7 @@ def check_capabilities(cfg: DictConfig, cls: type[DynamicsModel], system: System
     if objective not in cls.objectives:
         raise ConfigError(f"objective={objective} does not apply to model={name}; allowed: {', '.join(cls.objectives)}")
     if cfg.get("regulariser") and cls.discrete:
-        raise ConfigError(f"regulariser={cfg.regulariser._target_.rsplit('.', 1)[-1].lower()} needs a vector field, "
+        raise ConfigError(f"regulariser={cfg.regulariser._target_.rsplit('.', 1)[-1].lower()} needs a vector field "
                           f"and model={name} is discrete (it steps itself); allowed: regulariser=none")
     if system.n_controls and not cls.supports_controls:
         raise ConfigError(f"model={name} cannot take control inputs, and system '{system.name}' has "
@@ -192,14 +211,59 @@ def check_capabilities(cfg: DictConfig, cls: type[DynamicsModel], system: System
                               f"own step; allowed: no integrator override")
 
 
+RESUME_KEYS = ("system", "model", "data", "integrator", "regulariser", "objective", "optim", "seed")
+
+
 def resolve_checkpoint(cfg: DictConfig) -> str | None:
-    """``ckpt_path=last``: the newest ``last.ckpt`` among earlier runs of this ``name``."""
+    """The checkpoint to resume from: ``cfg.ckpt_path``, or for ``last`` the newest ``last.ckpt`` among
+    the earlier runs beside this one whose saved config (system, model, data, integrator, regulariser,
+    objective, optim, seed) matches this run's; the training budget and paths may differ."""
     if cfg.ckpt_path != "last":
         if cfg.ckpt_path is not None and not Path(cfg.ckpt_path).is_file():
-            raise ConfigError(f"ckpt_path={cfg.ckpt_path!r} does not exist; give a .ckpt file or 'last'")
+            raise ConfigError(f"ckpt_path={cfg.ckpt_path!r} does not exist; allowed: a .ckpt file, last or null")
         return cfg.ckpt_path
+    import torch
+
     runs = Path(cfg.paths.output_dir).parent
-    found = sorted(runs.glob("*/checkpoints/last.ckpt"), key=lambda p: p.stat().st_mtime)
+    found = sorted(runs.glob("*/checkpoints/last.ckpt"), key=lambda p: p.stat().st_mtime, reverse=True)
     if not found:
-        raise ConfigError(f"ckpt_path=last: no earlier run of '{cfg.name}' has a checkpoint under {runs}")
-    return str(found[-1])
+        raise ConfigError(f"ckpt_path=last: no earlier run of '{cfg.name}' has a checkpoint under {runs}; "
+                          f"allowed: a .ckpt file, or null to start afresh")
+    mine = OmegaConf.to_container(OmegaConf.masked_copy(cfg, [k for k in RESUME_KEYS if k in cfg]), resolve=True)
+    differences = []
+    for path in found:
+        saved = torch.load(path, map_location="cpu", weights_only=False, mmap=True).get("encons_config") or {}
+        diff = _first_difference({k: saved.get(k) for k in mine}, mine)
+        if diff is None:
+            return str(path)
+        differences.append(f"{path.parent.parent.name} has {diff[0]}={diff[1]!r} where this run has {diff[2]!r}")
+    raise ConfigError(f"ckpt_path=last: no earlier run under {runs} has this run's config (newest: {differences[0]}); "
+                      f"allowed: the same system/model/data/optim config, ckpt_path=PATH, or null")
+
+
+def _first_difference(a: Any, b: Any, key: str = "") -> tuple[str, Any, Any] | None:
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b)):
+            found = _first_difference(a.get(k), b.get(k), f"{key}.{k}".lstrip("."))
+            if found:
+                return found
+        return None
+    return None if a == b else (key, a, b)
+
+
+def check_checkpoint(module: Any, path: str) -> None:
+    """Refuse a checkpoint whose parameters do not fit ``module`` (another model or size), naming the first."""
+    import torch
+
+    try:
+        saved = torch.load(path, map_location="cpu", weights_only=False, mmap=True)["state_dict"]
+    except Exception as err:  # noqa: BLE001 - any unreadable file is the same user error
+        raise ConfigError(f"ckpt_path={path!r} is not a readable Lightning checkpoint ({type(err).__name__}); "
+                          f"allowed: a .ckpt written by encons") from None
+    own = module.state_dict()
+    for name in sorted(set(saved) | set(own)):
+        shapes = [tuple(d[name].shape) if name in d else None for d in (saved, own)]
+        if shapes[0] != shapes[1]:
+            said = ["absent" if s is None else f"shape {s}" for s in shapes]
+            raise ConfigError(f"ckpt_path={path!r}: parameter {name} is {said[0]} in the checkpoint and {said[1]} "
+                              f"in this model; allowed: a checkpoint of the same model config (model.*)")

@@ -15,12 +15,13 @@ from torch import Tensor
 from torch.func import jvp
 from torchdiffeq import odeint
 from torchdiffeq._impl.odeint import SOLVERS
+from torchdiffeq._impl.solvers import FixedGridODESolver
 
 from encons.errors import ConfigError
 from encons.models.base import DynamicsModel
 
 METHODS = tuple(sorted(SOLVERS))
-FIXED_STEP = ("euler", "midpoint", "heun2", "heun3", "rk4", "explicit_adams", "implicit_adams")
+FIXED_STEP = tuple(sorted(m for m, solver in SOLVERS.items() if issubclass(solver, FixedGridODESolver)))
 
 
 @dataclass(frozen=True)
@@ -36,7 +37,7 @@ class Integrator:
         if self.method not in METHODS:
             raise ConfigError(f"integrator.method={self.method!r} is unknown; allowed: {', '.join(METHODS)}")
         if self.substeps < 1:
-            raise ConfigError(f"integrator.substeps={self.substeps} must be >= 1")
+            raise ConfigError(f"integrator.substeps={self.substeps}; allowed: >= 1")
 
     def options(self, t: Tensor) -> dict:
         if self.method in FIXED_STEP:
@@ -69,7 +70,8 @@ def rollout(model: DynamicsModel, start: Tensor, t: Tensor, integrator: Integrat
     if model.discrete:
         return model.rollout(start, t, u)
     if integrator is None:
-        raise ConfigError(f"{type(model).__name__} is a continuous model: its rollout needs an integrator")
+        raise ConfigError(f"{type(model).__name__} is a continuous model: its rollout needs an integrator; "
+                          f"allowed: an Integrator (the integrator group)")
     options = integrator.options(t)
     if u is None:  # models without inputs may define forward(t, z) only
         z = odeint(model, model.encode(start), t, **options)

@@ -53,9 +53,9 @@ class DynamicsModule(pl.LightningModule):
         if not 0 <= warmup < 1:
             raise ConfigError(f"optim.warmup={warmup} must lie in [0, 1): the fraction of steps warming up")
         if patience < 0 or not 0 < factor < 1:
-            raise ConfigError(f"optim.patience={patience} must be >= 0 and optim.factor={factor} in (0, 1)")
+            raise ConfigError(f"optim.patience={patience}; allowed: >= 0 and optim.factor={factor} in (0, 1)")
         if lr <= 0:
-            raise ConfigError(f"optim.lr={lr} must be > 0")
+            raise ConfigError(f"optim.lr={lr}; allowed: > 0")
         self.model, self.system, self.dt, self.integrator = model, system, dt, integrator
         self.lr, self.weight_decay, self.scheduler_name, self.warmup = lr, weight_decay, scheduler, warmup
         self.patience, self.factor = patience, factor
@@ -84,7 +84,7 @@ class DynamicsModule(pl.LightningModule):
         if self.objective == "residual":
             return (self.model.residual(states, self.times(states.shape[1], states), u) ** 2).sum(-1).mean()
         if "rates" not in batch:
-            raise ConfigError("objective=derivative needs batches with rates: build the data module "
+            raise ConfigError("objective=derivative needs batches with rates; allowed: a data module built "
                               "with objective='derivative' (data.objective: ${objective})")
         return ((state_derivative(self.model, states, u) - batch["rates"]) ** 2).sum(-1).mean()
 
@@ -99,9 +99,17 @@ class DynamicsModule(pl.LightningModule):
         if not torch.isfinite(loss):
             raise DivergenceError(
                 f"training diverged: loss is {loss.item()} at epoch {self.current_epoch}, step "
-                f"{self.global_step}; the last good checkpoint is kept. Lower optim.lr or raise "
-                f"model.mass_eps, then resume with ckpt_path=last")
+                f"{self.global_step}; {self._kept_checkpoint()}. Lower optim.lr or raise model.mass_eps")
         return loss
+
+    def _kept_checkpoint(self) -> str:
+        """What a diverged run leaves to resume from, said truthfully."""
+        kept = [Path(cb.last_model_path) for cb in self.trainer.checkpoint_callbacks if cb.last_model_path]
+        kept = [p for p in kept if p.is_file()]
+        if not kept:
+            return "no checkpoint was written before it (none to resume from)"
+        epoch = torch.load(kept[0], map_location="cpu", weights_only=False, mmap=True).get("epoch")
+        return f"{kept[0]} holds the last good weights (epoch {epoch}); resume with ckpt_path=last"
 
     def validation_step(self, batch: Batch, batch_idx: int) -> None:
         states, pred = batch["states"], self.predict(batch)

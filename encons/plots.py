@@ -14,47 +14,65 @@ from torch import Tensor  # noqa: E402
 from encons import metrics  # noqa: E402
 
 
-def _band(ax, t: Tensor, values: Tensor, label: str) -> None:
+TIME = "time t [s]"
+REL_ERR = "relative error ‖ŝ_t − s_t‖ / ‖s_t‖ [–]"
+ENERGY_ERR = "energy error |E(ŝ_t) − E(s_t)| [J]"
+
+
+def coordinate_names(width: int) -> list[str]:
+    """Names of the 2n state entries (q₁…qₙ, q̇₁…q̇ₙ) of a (common-chart) state of ``width`` entries."""
+    sub = str.maketrans("0123456789", "₀₁₂₃₄₅₆₇₈₉")
+    n = width // 2
+    return [f"q{str(i + 1).translate(sub)}" for i in range(n)] + [f"q̇{str(i + 1).translate(sub)}" for i in range(n)]
+
+
+def _band(ax, t: Tensor, values: Tensor, ylabel: str) -> None:
     """Median over trajectories with the 2.5–97.5 percentile band, log scale."""
     lo, med, hi = torch.quantile(values.double(), torch.tensor([0.025, 0.5, 0.975], dtype=torch.float64), dim=0)
-    ax.plot(t, med, label=f"{label} (median)")
-    ax.fill_between(t, lo, hi, alpha=0.25, label="2.5–97.5 %")
+    ax.plot(t, med, label="median over test trajectories")
+    ax.fill_between(t, lo, hi, alpha=0.25, label="2.5–97.5 percentile")
     ax.set_yscale("log")
-    ax.set_xlabel("time")
+    ax.set_xlabel(TIME)
+    ax.set_ylabel(ylabel)
     ax.legend()
 
 
 def test_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] | None, out_dir: Path,
                  title: str, n_show: int = 3) -> list[Path]:
-    """Rollout vs truth, relative error vs time and (if known) energy error vs time."""
+    """Rollout vs truth (every coordinate, positions and velocities), relative error vs time and
+    (if known) energy error vs time; states are in the system's common chart."""
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
-    n_coord = true.shape[-1] // 2
-    fig, axes = plt.subplots(1, min(n_show, true.shape[0]), figsize=(5 * min(n_show, true.shape[0]), 3.5),
-                             squeeze=False)
-    for k, ax in enumerate(axes[0]):
-        for d in range(min(n_coord, 6)):
-            line, = ax.plot(t, true[k, :, d], lw=1.5)
-            ax.plot(t, pred[k, :, d], "--", color=line.get_color(), lw=1.2)
-        ax.set_title(f"test trajectory {k}: truth (solid) vs model (dashed)", fontsize=9)
-        ax.set_xlabel("time")
+    names = coordinate_names(true.shape[-1])
+    n, shown = true.shape[-1] // 2, min(n_show, true.shape[0])
+    fig, axes = plt.subplots(2, shown, figsize=(5 * shown, 6.5), squeeze=False, sharex=True)
+    for k in range(shown):
+        for row, (part, ylabel) in enumerate(((slice(0, n), "position q, common chart [m]"), (slice(n, 2 * n), "velocity q̇, common chart [m/s]"))):
+            ax = axes[row, k]
+            for d in range(part.start, part.stop):
+                line, = ax.plot(t, true[k, :, d], lw=1.5, label=names[d])
+                ax.plot(t, pred[k, :, d], "--", color=line.get_color(), lw=1.2)
+            ax.set_ylabel(ylabel)
+            ax.legend(fontsize=7, ncol=max(1, n // 4), title="solid: truth, dashed: model", title_fontsize=7)
+        axes[0, k].set_title(f"test trajectory {k}", fontsize=9)
+        axes[1, k].set_xlabel(TIME)
     fig.suptitle(title)
     paths.append(_save(fig, out_dir / "rollout.png"))
 
     fig, ax = plt.subplots(figsize=(6, 4))
-    _band(ax, t[1:], metrics.relative_error(pred, true)[:, 1:], "relative error")
+    _band(ax, t[1:], metrics.relative_error(pred, true)[:, 1:], REL_ERR)
     ax.set_title(f"{title}\nrelative error of the state", fontsize=9)
     paths.append(_save(fig, out_dir / "relative_error.png"))
 
     if energies is not None:
         fig, ax = plt.subplots(figsize=(6, 4))
-        _band(ax, t[1:], metrics.energy_abs_error(*energies)[:, 1:].clamp_min(1e-12), "|E(ŝ) − E(s)|")
+        _band(ax, t[1:], metrics.energy_abs_error(*energies)[:, 1:].clamp_min(1e-12), ENERGY_ERR)
         ax.set_title(f"{title}\nabsolute error in true energy", fontsize=9)
         paths.append(_save(fig, out_dir / "energy_error.png"))
     return paths
 
 
-def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path) -> list[Path]:
+def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, horizon: int = 4) -> list[Path]:
     """The papers' comparison plots over a benchmark grid, one panel per system.
 
     Trajectory relative error per model (Zhong et al. Fig. 2), and relative error and absolute
@@ -65,19 +83,22 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path) -> 
 
     systems = list(dict.fromkeys(e["system"] for e in summary))
     paths = []
-    fig, axes = plt.subplots(1, len(systems), figsize=(4.5 * len(systems), 4), squeeze=False)
+    fig, axes = plt.subplots(1, len(systems), figsize=(5 * len(systems), 4.5), squeeze=False)
     for ax, system in zip(axes[0], systems):
         entries = [e for e in summary if e["system"] == system and "test/traj_rel_err" in e]
-        ax.bar([e["model"] for e in entries], [e["test/traj_rel_err"] for e in entries],
-               yerr=[e["test/traj_rel_err_std"] for e in entries], capsize=3)
+        ax.errorbar([e["model"] for e in entries], [e["test/traj_rel_err"] for e in entries],
+                    yerr=[e["test/traj_rel_err_std"] for e in entries], fmt="o", capsize=3,
+                    label="mean ± std over seeds")
         ax.set_yscale("log")
         ax.set_title(system)
-        ax.set_ylabel("trajectory relative error (T = 4)")
+        ax.set_xlabel("model")
+        ax.set_ylabel(f"trajectory relative error, Σ over t ≤ {horizon} steps [–]")
+        ax.legend(fontsize=7)
         ax.tick_params(axis="x", rotation=60)
     paths.append(_save(fig, out_dir / "traj_rel_err.png"))
 
-    for key, label, name in (("rel_err", "relative error", "rel_err_vs_time.png"),
-                             ("energy_err", "|E(ŝ) − E(s)|", "energy_err_vs_time.png")):
+    for key, label, name in (("rel_err", REL_ERR, "rel_err_vs_time.png"),
+                             ("energy_err", ENERGY_ERR, "energy_err_vs_time.png")):
         fig, axes = plt.subplots(1, len(systems), figsize=(4.5 * len(systems), 4), squeeze=False)
         for ax, system in zip(axes[0], systems):
             curves: dict[str, list] = {}
@@ -90,8 +111,8 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path) -> 
             for model, runs in curves.items():
                 ax.plot(runs[0][0][1:], np.mean([c for _, c in runs], 0)[1:], label=model)
             ax.set_yscale("log")
-            ax.set_xlabel("time")
-            ax.set_ylabel(label)
+            ax.set_xlabel(TIME)
+            ax.set_ylabel(f"{label}, mean over test trajectories and seeds")
             ax.set_title(system)
             ax.legend(fontsize=7)
         paths.append(_save(fig, out_dir / name))

@@ -61,7 +61,7 @@ class JacobianPenalty:
 
     def __init__(self, weight: float = 1.0, jacobian: str = "reverse"):
         if weight < 0:
-            raise ConfigError(f"regulariser.weight={weight} must be >= 0")
+            raise ConfigError(f"regulariser.weight={weight}; allowed: >= 0")
         if jacobian not in JACOBIANS:
             raise ConfigError(f"regulariser.jacobian={jacobian!r} is unknown; allowed: {', '.join(JACOBIANS)}")
         self.weight, self.jacobian = float(weight), jacobian
@@ -98,3 +98,18 @@ class Dissipative(JacobianPenalty):
             raise ConfigError(f"regulariser.bound has {self.bound.numel()} entries; give one number or "
                               f"{jac.shape[-1]} (one per eigenvalue of the {jac.shape[-1]}-dim field)")
         return dissipative_violation(jac, self.bound.to(jac).reshape(-1))
+
+
+def from_paper_weight(weight: float, constraint: str, state_dim: int) -> float:
+    """encons' ``regulariser.weight`` equivalent to Lim & Kasim's ``weight`` on a ``state_dim``-dim field.
+
+    Their loss is the entry mean of the squared derivative error plus ``weight`` × the entry mean
+    of the constraint ((2n)² Jacobian entries for C_H, 2n eigenvalues for C_D); encons sums both
+    (``objective=derivative`` sums the 2n squared errors). Multiplying their loss by 2n gives
+    encons' form, so the weight is ``weight / 2n`` for ``hamiltonian`` and ``weight`` for
+    ``dissipative``. E.g. Task 1 (mass-spring, 2n = 2): 1e5 → 5e4.
+    """
+    scale = {"hamiltonian": 1.0 / state_dim, "dissipative": 1.0}
+    if constraint not in scale:
+        raise ConfigError(f"regulariser={constraint!r} has no paper weight; allowed: {', '.join(scale)}")
+    return weight * scale[constraint]

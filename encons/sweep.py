@@ -74,6 +74,7 @@ class OptunaSweeper(Sweeper):
         sweep_dir.mkdir(parents=True, exist_ok=True)
         study = open_study(self.storage, self.study_name, self.direction)
         study.sampler = self._sampler(len(study.trials))
+        study.set_user_attr("optimized_metric", str(self.config.get("optimized_metric", "objective")))
         for params in self.enqueue:
             study.enqueue_trial(params, skip_if_exists=True)
         log.info("study %s in %s: %d trials stored, %d to run", study.study_name, self.storage,
@@ -220,9 +221,10 @@ def _save_figures(study: optuna.Study, out_dir: Path, plot_importance: bool) -> 
     import matplotlib.pyplot as plt
     from optuna.visualization import matplotlib as vis
 
-    plots = {"optimization_history": vis.plot_optimization_history}
+    metric = study.user_attrs.get("optimized_metric", "objective")  # each trial's best-checkpoint value
+    plots = {"optimization_history": lambda s: vis.plot_optimization_history(s, target_name=metric)}
     if plot_importance:
-        plots["param_importances"] = vis.plot_param_importances
+        plots["param_importances"] = lambda s: vis.plot_param_importances(s, target_name=metric)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
         for name, plot in plots.items():

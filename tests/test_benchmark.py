@@ -31,8 +31,8 @@ def test_smoke_profile_writes_report_and_resumes(tmp_path, capsys):
     stamps = {p: p.stat().st_mtime_ns for p in (out / "runs").glob("*/result.json")}
     capsys.readouterr()
     main(["profile=smoke", f"out={out}", f"cache_dir={cache}"])
-    printed = capsys.readouterr().out
-    assert printed.count("skipped (finished before)") == 6 and "[6/6]" in printed
+    printed = capsys.readouterr().err
+    assert printed.count("finished before, skipped") == 6 and "benchmark run 6 of 6 done" in printed
     assert stamps == {p: p.stat().st_mtime_ns for p in (out / "runs").glob("*/result.json")}
     (out / "summary.md").unlink()
     write_report(out)  # the report alone, from the finished runs

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import lightning.pytorch as pl
 
-from encons.config import compose_train
-from encons.train import build, build_trainer
+from encons import api
 
 
 class ValHistory(pl.Callback):
@@ -18,11 +17,12 @@ class ValHistory(pl.Callback):
 
 def test_short_run_cuts_validation_error_fivefold(tmp_path):
     """CHNN on the 1-pendulum at its default optimiser (warm-up + cosine, lr 1e-2), 12 epochs."""
-    cfg = compose_train(["model=chnn", "system=pendulum1", "debug=fast", "data.n_train=32", "data.n_val=8",
+    cfg = api.compose("model=chnn", "system=pendulum1", "debug=fast", "data.n_train=32", "data.n_val=8",
                          "data.n_test=4", "data.n_steps=20", "data.batch_size=8", "model.hidden=32",
-                         "trainer.max_epochs=12", "test=false", "~callbacks"], tmp_path / "run", tmp_path / "cache")
-    data, module = build(cfg)
-    trainer, _ = build_trainer(cfg)
+                         "trainer.max_epochs=12", "test=false", "~callbacks", output_dir=tmp_path / "run",
+                      cache_dir=tmp_path / "cache")
+    data, module = api.build(cfg)
+    trainer, _ = api.build_trainer(cfg)
     history = ValHistory()
     trainer.callbacks.append(history)
     trainer.fit(module, datamodule=data)

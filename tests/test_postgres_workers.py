@@ -18,6 +18,8 @@ import pytest
 import yaml
 from optuna.trial import TrialState
 
+pytestmark = pytest.mark.slow  # starts a PostgreSQL server and three sweep workers
+
 WORKERS, TRIALS_PER_WORKER = 3, 2
 
 

@@ -13,7 +13,8 @@ from encons.batching import batched
 from encons.errors import ConfigError
 from encons.models.networks import mlp
 from encons.models.node import NODE
-from encons.regularisers import Dissipative, Hamiltonian, field_jacobian
+from encons.regularisers import (Dissipative, Hamiltonian, dissipative_violation, field_jacobian, from_paper_weight,
+                                 hamiltonian_violation)
 from encons.systems.base import split_state
 from encons.systems.mass_spring import MassSpring
 from encons.systems.pendulum import NPendulum
@@ -134,3 +135,16 @@ def test_bad_regulariser_settings_are_config_errors():
     with pytest.raises(ConfigError, match="regulariser.jacobian"):
         Dissipative(jacobian="sideways")
     assert math.isclose(Dissipative(weight=2).weight, 2.0)
+
+
+@pytest.mark.parametrize("constraint, violation", [("hamiltonian", hamiltonian_violation),
+                                                   ("dissipative", lambda a: dissipative_violation(a, torch.zeros(())))])
+def test_paper_weight_makes_the_papers_entry_mean_loss_proportional_to_encons_sum(constraint, violation):
+    gen = torch.Generator().manual_seed(0)
+    d, w = 4, 1e3
+    err, jac = torch.randn(16, d, generator=gen, dtype=torch.float64), torch.randn(16, d, d, generator=gen,
+                                                                                 dtype=torch.float64)
+    entries = d * d if constraint == "hamiltonian" else d  # what the authors' code averages over
+    paper = (err ** 2).mean(-1).mean() + w * (violation(jac) / entries).mean()
+    ours = (err ** 2).sum(-1).mean() + from_paper_weight(w, constraint, d) * violation(jac).mean()
+    assert float(ours) == pytest.approx(float(d * paper), rel=1e-12)

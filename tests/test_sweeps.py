@@ -15,7 +15,7 @@ import pytest
 import yaml
 from optuna.trial import TrialState
 
-from conftest import run_cli
+from tests.helpers import run_cli
 from encons.config import compose_train
 
 TINY = ["system=pendulum1", "debug=fast", "test=false"]
@@ -33,6 +33,7 @@ def stored(folder: Path, study: str) -> list[optuna.trial.FrozenTrial]:
     return optuna.load_study(study_name=study, storage=f"sqlite:///{folder / 'optuna.db'}").trials
 
 
+@pytest.mark.slow
 def test_sweep_reports_its_best_trial_and_a_rerun_continues_the_study(tmp_path):
     args = [*NODE, "sweeps=chnn_tuning", "hydra.sweeper.n_trials=3"]
     out = sweep(tmp_path, *args)
@@ -68,6 +69,7 @@ def _processes_with_env(needle: str) -> list[int]:
     return found
 
 
+@pytest.mark.slow
 def test_pruned_and_diverged_trials_are_recorded_and_wandb_logs_every_trial_offline(tmp_path):
     wandb_dir = os.environ["WANDB_DIR"]
     out = sweep(tmp_path, *NODE, "sweeps=optuna", "logger=wandb", "trainer.max_epochs=3", "hydra.sweeper.n_trials=3",
@@ -96,6 +98,7 @@ def test_pruned_and_diverged_trials_are_recorded_and_wandb_logs_every_trial_offl
     assert not _processes_with_env(f"WANDB_DIR={wandb_dir}"), "a wandb process outlived the sweep"
 
 
+@pytest.mark.slow
 def test_model_grid_runs_every_model_and_seed(tmp_path):
     sweep(tmp_path, *TINY, "sweeps=model_grid", "hydra.sweeper.params.model='node,hnn'", "hydra.sweeper.params.seed='0,1'",
           "trainer.max_epochs=1")

@@ -14,6 +14,7 @@ SANTOS_KEYS = ("mse_train", "mse_test", "mse_integration", "energy_mse_integrati
 TINY = ["callbacks.santos.steps=20", "callbacks.santos.n_trajectories=4", "data.chunk_len=3"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("system", ["pendulum_control", "cartpole"])
 @pytest.mark.parametrize("model", ["symo", "e2e_symo", "lnode", "lnode+midpoint", "node"])
 def test_model_trains_end_to_end_with_the_section_7_metrics(train_run, model, system):
@@ -36,26 +37,17 @@ def test_model_trains_end_to_end_with_the_section_7_metrics(train_run, model, sy
 ])
 def test_incompatible_santos_configs_are_one_line_errors(tmp_path, overrides, match):
     from encons.config import compose_train
-    from encons.train import build
+    from encons.api import build
 
     with pytest.raises(ConfigError, match=match):
         build(compose_train(["debug=fast", "system=pendulum_control", *overrides], tmp_path / "run", tmp_path / "c"))
-
-
-def test_experiment_symo_paper_composes_the_papers_optimiser(tmp_path):
-    from encons.config import compose_train
-
-    cfg = compose_train(["experiment=symo_paper", "model=e2e_symo", "system=cartpole"], tmp_path / "run")
-    assert (cfg.optim.scheduler, cfg.optim.patience, cfg.optim.factor, cfg.optim.weight_decay) == ("plateau", 50, 0.7, 0)
-    assert (cfg.model.hidden, cfg.model.depth, cfg.model.activation) == (128, 2, "tanh")
-    assert (cfg.data.n_steps, cfg.data.n_test, cfg.data.dt) == (32, 128, 0.05)
 
 
 def test_symo_learns_the_true_inertia_of_the_pendulum(tmp_path):
     """From 32 noiseless trajectories, the DEL residual (eq. (15)) fixes M = m l²/3 (the known
     controls set the scale of L); 400 Adam steps on whole trajectories bring M(q) within 1e-3."""
     from encons.config import compose_train
-    from encons.train import build
+    from encons.api import build
 
     torch.manual_seed(0)
     cfg = compose_train(["model=symo", "system=pendulum_control", "logger=none", "data.n_train=32",

@@ -1,20 +1,33 @@
-"""Every model × benchmark system trains end to end on a tiny config."""
+"""Every model of the catalogue (conf/model) trains end to end on every simulated system of the
+catalogue (conf/system) it can serve, on a tiny config; the rest are skipped with their reason."""
 
 from __future__ import annotations
 
 import math
 
 import pytest
+from encons import api
+from encons.errors import ConfigError, DivergenceError
+from tests.helpers import simulated_systems
 
 
-SYSTEMS = ["pendulum1", "pendulum2", "pendulum4", "gyroscope"]
-MODELS = ["node", "hnn", "hnn_angle", "hnn_structure", "hnn_structure_angle", "lnn", "lnn_angle", "lnn_structure",
-          "lnn_structure_angle", "chnn", "clnn"]
+@pytest.mark.slow
+@pytest.mark.parametrize("system", simulated_systems())
+@pytest.mark.parametrize("model", api.catalogue("model"))
+def test_trains_end_to_end(train_run, tmp_path, model, system):
+    from hydra.utils import execution_whitelist
 
+    from encons.config import build_model, build_system
 
-@pytest.mark.parametrize("system", SYSTEMS)
-@pytest.mark.parametrize("model", MODELS)
-def test_trains_end_to_end(train_run, model, system):
-    results = train_run([f"model={model}", f"system={system}"])
+    cfg = api.compose("debug=fast", f"model={model}", f"system={system}", output_dir=tmp_path)
+    try:
+        with execution_whitelist(api.trusted_targets()):
+            build_model(cfg, build_system(cfg))
+    except ConfigError as err:
+        pytest.skip(str(err))
+    try:
+        results = train_run([f"model={model}", f"system={system}"])
+    except DivergenceError as err:  # reported as XFAIL with its reason (pytest -rx): a model limit to fix
+        pytest.xfail(str(err))
     assert math.isfinite(results["test/traj_rel_err"])
-    assert math.isfinite(results["val/traj_rel_err"])
+    assert math.isfinite(results["best/val/traj_rel_err"])

@@ -26,6 +26,7 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 from encons.data import store
 from encons.data.simulate import sample_trajectories
 from encons.errors import ConfigError, DataError
+from encons.report import Progress
 from encons.systems.base import System
 
 log = logging.getLogger(__name__)
@@ -84,14 +85,14 @@ class TrajectoryDataModule(pl.LightningDataModule):
         for key, value in dict(n_train=n_train, n_test=n_test, n_steps=n_steps, substeps=substeps,
                                batch_size=batch_size).items():
             if value < 1:
-                raise ConfigError(f"data.{key}={value} must be >= 1")
+                raise ConfigError(f"data.{key}={value}; allowed: >= 1")
         if dt <= 0 or noise < 0 or n_val < 0:
-            raise ConfigError(f"data.dt={dt} must be > 0, data.noise={noise} and data.n_val={n_val} >= 0")
+            raise ConfigError(f"data.dt={dt}; allowed: > 0, data.noise={noise} and data.n_val={n_val} >= 0")
         if test_steps is not None and test_steps < n_steps:
             raise ConfigError(f"data.test_steps={test_steps} is shorter than data.n_steps={n_steps}; allowed: "
                               f"null (= n_steps) or an integer >= {n_steps}")
         if not 2 <= chunk_len <= n_steps + 1:
-            raise ConfigError(f"data.chunk_len={chunk_len} must lie in [2, n_steps + 1 = {n_steps + 1}]")
+            raise ConfigError(f"data.chunk_len={chunk_len}; allowed: [2, n_steps + 1 = {n_steps + 1}]")
         system.check_chart(chart)
         self.system, self.chart, self.path = system, chart, path
         self.sizes = {"train": n_train, "val": n_val, "test": n_test}
@@ -107,9 +108,13 @@ class TrajectoryDataModule(pl.LightningDataModule):
         if self.path is None and not self.cache_file.exists():
             gen = torch.Generator().manual_seed(self.seed)
             splits, inputs = {}, {}
+            steps_of = {name: self.test_steps if name == "test" else self.n_steps for name in self.sizes}
+            progress = Progress(sum(1 for n in self.sizes.values() if n), f"simulating {self.system.name}: split",
+                                log, work=sum(n * steps_of[k] for k, n in self.sizes.items()))
             for name, n in self.sizes.items():
                 if n:
-                    steps = self.test_steps if name == "test" else self.n_steps
+                    steps = steps_of[name]
+                    progress.start(f"{name}, {n} trajectories × {steps} steps", n * steps)
                     t = torch.arange(steps + 1, dtype=torch.float64) * self.dt
                     splits[name], u, rejected = sample_trajectories(self.system, n, t, gen, self.substeps)
                     if u is not None:
@@ -118,22 +123,31 @@ class TrajectoryDataModule(pl.LightningDataModule):
                         log.info("%s: redrew %d of %d %s trajectories (%s)", self.system.name, rejected, n, name,
                                  getattr(self.system, "rejection_reason", "invalid"))
             store.save(self.cache_file, t[: self.n_steps + 1], splits, self.system.base_chart, inputs)
+            progress.done()
             log.info("simulated %s into %s", self.system.name, self.cache_file)
 
     def setup(self, stage: str | None = None) -> None:
         if hasattr(self, "t"):
             return
         source = Path(self.path) if self.path is not None else self.cache_file
-        t, splits, chart = store.load(source)
+        try:
+            t, splits, chart = store.load(source)
+        except DataError as err:
+            if self.path is not None:
+                raise
+            log.warning("encons: the cache file is damaged, rebuilding it (%s)", err)
+            self.cache_file.unlink(missing_ok=True)
+            self.prepare_data()
+            t, splits, chart = store.load(source)
         chart = chart or self.system.base_chart
         if chart not in self.system.charts:
-            raise DataError(f"data file {str(source)!r} holds chart {chart!r}; system '{self.system.name}' "
-                            f"offers {list(self.system.charts)}")
+            raise DataError(f"data file {str(source)!r} holds chart {chart!r}; allowed: the charts of system "
+                            f"'{self.system.name}', {', '.join(self.system.charts)}")
         width = 2 * self.system.coord_dim(chart)
         for name, arr in splits.items():
             if arr.shape[-1] != width:
                 raise DataError(f"data file {str(source)!r}: '{name}' has {arr.shape[-1]} state entries; "
-                                f"the {chart} chart of '{self.system.name}' needs {width}")
+                                f"allowed: {width}, the {chart} chart of '{self.system.name}'")
         inputs = store.load_inputs(source, splits, self.system.n_controls)
         if "val" not in splits:
             n_val = max(1, splits["train"].shape[0] // 10)

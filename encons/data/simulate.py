@@ -43,4 +43,4 @@ def sample_trajectories(system: System, n: int, t: Tensor, generator: torch.Gene
             states = torch.cat([k[0] for k in kept])
             return states, (torch.cat([k[1] for k in kept]) if u is not None else None), rejected
     raise DataError(f"system '{system.name}': only {count} of {n} sampled trajectories were valid "
-                    f"after {max_tries} draws; widen the initial-condition ranges")
+                    f"after {max_tries} draws; allowed: wider initial-condition ranges (system.*)")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import socket
 import tempfile
 from pathlib import Path
 
@@ -23,6 +24,7 @@ from torch import Tensor
 from encons.errors import DataError
 
 SPLITS = ("train", "val", "test")
+TMP_SUFFIX = ".npz.tmp"
 
 
 def config_hash(config: dict) -> str:
@@ -37,48 +39,76 @@ def save(path: Path, t: Tensor, splits: dict[str, Tensor], chart: str,
     arrays = {k: v.numpy() for k, v in splits.items()}
     arrays.update({f"u_{k}": v.numpy() for k, v in (inputs or {}).items()})
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
+    clean_orphans(path.parent)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f"{path.stem}.{_host()}.{os.getpid()}.",
+                               suffix=TMP_SUFFIX)
     try:
         with os.fdopen(fd, "wb") as f:
             np.savez(f, t=t.numpy(), chart=np.array(chart), **arrays)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # like any other output (mkstemp makes it 0600): a shared cache works
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
 
 
-def load(path: str | Path, state_dim: int | None = None) -> tuple[Tensor, dict[str, Tensor], str | None]:
+def _host() -> str:
+    return socket.gethostname().replace(".", "-")
+
+
+def clean_orphans(folder: Path) -> list[Path]:
+    """Remove temporary files left in ``folder`` by killed writers of this host (their process is gone);
+    other hosts' and live writers' files are left alone. Returns what was removed."""
+    removed = []
+    host = _host()
+    for tmp in folder.glob(f"*{TMP_SUFFIX}"):
+        parts = tmp.name.split(".")
+        if len(parts) < 5 or parts[-5] != host or not parts[-4].isdigit():
+            continue
+        try:
+            os.kill(int(parts[-4]), 0)
+        except ProcessLookupError:
+            tmp.unlink(missing_ok=True)
+            removed.append(tmp)
+        except PermissionError:  # alive, another user's
+            pass
+    return removed
+
+
+def load(path: str | Path) -> tuple[Tensor, dict[str, Tensor], str | None]:
     """Read and check a trajectory file; raise ``DataError`` naming what is wrong and how to fix it.
 
     Returns the times, the state splits and the chart; ``load_inputs`` reads the inputs."""
     path = Path(path)
     if not path.is_file():
-        raise DataError(f"data file {str(path)!r} does not exist; set system.path to an .npz file (see README)")
+        raise DataError(f"data file {str(path)!r} does not exist; allowed: an .npz file in system.path (README: Bring your own data)")
     try:
         with np.load(path, allow_pickle=False) as f:
             arrays = {k: f[k] for k in f.files}
     except Exception as err:  # numpy raises several types for a corrupt archive
-        raise DataError(f"data file {str(path)!r} is not a readable .npz archive ({err})") from None
+        raise DataError(f"data file {str(path)!r} is not a readable .npz archive ({err}); allowed: an .npz written by numpy.savez") from None
     missing = [k for k in ("t", "train", "test") if k not in arrays]
     if missing:
-        raise DataError(f"data file {str(path)!r} lacks key(s) {missing}; it needs t, train, test (val optional)")
+        raise DataError(f"data file {str(path)!r} lacks key(s) {missing}; allowed: a file with t, train, test (val optional)")
     t = torch.from_numpy(np.asarray(arrays["t"], dtype=np.float64))
     if t.ndim != 1 or len(t) < 2 or not bool((t.diff() > 0).all()):
-        raise DataError(f"data file {str(path)!r}: 't' must be 1-D, increasing, with >= 2 times")
+        raise DataError(f"data file {str(path)!r}: 't' has shape {tuple(t.shape)} or is not increasing; "
+                        f"allowed: 1-D, increasing, >= 2 times")
     if not torch.allclose(t.diff(), t.diff()[0].expand(len(t) - 1), rtol=1e-6, atol=1e-9):
-        raise DataError(f"data file {str(path)!r}: 't' must be equally spaced")
+        raise DataError(f"data file {str(path)!r}: 't' is not equally spaced; allowed: equally spaced times")
     splits = {}
     for name in SPLITS:
         if name not in arrays:
             continue
         arr = arrays[name]
-        width = state_dim or arr.shape[-1] if arr.ndim == 3 else None
         too_short = arr.ndim == 3 and (arr.shape[1] < len(t) if name == "test" else arr.shape[1] != len(t))
-        if arr.ndim != 3 or too_short or arr.shape[2] != width or arr.shape[2] % 2:
-            raise DataError(f"data file {str(path)!r}: '{name}' has shape {arr.shape}; expected "
-                            f"(N, {len(t)}, {state_dim or '2n'}) states (q, q̇)")
+        if arr.ndim != 3 or too_short or arr.shape[2] % 2:
+            raise DataError(f"data file {str(path)!r}: '{name}' has shape {arr.shape}; allowed: "
+                            f"(N, {len(t)}, 2n) states (q, q̇)")
         if not np.isfinite(arr).all():
-            raise DataError(f"data file {str(path)!r}: '{name}' contains NaN or inf")
+            raise DataError(f"data file {str(path)!r}: '{name}' contains NaN or inf; allowed: finite states")
         splits[name] = torch.from_numpy(np.asarray(arr, dtype=np.float64))
     chart = str(arrays["chart"]) if "chart" in arrays else None
     return t, splits, chart
@@ -104,6 +134,6 @@ def load_inputs(path: str | Path, splits: dict[str, Tensor], n_controls: int) ->
             raise DataError(f"data file {str(path)!r}: '{key}' has shape {tuple(u.shape)}; allowed: "
                             f"({n}, {n_controls}) constant per trajectory or ({n}, {steps}, {n_controls}) per step")
         if not bool(torch.isfinite(u).all()):
-            raise DataError(f"data file {str(path)!r}: '{key}' contains NaN or inf")
+            raise DataError(f"data file {str(path)!r}: '{key}' contains NaN or inf; allowed: finite inputs")
         inputs[name] = u
     return inputs

@@ -87,10 +87,10 @@ class SyMo(DiscreteModel):
         super().__init__(system, chart)
         for key, value in dict(train_tol=train_tol, eval_tol=eval_tol).items():
             if not value > 0:
-                raise ConfigError(f"model.{key}={value} must be > 0")
+                raise ConfigError(f"model.{key}={value}; allowed: > 0")
         for key, value in dict(train_iters=train_iters, eval_iters=eval_iters).items():
             if value < 1:
-                raise ConfigError(f"model.{key}={value} must be >= 1")
+                raise ConfigError(f"model.{key}={value}; allowed: >= 1")
         angles = angle_mask(system, angular)
         self.mass = CholeskyMass(self.n, angles, hidden, depth, activation, mass_eps)
         self.potential = Potential(self.n, angles, hidden, depth, activation)

@@ -84,7 +84,7 @@ class System(abc.ABC):
     def check_chart(self, chart: str) -> None:
         if chart not in self.charts:
             raise ChartError(
-                f"system '{self.name}' has no '{chart}' chart; it offers {list(self.charts)}"
+                f"system '{self.name}' has no '{chart}' chart; allowed: {', '.join(self.charts)}"
             )
 
     @abc.abstractmethod

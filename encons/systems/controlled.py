@@ -26,7 +26,7 @@ from encons.systems.base import System, split_state
 def _positive(**values: float) -> None:
     for key, value in values.items():
         if not value > 0:
-            raise ConfigError(f"system.{key}={value} must be > 0")
+            raise ConfigError(f"system.{key}={value}; allowed: > 0")
 
 
 class ControlledMechanical(System):
@@ -46,7 +46,7 @@ class ControlledMechanical(System):
             raise ConfigError(f"system.init_range={list(init_range)} must hold {2 * len(self.angles)} "
                               f"non-negative half-widths (q then q̇)")
         if u_max < 0:
-            raise ConfigError(f"system.u_max={u_max} must be >= 0")
+            raise ConfigError(f"system.u_max={u_max}; allowed: >= 0")
         self.init_range = torch.tensor([float(r) for r in init_range], dtype=torch.float64)
         self.u_max = float(u_max)
 

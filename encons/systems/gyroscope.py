@@ -54,14 +54,14 @@ class Gyroscope(System):
                  spin_mean: float = 7.0, spin_scale: float = 1.5, min_sin_theta: float = 0.1):
         inertias = [float(i) for i in inertias]
         if len(inertias) != 3 or min(inertias) <= 0 or inertias[0] != inertias[1]:
-            raise ConfigError(f"system.inertias={inertias} must be 3 positive numbers with I_1 = I_2 "
+            raise ConfigError(f"system.inertias={inertias}; allowed: 3 positive numbers with I_1 = I_2 "
                               f"(a symmetric top)")
         positive = dict(mass=mass, ell=ell, g=g, angle_range=angle_range, spin_scale=spin_scale)
         for key, value in positive.items():
             if value <= 0:
-                raise ConfigError(f"system.{key}={value} must be > 0")
+                raise ConfigError(f"system.{key}={value}; allowed: > 0")
         if not 0 <= min_sin_theta < 1:
-            raise ConfigError(f"system.min_sin_theta={min_sin_theta} must lie in [0, 1)")
+            raise ConfigError(f"system.min_sin_theta={min_sin_theta}; allowed: [0, 1)")
         self.m, self.ell, self.g = float(mass), float(ell), float(g)
         self.inertias = torch.tensor(inertias, dtype=torch.float64)
         self.j_perp = inertias[0] + inertias[2] + self.m * self.ell**2  # about the pivot

@@ -1,0 +1,190 @@
+"""Every bad input a user can give ends as one line naming the key, and faults are survived (issue 10).
+
+In-process cases check the error and its wording; a few run the CLI to check the whole path: exit
+code 2, no traceback, the one line last on stderr.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+
+import numpy as np
+import pytest
+import torch
+
+from encons.config import compose_train
+from encons.data import store
+from encons.errors import ConfigError, DataError, EnconsError
+
+from tests.helpers import run_cli
+
+
+def build_with(tmp_path, *overrides: str):
+    from encons.api import build
+
+    return build(compose_train(["debug=fast", *overrides], tmp_path / "run", tmp_path / "cache"))
+
+
+def refused(tmp_path, overrides, key, error=EnconsError):
+    with pytest.raises(error) as err:
+        build_with(tmp_path, *overrides)
+    line = str(err.value)
+    assert "\n" not in line and key in line and "allowed" in line, line
+    return line
+
+
+# class 1: errors raised inside the constructors Hydra instantiates
+@pytest.mark.parametrize("overrides, key", [
+    (["system=pendulum1", "system.n_links=0"], "system.n_links=0"),
+    (["system=pendulum1", "system.masses=[1,2]"], "system.masses=[1, 2]"),
+    (["system=pendulum2", "system.lengths=[1,-1]"], "system.lengths"),
+    (["system=mass_spring", "system.mass=-1"], "system.mass=-1"),
+    (["system=damped_pendulum", "system.damping=-0.1"], "system.damping=-0.1"),
+    (["model.activation=nope"], "model.activation='nope'"),
+    (["model=inn_node", "model.blocks=0"], "model.blocks=0"),
+    (["regulariser=hamiltonian", "regulariser.weight=-1"], "regulariser.weight=-1"),
+    (["regulariser=hamiltonian", "regulariser.jacobian=sideways"], "regulariser.jacobian='sideways'"),
+    (["integrator.method=rk5"], "integrator.method='rk5'"),
+    (["system=gyroscope", "system.inertias=[1,2]"], "system.inertias"),
+])
+def test_constructor_errors_are_one_line(tmp_path, overrides, key):
+    refused(tmp_path, overrides, key, ConfigError)
+
+
+# class 2: wrong types, named with key, value and the expected type
+@pytest.mark.parametrize("overrides, key, expected", [
+    (["seed=abc"], "seed='abc'", "int"),
+    (["data.dt=abc"], "data.dt='abc'", "float"),
+    (["data.n_train=2.5"], "data.n_train=2.5", "int"),
+    (["data.noise=[1]"], "data.noise=[1]", "float"),
+    (["regulariser=hamiltonian", "regulariser.weight=abc"], "regulariser.weight='abc'", "float"),
+    (["optim.lr=fast"], "optim.lr='fast'", "float"),
+    (["horizon=1.5"], "horizon=1.5", "int"),
+    (["system=pendulum1", "system.n_links=2.5"], "system.n_links=2.5", "int"),
+    (["model.hidden=[1,2]"], "model.hidden=[1, 2]", "int"),
+    (["integrator.substeps=2.5"], "integrator.substeps=2.5", "int"),
+    (["trainer.max_epochs=1.5"], "trainer.max_epochs=1.5", "integer"),
+    (["test=maybe"], "test='maybe'", "bool"),
+])
+def test_wrong_types_name_key_value_and_type(tmp_path, overrides, key, expected):
+    assert expected in refused(tmp_path, overrides, key, ConfigError)
+
+
+# class 3: nonsense is refused, not silently fixed
+@pytest.mark.parametrize("overrides, key", [
+    (["data.test_steps=0"], "data.test_steps=0"),
+    (["data.test_steps=-3"], "data.test_steps=-3"),
+    (["data.test_steps=5"], "data.test_steps=5"),
+    (["horizon=50"], "horizon=50"),
+    (["horizon=0"], "horizon=0"),
+    (["data.chunk_len=1"], "data.chunk_len=1"),
+    (["data.n_train=0"], "data.n_train=0"),
+    (["model.depth=0"], "model.depth=0"),
+])
+def test_nonsense_is_refused(tmp_path, overrides, key):
+    refused(tmp_path, overrides, key)
+
+
+def test_a_file_without_training_trajectories_is_refused(tmp_path):
+    t = np.arange(11) * 0.1
+    np.savez(tmp_path / "one.npz", t=t, train=np.zeros((1, 11, 2)), test=np.zeros((1, 11, 2)))
+    line = refused(tmp_path, ["system=from_file", f"system.path={tmp_path / 'one.npz'}"], "one.npz", DataError)
+    assert "no train trajectories" in line
+
+
+# class 4: checkpoints
+def test_divergence_without_a_checkpoint_says_so(train_run, monkeypatch):
+    from encons.errors import DivergenceError
+    from encons.module import DynamicsModule
+
+    loss = DynamicsModule.loss
+    monkeypatch.setattr(DynamicsModule, "loss", lambda self, batch: loss(self, batch) * float("nan"))
+    with pytest.raises(DivergenceError, match="no checkpoint was written") as err:
+        train_run(["model=node", "system=pendulum1"], name="nan0")
+    assert "resume with ckpt_path=last" not in str(err.value)
+
+
+def test_resuming_a_checkpoint_of_another_shape_names_the_parameter(train_run, tmp_path):
+    train_run(["model=node", "system=pendulum1", "trainer.max_epochs=1"], name="small")
+    ckpt = tmp_path / "small" / "checkpoints" / "last.ckpt"
+    with pytest.raises(ConfigError, match=r"parameter model\.net\.0\.bias is shape \(16,\) in the checkpoint "
+                                          r"and shape \(32,\) in this model; allowed") as err:
+        train_run(["model=node", "system=pendulum1", "model.hidden=32", f"ckpt_path={ckpt}"], name="wide")
+    assert "\n" not in str(err.value)
+    (tmp_path / "junk.ckpt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ConfigError, match="not a readable Lightning checkpoint"):
+        train_run(["model=node", "system=pendulum1", f"ckpt_path={tmp_path / 'junk.ckpt'}"], name="junk")
+
+
+def test_ckpt_path_last_resumes_only_a_run_of_the_same_config(train_run, tmp_path):
+    train_run(["model=node", "system=pendulum1", "trainer.max_epochs=1"], name="node")
+    train_run(["model=hnn", "system=pendulum1", "trainer.max_epochs=1"], name="hnn")  # newer, another model
+    train_run(["model=node", "system=pendulum1", "trainer.max_epochs=2", "ckpt_path=last"], name="again")
+    # the node run's epoch 0 was resumed (the newer hnn checkpoint would not even load): one more epoch
+    assert torch.load(tmp_path / "again" / "checkpoints" / "last.ckpt", weights_only=False)["epoch"] == 1
+    with pytest.raises(ConfigError, match=r"ckpt_path=last: no earlier run .* has this run's config \(newest: "
+                                          r"again has model.hidden=16 where this run has 24\); allowed"):
+        train_run(["model=node", "system=pendulum1", "model.hidden=24", "ckpt_path=last"], name="other")
+
+
+# class 5: files and folders
+@pytest.mark.parametrize("where", ["output", "checkpoints", "figures", "cache"])
+def test_a_file_where_a_folder_belongs_is_one_line(tmp_path, where):
+    out, cache = tmp_path / "run", tmp_path / "cache"
+    blocker = {"output": out, "checkpoints": out / "checkpoints", "figures": out / "figures", "cache": cache}[where]
+    blocker.parent.mkdir(parents=True, exist_ok=True)
+    blocker.write_text("not a folder")
+    with pytest.raises(ConfigError, match="is a file, not a folder; allowed"):
+        from encons.api import build
+
+        build(compose_train(["debug=fast"], out, cache))
+
+
+def test_a_damaged_cache_is_rebuilt_and_said(tmp_path, caplog):
+    data, _ = build_with(tmp_path)
+    cache = data.cache_file
+    good = data.states["test"].clone()
+    cache.write_bytes(b"PK\x03\x04 truncated")
+    with caplog.at_level("WARNING"):
+        data2, _ = build_with(tmp_path)
+    assert "damaged, rebuilding" in caplog.text
+    assert torch.equal(data2.states["test"], good)
+
+
+def test_cache_files_are_group_readable_and_orphans_of_dead_writers_go(tmp_path):
+    t = torch.arange(3, dtype=torch.float64)
+    dead = tmp_path / f"x.{store._host()}.999999999.abc{store.TMP_SUFFIX}"
+    other_host = tmp_path / f"x.elsewhere.1.abc{store.TMP_SUFFIX}"
+    live = tmp_path / f"x.{store._host()}.{os.getpid()}.abc{store.TMP_SUFFIX}"
+    for f in (dead, other_host, live):
+        f.write_bytes(b"")
+    store.save(tmp_path / "x.npz", t, {"train": torch.zeros(1, 3, 2), "test": torch.zeros(1, 3, 2)}, "angle")
+    assert not dead.exists() and other_host.exists() and live.exists()
+    assert os.stat(tmp_path / "x.npz").st_mode & stat.S_IRGRP
+
+
+# classes 6–7 and the whole CLI path: exit 2, no traceback, the one line last
+@pytest.mark.slow
+@pytest.mark.parametrize("args, key", [
+    (["model=nope"], "model=nope is unknown; allowed: chnn"),
+    (["system=pendulum1", "system.n_links=2.5"], "system.n_links=2.5"),
+    (["modl.hidden=3"], "modl.hidden is not a key"),
+    (["-m", "sweeps=optuna", "hydra.sweeper.n_trials=0"], "hydra.sweeper.n_trials=0"),
+    (["-m", "sweeps=optuna", "sweeps.storage=mysql://u@localhost/x"], "sweeps.storage='mysql://u@localhost/x'"),
+])
+def test_cli_ends_with_the_one_line(tmp_path, args, key):
+    proc = run_cli("debug=fast", *args, f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path,
+                   env={"ENCONS_ROOT": str(tmp_path)})
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("encons: error: ") and key in last and "allowed" in last, last
+
+
+@pytest.mark.slow
+def test_a_sweep_dir_without_sweeps_dir_creates_the_study_folder(tmp_path):
+    proc = run_cli("-m", "sweeps=optuna", "debug=fast", "hydra.sweeper.n_trials=1", "trainer.max_epochs=1",
+                   f"hydra.sweep.dir={tmp_path / 'elsewhere'}", f"sweeps.dir={tmp_path / 'new' / 'study'}",
+                   "optim.lr=tag(log,interval(1e-4,1e-2))", cwd=tmp_path, env={"ENCONS_ROOT": str(tmp_path)})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert (tmp_path / "new" / "study" / "optuna.db").is_file()
