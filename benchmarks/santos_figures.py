@@ -65,10 +65,10 @@ def table(rows: list[dict], system: str) -> str:
 def figure(rows: list[dict], system: str, out: Path) -> Path:
     fig, axes = plt.subplots(1, len(METRICS), figsize=(4 * len(METRICS), 3.8))
     for ax, (key, label) in zip(axes, METRICS.items()):
-        for model in dict.fromkeys(r["model"] for r in rows):
+        for colour, model in enumerate(MODELS):  # one colour per model in every panel
             points = sorted((r["n_train"], r[key]) for r in rows if r["system"] == system and r["model"] == model)
             if points and any(v == v for _, v in points):
-                ax.plot(*zip(*points), "o-", label=model)
+                ax.plot(*zip(*points), "o-", color=f"C{colour}", label=model)
         ax.set_xscale("log", base=2)
         ax.set_yscale("log")
         ax.set_xlabel("training trajectories N_train")
