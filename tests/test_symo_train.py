@@ -46,7 +46,8 @@ def test_experiment_symo_paper_composes_the_papers_optimiser(tmp_path):
     from encons.config import compose_train
 
     cfg = compose_train(["experiment=symo_paper", "model=e2e_symo", "system=cartpole"], tmp_path / "run")
-    assert (cfg.optim.scheduler, cfg.optim.patience, cfg.optim.factor, cfg.optim.weight_decay) == ("plateau", 50, 0.7, 0)
+    optim = cfg.optim
+    assert (optim.scheduler, optim.patience, optim.factor, optim.weight_decay) == ("plateau", 50, 0.7, 0)
     assert (cfg.model.hidden, cfg.model.depth, cfg.model.activation) == (128, 2, "tanh")
     assert (cfg.data.n_steps, cfg.data.n_test, cfg.data.dt) == (32, 128, 0.05)
 
@@ -59,7 +60,8 @@ def test_symo_learns_the_true_inertia_of_the_pendulum(tmp_path):
 
     torch.manual_seed(0)
     cfg = compose_train(["model=symo", "system=pendulum_control", "logger=none", "data.n_train=32",
-                         "data.chunk_len=33", "data.batch_size=32", "model.hidden=32"], tmp_path / "run", tmp_path / "c")
+                         "data.chunk_len=33", "data.batch_size=32", "model.hidden=32"],
+                        tmp_path / "run", tmp_path / "c")
     data, module = build(cfg)
     batch = next(iter(data.train_dataloader()))
     first = module.loss(batch).item()
