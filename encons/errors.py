@@ -19,3 +19,7 @@ class DataError(EnconsError):
 
 class DivergenceError(EnconsError):
     """Training produced a non-finite loss."""
+
+
+class SweepError(EnconsError):
+    """A sweep stopped because more of its trials failed than it allows."""
