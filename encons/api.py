@@ -399,7 +399,7 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
     elif path.is_dir() and ((path / "checkpoints").is_dir() or (path / "config.yaml").is_file()):
         run_dir, ckpt_file = path, find_checkpoint(path, ckpt)
     else:
-        raise ConfigError(f"{str(path)!r} is not a training run folder (no checkpoints/) or a .ckpt file")
+        raise ConfigError(f"{str(path)!r} is not a training run folder (no checkpoints/) or a .ckpt file; allowed: a run folder that train wrote, or its .ckpt")
     try:
         state = torch.load(ckpt_file, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises several types for a file that is not a checkpoint

@@ -34,7 +34,7 @@ from optuna.trial import TrialState
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import NoSuchModuleError, OperationalError
 
-from encons.errors import ConfigError, SweepError
+from encons.errors import ConfigError, SweepError, one_line_errors
 
 log = logging.getLogger(__name__)
 TRIAL_KEY = "sweeps.trial"  # the job's config key that receives the trial number
@@ -262,7 +262,17 @@ def main() -> None:
     parser.add_argument("study")
     parser.add_argument("out", nargs="?", default=".", help="folder for trials.csv and figures")
     args = parser.parse_args()
-    report(optuna.load_study(study_name=args.study, storage=args.storage), Path(args.out))
+    with one_line_errors():
+        report(load_study(args.storage, args.study), Path(args.out))
+
+
+def load_study(storage: str, study_name: str) -> optuna.Study:
+    """The stored study ``study_name``; one that is not there is one line naming those that are."""
+    store = check_storage(storage)
+    names = [s.study_name for s in store.get_all_studies()]
+    if study_name not in names:
+        raise ConfigError(f"study={study_name!r} is not in {storage}; allowed: {', '.join(names) or 'none stored'}")
+    return optuna.load_study(study_name=study_name, storage=store)
 
 
 if __name__ == "__main__":
