@@ -207,6 +207,9 @@ def check_config(cfg: DictConfig) -> None:
     if epochs is not None and (not isinstance(epochs, int) or isinstance(epochs, bool) or epochs < 1):
         raise ConfigError(f"trainer.max_epochs={epochs!r}; allowed: an integer >= 1")
     check_bounds(cfg)
+    if cfg.data.get("n_val") == 0 and str(cfg.optimized_metric).startswith("val/"):
+        raise ConfigError(f"data.n_val=0 leaves no validation set for optimized_metric={cfg.optimized_metric}; "
+                          f"allowed: data.n_val >= 1, or optimized_metric=train/loss")
     check_folders(cfg)
 
 

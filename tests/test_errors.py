@@ -203,6 +203,7 @@ def test_a_sweep_dir_without_sweeps_dir_creates_the_study_folder(tmp_path):
     (["data.seed=-5"], "data.seed=-5"),
     (["data.noise=-1"], "data.noise=-1"),
     (["data.n_val=-1"], "data.n_val=-1"),
+    (["data.n_val=0"], "data.n_val=0"),
     (["optim.weight_decay=-1"], "optim.weight_decay=-1"),
     (["optim.factor=2"], "optim.factor=2"),
     (["integrator=dopri5", "integrator.rtol=-1"], "integrator.rtol=-1"),
