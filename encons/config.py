@@ -29,6 +29,7 @@ def _at_least(low: float) -> tuple[Any, str]:
 
 
 _POSITIVE = ((lambda v: v > 0), "> 0")
+_COUNT = ((lambda v: v >= 1), "a positive integer")
 _SEED = ((lambda v: 0 <= v < 2**32), "0..2**32-1 (numpy's seed range)")
 
 #: Ranges of numeric keys, checked after their types (a key absent from the config is skipped);
@@ -39,7 +40,7 @@ BOUNDS: dict[str, tuple[Any, str]] = {
     "optim.lr": _POSITIVE, "optim.weight_decay": _at_least(0), "optim.patience": _at_least(0),
     "optim.factor": ((lambda v: 0 < v < 1), "in (0, 1)"),
     "regulariser.weight": _at_least(0), "integrator.rtol": _POSITIVE, "integrator.atol": _POSITIVE,
-    "model.hidden": _at_least(1), "model.depth": _at_least(1), "trainer.gradient_clip_val": _at_least(0),
+    "model.hidden": _COUNT, "model.depth": _COUNT, "trainer.gradient_clip_val": _at_least(0),
 }
 
 
