@@ -51,7 +51,8 @@ def test_symo_learns_the_true_inertia_of_the_pendulum(tmp_path):
 
     torch.manual_seed(0)
     cfg = compose_train(["model=symo", "system=pendulum_control", "logger=none", "data.n_train=32",
-                         "data.chunk_len=33", "data.batch_size=32", "model.hidden=32"], tmp_path / "run", tmp_path / "c")
+                         "data.chunk_len=33", "data.batch_size=32", "model.hidden=32"],
+                        tmp_path / "run", tmp_path / "c")
     data, module = build(cfg)
     batch = next(iter(data.train_dataloader()))
     first = module.loss(batch).item()

@@ -135,7 +135,8 @@ class SyMo(DiscreteModel):
         (rows,) = vmap(pullback)(basis.expand(self.n, *b.shape))
         return value, rows.movedim(0, -2)
 
-    def newton(self, c: Tensor, q: Tensor, guess: Tensor, h: Tensor, tol: float, iters: int) -> tuple[Tensor, Tensor, int]:
+    def newton(self, c: Tensor, q: Tensor, guess: Tensor, h: Tensor, tol: float,
+               iters: int) -> tuple[Tensor, Tensor, int]:
         """Root of g(x) = c + D₁L_d(q, x) near ``guess``: (root, ∂g/∂x at the root, iterations), no graph."""
         c, q, x = c.detach(), q.detach(), guess.detach()
         with torch.no_grad():
@@ -143,9 +144,9 @@ class SyMo(DiscreteModel):
                 d1, jac = self.d1_and_jacobian(q, x, h)
                 g = c + d1
                 if it == iters or g.pow(2).mean().sqrt() <= tol:
-                    return x, jac, it
+                    break
                 x = x - torch.linalg.solve(jac, g.unsqueeze(-1)).squeeze(-1)
-        raise AssertionError("unreachable")
+        return x, jac, it
 
     def step(self, c: Tensor, q_prev: Tensor, q: Tensor, h: Tensor) -> Tensor:
         """q_{k+1} solving c + D₁L_d(q_k, q_{k+1}) = 0, differentiable by the implicit gradient."""
