@@ -8,7 +8,7 @@ import torch
 
 from encons.data.simulate import simulate
 from encons.integrators import Integrator, rollout, state_derivative
-from encons.models.hnn import HNN, HNNAngle
+from encons.models.hnn import HNN
 from encons.models.node import NODE
 from encons.systems.pendulum import NPendulum
 
@@ -49,5 +49,5 @@ def test_node_with_true_field_rolls_out_the_truth(system_and_states):
 
 def test_hnn_encode_decode_round_trip(system_and_states):
     system, s = system_and_states
-    model = HNNAngle(system, hidden=8, depth=1).double()
+    model = HNN(system, hidden=8, depth=1, angular=True).double()
     assert torch.allclose(model.decode(model.encode(s)), s, atol=1e-10)

@@ -7,6 +7,8 @@ the system's vector field, and Cartesian models must keep Φ = 0 and Φ̇ = 0 al
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import pytest
 import torch
@@ -15,14 +17,21 @@ from torch.func import jvp
 from encons.errors import ConfigError
 from encons.integrators import Integrator, rollout, state_derivative
 from encons.models.constrained import CHNN, CLNN, CartesianModel
-from encons.models.hnn import HNN, HNNAngle, HNNStructure, HNNStructureAngle
-from encons.models.lnn import LNN, LNNAngle, LNNStructure, LNNStructureAngle
+from encons.models.hnn import HNN, HNNStructure
+from encons.models.lnn import LNN, LNNStructure
 from encons.systems.base import split_state
 from encons.systems.gyroscope import Gyroscope
 from encons.systems.pendulum import NPendulum
 
-ANGLE_MODELS = [HNN, HNNAngle, HNNStructure, HNNStructureAngle, LNN, LNNAngle, LNNStructure, LNNStructureAngle]
+ANGLE_MODELS = [partial(cls, angular=angular) for cls in (HNN, HNNStructure, LNN, LNNStructure) for angular in (False, True)]
 MODELS = ANGLE_MODELS + [CHNN, CLNN]
+
+
+def model_id(cls) -> str:
+    """HNN, HNN_angle, ...: a class, or a partial of one with ``angular``."""
+    if isinstance(cls, partial):
+        return cls.func.__name__ + ("_angle" if cls.keywords.get("angular") else "")
+    return cls.__name__
 SYSTEMS = {"pendulum2": lambda: NPendulum(2, masses=[1.0, 1.5], lengths=[1.0, 0.8]), "gyroscope": Gyroscope}
 
 
@@ -84,7 +93,7 @@ def relative_gap(a, b):
 
 
 @pytest.mark.parametrize("system_name", SYSTEMS)
-@pytest.mark.parametrize("cls", MODELS, ids=lambda c: c.__name__)
+@pytest.mark.parametrize("cls", MODELS, ids=model_id)
 def test_true_physics_gives_the_true_field(cls, system_name):
     system = SYSTEMS[system_name]()
     model, s = build(cls, system)

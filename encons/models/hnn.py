@@ -2,7 +2,8 @@
 
 Each learns H(q, p) and integrates q̇ = ∂H/∂p, ṗ = −∂H/∂q (Zhong et al. eq. (6)). Data hold
 (q, q̇) only, so a learned M(q) = L Lᵀ maps q̇ → p = M(q) q̇ at the start of a rollout and
-p → q̇ = M(q)⁻¹ p on the way out. "-angle" variants embed each angle as (cos q, sin q).
+p → q̇ = M(q)⁻¹ p on the way out. ``angular=True`` (the "-angle" variants, ``model=*_angle``) embeds
+each angle as (cos q, sin q).
 """
 
 from __future__ import annotations
@@ -21,7 +22,6 @@ class HamiltonianModel(DynamicsModel):
     """ż = J ∇H(z) on z = (q, p); subclasses set ``self.mass`` and define ``hamiltonian``."""
 
     default_chart = "angle"
-    angular = False
 
     def hamiltonian(self, z: Tensor) -> Tensor:
         """H(q, p) of internal states (..., 2n)."""
@@ -45,9 +45,9 @@ class HNN(HamiltonianModel):
     """Unstructured H(q, p) network (Greydanus et al. 2019; Zhong et al. eq. (6))."""
 
     def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
-                 activation: str = "softplus", mass_eps: float = 1e-3):
+                 activation: str = "softplus", mass_eps: float = 1e-3, angular: bool = False):
         super().__init__(system, chart)
-        n = self.n
+        n, self.angular = self.n, angular
         self.hamiltonian_net = mlp(3 * n if self.angular else 2 * n, 1, hidden, depth, activation)
         self.mass = CholeskyMass(n, self.angular, hidden, depth, activation, mass_eps)
 
@@ -55,11 +55,6 @@ class HNN(HamiltonianModel):
         q, p = split_state(z)
         return self.hamiltonian_net(torch.cat([embed_angles(q, self.angular), p], -1)).squeeze(-1)
 
-
-class HNNAngle(HNN):
-    """HNN with each angle embedded as (cos q, sin q) (Zhong et al. §3, "HNN-angle")."""
-
-    angular = True
 
 
 class HNNStructure(HamiltonianModel, MassPotentialModel):
@@ -69,8 +64,3 @@ class HNNStructure(HamiltonianModel, MassPotentialModel):
         q, p = split_state(z)
         return 0.5 * (p * self.mass.solve(q, p)).sum(-1) + self.potential(q)
 
-
-class HNNStructureAngle(HNNStructure):
-    """HNN-structure with each angle embedded as (cos q, sin q) (Zhong et al. §3)."""
-
-    angular = True

@@ -1,7 +1,8 @@
 """Lagrangian models in generalised coordinates (Zhong et al. §3): LNN, LNN-structure, "-angle".
 
 The state is s = (q, q̇) and the field ṡ = (q̇, q̈) with q̈ from the Euler–Lagrange equations
-of a learned Lagrangian. "-angle" variants embed each angle as (cos q, sin q).
+of a learned Lagrangian. ``angular=True`` (the "-angle" variants, ``model=*_angle``) embeds each
+angle as (cos q, sin q).
 """
 
 from __future__ import annotations
@@ -40,11 +41,11 @@ class LNN(DynamicsModel):
     """Unstructured L(q, q̇) network, eq. (3) (Cranmer et al. 2020)."""
 
     default_chart = "angle"
-    angular = False
 
     def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
-                 activation: str = "softplus"):
+                 activation: str = "softplus", angular: bool = False):
         super().__init__(system, chart)
+        self.angular = angular
         self.lagrangian_net = mlp(3 * self.n if self.angular else 2 * self.n, 1, hidden, depth, activation)
 
     def lagrangian(self, s: Tensor) -> Tensor:
@@ -55,11 +56,6 @@ class LNN(DynamicsModel):
     def forward(self, t: Tensor, s: Tensor) -> Tensor:
         return torch.cat([split_state(s)[1], euler_lagrange_acceleration(self.lagrangian, s)], -1)
 
-
-class LNNAngle(LNN):
-    """LNN with each angle embedded as (cos q, sin q) (Zhong et al. §3, "LNN-angle")."""
-
-    angular = True
 
 
 class LNNStructure(MassPotentialModel):
@@ -86,8 +82,3 @@ class LNNStructure(MassPotentialModel):
         rhs = dl_dq - (mass_dot @ qd.unsqueeze(-1)).squeeze(-1)
         return torch.cat([qd, torch.linalg.solve(mass, rhs)], -1)
 
-
-class LNNStructureAngle(LNNStructure):
-    """LNN-structure with each angle embedded as (cos q, sin q) (Zhong et al. §3)."""
-
-    angular = True

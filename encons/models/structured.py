@@ -13,11 +13,11 @@ class MassPotentialModel(DynamicsModel):
     """Learns ``mass`` (Cholesky M(q), ``forward``/``solve``) and ``potential`` V(q); "-angle" via ``angular``."""
 
     default_chart = "angle"
-    angular = False
 
     def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
-                 activation: str = "softplus", mass_eps: float = 1e-3):
+                 activation: str = "softplus", mass_eps: float = 1e-3, angular: bool = False):
         super().__init__(system, chart)
+        self.angular = angular
         self.mass = CholeskyMass(self.n, self.angular, hidden, depth, activation, mass_eps)
         self.potential_net = Potential(self.n, self.angular, hidden, depth, activation)
 
