@@ -118,24 +118,9 @@ def _is_trusted(target: str, trusted: tuple[str, ...]) -> bool:
 
 def _importable(target: str) -> bool:
     """Whether ``package.module.Name[.attr]`` names an object (importing its module, as instantiate will)."""
-    import importlib
+    from encons.config import locate
 
-    parts = target.split(".")
-    for split in range(len(parts) - 1, 0, -1):
-        module = ".".join(parts[:split])
-        try:
-            obj = importlib.import_module(module)
-        except ModuleNotFoundError as err:
-            if err.name is None or not (module == err.name or module.startswith(f"{err.name}.")):
-                raise  # the module exists but one of its own imports fails: the user's traceback helps
-            continue
-        try:
-            for name in parts[split:]:
-                obj = getattr(obj, name)
-        except AttributeError:
-            return False
-        return True
-    return False
+    return locate(target) is not None
 
 
 def check_targets(cfg: DictConfig) -> None:
@@ -149,7 +134,7 @@ def check_targets(cfg: DictConfig) -> None:
                 raise ConfigError(f"{key}._target_={target!r} is not a trusted target; allowed: "
                                   f"{', '.join(trusted)} (trust your package with ENCONS_TRUSTED_TARGETS=yourpkg.*)")
             if isinstance(target, str) and not _importable(target):
-                raise ConfigError(f"{key}._target_={target!r} cannot be imported; give an importable "
+                raise ConfigError(f"{key}._target_={target!r} cannot be imported; allowed: an importable "
                                   f"module.Class (your own package on PYTHONPATH)")
             for k, v in node.items():
                 walk(v, f"{key}.{k}" if key else str(k))

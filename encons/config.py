@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import inspect
 import math
 import os
@@ -112,13 +113,33 @@ def check_types(values: dict, target: Any, key: str) -> None:
                               f"{_type_name(hints[name])}".removeprefix("."))
 
 
+def locate(target: str) -> Any:
+    """The object ``package.module.Name[.attr]`` names (importing its module, as instantiate will), or
+    None. A module that exists but fails on one of its own imports raises: its traceback helps the user."""
+    parts = target.split(".")
+    for split in range(len(parts) - 1, 0, -1):
+        module = ".".join(parts[:split])
+        try:
+            obj = importlib.import_module(module)
+        except ModuleNotFoundError as err:
+            if err.name is None or not (module == err.name or module.startswith(f"{err.name}.")):
+                raise
+            continue
+        try:
+            for name in parts[split:]:
+                obj = getattr(obj, name)
+        except AttributeError:
+            return None
+        return obj
+    return None
+
+
 def check_node_types(cfg: DictConfig, key: str) -> None:
     """Type-check the values of node ``cfg[key]`` against its ``_target_``'s constructor (if importable:
     an unimportable target is reported where it is instantiated)."""
     values = OmegaConf.to_container(OmegaConf.select(cfg, key), resolve=True)
-    try:
-        target = get_class(values["_target_"])
-    except Exception:  # noqa: BLE001
+    target = locate(str(values.get("_target_", "")))  # not hydra's get_class, which logs errors of its own
+    if target is None:  # reported where the config's targets are checked (encons.api.check_targets)
         return
     check_types({k: v for k, v in values.items() if not k.startswith("_")}, target, key)
 

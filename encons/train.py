@@ -8,8 +8,11 @@ checkpoint's ``optimized_metric`` value (for sweeps).
 from __future__ import annotations
 
 import os
+from contextlib import nullcontext
 
 import hydra
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from encons import api
@@ -19,9 +22,11 @@ from encons.paths import config_dir
 
 @hydra.main(config_path=config_dir(), config_name="train", execution_whitelist=api.trusted_targets())
 def _hydra_main(cfg: DictConfig) -> float | None:
-    # a user's error propagates to one_line_errors (HYDRA_FULL_ERROR); in a sweep, to the sweeper,
-    # which records the trial as failed and goes on
-    results = api.train(cfg).metrics
+    # a single run reports a user's error here, before Hydra adds its own "Error executing job" line;
+    # in a sweep the error goes to the sweeper, which records the trial as failed and goes on
+    single = HydraConfig.get().mode == RunMode.RUN
+    with one_line_errors() if single else nullcontext():
+        results = api.train(cfg).metrics
     return results.get(f"best/{cfg.optimized_metric}", results.get(cfg.optimized_metric))
 
 
