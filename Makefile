@@ -4,7 +4,7 @@ VENV    ?= .venv
 BIN     := $(VENV)/bin
 ARGS    ?=
 
-.PHONY: install test test-fast train bench clean
+.PHONY: install test test-fast train bench benchmark report clean
 
 install:  ## fresh virtual environment: CPU torch first (pinned), then encons with its dev extra
 	$(PY) -m venv $(VENV)
@@ -24,6 +24,12 @@ train:  ## e.g. make train ARGS="model=chnn system=gyroscope"
 bench:  ## speed of a training step per model, and dataset generation
 	$(BIN)/python benchmarks/speed.py $(ARGS)
 	$(BIN)/python benchmarks/symo_speed.py --threads 1
+
+benchmark:  ## a benchmark profile, e.g. make benchmark ARGS="profile=quick" (smoke|quick|zhong|finzi|lim_kasim)
+	$(BIN)/python -m encons.benchmark $(ARGS)
+
+report:  ## rebuild a benchmark's tables and figures without training, e.g. make report ARGS=benchmarks/results/quick
+	$(BIN)/python -m encons.report $(ARGS)
 
 clean:
 	rm -rf outputs multirun .cache/encons .pytest_cache build dist *.egg-info

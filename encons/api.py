@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -227,16 +228,18 @@ def build(cfg: DictConfig) -> tuple[TrajectoryDataModule, DynamicsModule]:
 def build_trainer(cfg: DictConfig):
     """The Lightning Trainer of ``cfg.trainer`` with the configured loggers and callbacks; every
     checkpoint it writes carries the resolved run config (see :func:`load`)."""
-    from hydra.utils import execution_whitelist, instantiate
+    from hydra.utils import execution_whitelist
+
+    from encons.config import instantiate_node
 
     with execution_whitelist(trusted_targets()):
-        loggers = [instantiate(c) for c in (cfg.get("logger") or {}).values()]
+        loggers = [instantiate_node(cfg, f"logger.{name}") for name in (cfg.get("logger") or {})]
         for lg in loggers:  # Lightning 2.6 passes anonymous=None, which wandb 0.31 warns about on every run
             if getattr(lg, "_wandb_init", {}).get("anonymous", False) is None:
                 del lg._wandb_init["anonymous"]
-        callbacks = [instantiate(c) for c in (cfg.get("callbacks") or {}).values()]
+        callbacks = [instantiate_node(cfg, f"callbacks.{name}") for name in (cfg.get("callbacks") or {})]
         callbacks.append(_config_in_checkpoints(run_config(cfg)))
-        trainer = instantiate(cfg.trainer, logger=loggers or False, callbacks=callbacks)
+        trainer = instantiate_node(cfg, "trainer", logger=loggers or False, callbacks=callbacks)
     return trainer, loggers
 
 
@@ -319,7 +322,7 @@ def _train(cfg: DictConfig) -> Run:
         lg.log_hyperparams(OmegaConf.to_container(config))
     tested = None
     try:
-        trainer.fit(module, datamodule=data, ckpt_path=resume)
+        _fit(cfg, trainer, module, data, resume)
         results = {k: float(v) for k, v in trainer.callback_metrics.items()}
         best = _best_checkpoint(trainer)
         if best is not None:
@@ -337,6 +340,21 @@ def _train(cfg: DictConfig) -> Run:
     if trainer.is_global_zero:
         print_summary(module.run_title(), results, run_dir, note=_which(tested, results))
     return Run(module, data, config, run_dir, tested, results)
+
+
+def _fit(cfg: DictConfig, trainer, module, data, resume: str | None) -> None:
+    """``trainer.fit``, with a monitored metric the module never logs named as the user's key."""
+    from lightning.fabric.utilities.exceptions import MisconfigurationException
+
+    try:
+        trainer.fit(module, datamodule=data, ckpt_path=resume)
+    except MisconfigurationException as err:
+        logged = re.search(r"could not find the monitored key in the returned metrics: \[([^]]*)\]", str(err))
+        if logged is None:
+            raise
+        names = [n.strip(" '") for n in logged.group(1).split(",") if "/" in n]
+        raise ConfigError(f"optimized_metric={cfg.optimized_metric!r} is not a metric this run logs; allowed: "
+                          f"{', '.join(names)}") from None
 
 
 def _which(ckpt: Path | None, results: dict[str, float]) -> str:
@@ -381,7 +399,7 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
     elif path.is_dir() and ((path / "checkpoints").is_dir() or (path / "config.yaml").is_file()):
         run_dir, ckpt_file = path, find_checkpoint(path, ckpt)
     else:
-        raise ConfigError(f"{str(path)!r} is not a training run folder (no checkpoints/) or a .ckpt file")
+        raise ConfigError(f"{str(path)!r} is not a training run folder (no checkpoints/) or a .ckpt file; allowed: a run folder that train wrote, or its .ckpt")
     try:
         state = torch.load(ckpt_file, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises several types for a file that is not a checkpoint

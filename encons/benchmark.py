@@ -1,113 +1,162 @@
-"""Benchmark grid: every model × system × seed trained on the same data, then tables and figures.
+"""Benchmark runner: the runs of a profile (conf/profile/*.yaml), trained one by one, then the report.
 
-    python -m encons.benchmark systems=[pendulum2,gyroscope] models=[node,hnn_angle,chnn] seeds=[0,1] \\
-        [out=benchmarks/results/NAME] [any train override, e.g. trainer.max_epochs=50]
+    python -m encons.benchmark [profile=smoke|quick|zhong|finzi|lim_kasim] [seeds=[0,1]] [out=DIR]
+        ['train=[trainer.max_epochs=50]']
 
-``models=all`` / ``systems=all`` take every option of ``conf/model`` / ``conf/system``; a model a
-system cannot serve (chart, constraints) fails with its one-line reason in ``results.csv``.
-Each run prints ``benchmark run k of n (...), elapsed, ETA`` to stderr.
-
-Writes ``results.csv`` (one row per run), ``summary.csv`` (mean ± std over seeds) and the papers'
-comparison figures (trajectory relative error per model, Zhong et al. Fig. 2; relative error and
-energy error vs time, Figs. 3–4) under ``out``, and prints the summary table.
+A profile lists its runs as a grid (``systems`` × ``models``), as explicit ``runs`` (a label and
+its train overrides, e.g. a model with a regulariser) and as data-efficiency runs (``n_train``);
+each is trained ``len(seeds)`` times through the training entry point, on datasets cached under
+``paths.cache_dir`` (one per system and data config, shared by every model and seed). A finished
+run leaves ``runs/<id>/result.json``; a rerun skips it, so an interrupted benchmark resumes where it
+stopped. Progress (stderr) prints ``benchmark run k of n (id), elapsed, ETA``. ``models=all`` /
+``systems=all`` take every option of ``conf/model`` / ``conf/system``. The report (``encons.report``) is written
+to ``out`` at the end and can be rebuilt alone with ``python -m encons.report OUT``.
 """
 
 from __future__ import annotations
 
-import csv
 import json
 import sys
 import time
-from collections import defaultdict
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from omegaconf import OmegaConf
-from rich.console import Console
-from rich.table import Table
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from hydra.errors import MissingConfigException
+from omegaconf import DictConfig, OmegaConf
 
-from encons import api
-from encons.errors import EnconsError
-from encons.report import Progress
-
-GRID_KEYS = ("systems", "models", "seeds", "out")
+from encons.errors import ConfigError, EnconsError
+from encons.paths import config_dir
 
 
-def run_grid(systems: list[str], models: list[str], seeds: list[int], out: Path, overrides: list[str]) -> list[dict]:
-    """Train every combination (the data of a system are shared: same data seed); one row each."""
-    grid = [(system, model, seed) for system in systems for model in models for seed in seeds]
-    progress = Progress(len(grid), "benchmark run")
-    rows = []
-    for system, model, seed in grid:
-        run_dir = out / "runs" / f"{system}-{model}-seed{seed}"
-        progress.start(f"{system} × {model} × seed {seed}")
-        cfg = api.compose(f"system={system}", f"model={model}", f"seed={seed}", *overrides, output_dir=run_dir)
+@dataclass
+class Run:
+    """One training run of a benchmark: ``label`` is the model column of the tables."""
+
+    system: str
+    label: str
+    seed: int
+    overrides: list[str]
+    n_train: int | None = None
+    paper: dict = field(default_factory=dict)
+
+    @property
+    def id(self) -> str:
+        size = f"-n{self.n_train}" if self.n_train is not None else ""
+        return f"{self.system}-{self.label}{size}-seed{self.seed}".replace("/", "_").replace("'", "p")
+
+
+def compose_benchmark(overrides: list[str]) -> DictConfig:
+    """``conf/benchmark.yaml`` with its profile and the command line's overrides."""
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=config_dir(), job_name="benchmark"):
         try:
-            results, error = api.train(cfg).metrics, ""
-        except EnconsError as err:
-            results, error = {}, str(err)
-        rows.append({"system": system, "model": model, "seed": seed, "horizon": cfg.horizon,
-                     "run_dir": str(run_dir), "error": error, **results})
+            cfg = compose("benchmark", overrides=list(overrides), return_hydra_config=True)
+        except MissingConfigException:
+            profiles = sorted(p.stem for p in (Path(config_dir()) / "profile").glob("*.yaml"))
+            bad = next((o for o in overrides if o.startswith("profile=")), "profile=?")
+            raise ConfigError(f"{bad} is unknown; allowed: {', '.join(profiles)}") from None
+    from hydra.core.hydra_config import HydraConfig
+
+    HydraConfig.instance().set_config(cfg)
+    return cfg
+
+
+def plain(cfg: DictConfig) -> dict:
+    """The benchmark config without Hydra's own node, resolved."""
+    return {k: OmegaConf.to_container(cfg[k], resolve=True) if OmegaConf.is_config(cfg[k]) else cfg[k]
+            for k in cfg if k != "hydra"}
+
+
+def expand(cfg: DictConfig) -> list[Run]:
+    """Every run of the profile: grid, listed runs and data-efficiency runs, times seeds."""
+    from encons.api import catalogue
+
+    c = plain(cfg)
+    for key, group in (("systems", "system"), ("models", "model")):
+        if c[key] == "all" or c[key] == ["all"]:
+            c[key] = catalogue(group)  # a model a system cannot serve fails with its one-line reason
+    per_system = c.get("per_system") or {}
+    entries = [(s, m, [f"model={m}"], None, {}) for s in c["systems"] for m in c["models"]]
+    entries += [(r["system"], r["label"], list(r["overrides"]), None, r.get("paper", {})) for r in c["runs"]]
+    for n in c["n_train"]:
+        if n < 1:
+            raise ConfigError(f"n_train={n} must be >= 1")
+        for m in c["n_train_models"] or c["models"]:
+            entries.append((c["n_train_system"], m, [f"model={m}", f"data.n_train={n}"], n, {}))
+    if not entries:
+        raise ConfigError("profile has no runs: give systems and models, runs or n_train")
+    return [Run(system, label, seed, [f"system={system}", *ovr, *c["common"], *per_system.get(system, []),
+                                     f"seed={seed}", *c["train"]], n, paper)
+            for system, label, ovr, n, paper in entries for seed in c["seeds"]]
+
+
+def finished(run: Run, out: Path) -> Path:
+    """Where ``run`` leaves its result row; the run is finished when the file exists."""
+    return out / "runs" / run.id / "result.json"
+
+
+def run_one(run: Run, out: Path, cache_dir: str | None) -> dict:
+    """Train and test ``run`` through ``encons.api``; write and return its result row."""
+    from encons import api
+
+    done = finished(run, out)
+    run_dir = done.parent
+    cfg = api.compose(*run.overrides, output_dir=run_dir, cache_dir=cache_dir)
+    started = time.perf_counter()
+    try:
+        results, error = api.train(cfg).metrics, ""
+    except EnconsError as err:
+        results, error = {}, str(err)
+    row = {"system": run.system, "model": run.label, "seed": run.seed, "n_train": cfg.data.n_train,
+           "data_efficiency": run.n_train is not None, "run_dir": str(run_dir), "error": error,
+           "wall_time_s": time.perf_counter() - started, "overrides": " ".join(run.overrides),
+           **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))}}
+    run_dir.mkdir(parents=True, exist_ok=True)
+    tmp = done.with_suffix(".tmp")
+    tmp.write_text(json.dumps(row, indent=1))
+    tmp.replace(done)  # atomic: a run killed before this line is rerun
+    return row
+
+
+def run_profile(cfg: DictConfig) -> Path:
+    """Run every run of ``cfg`` not yet finished under ``cfg.out``, then write the report there."""
+    from encons.report import Progress, write_report
+
+    runs = expand(cfg)
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "benchmark.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(plain(cfg))))
+    cache_dir = cfg.get("cache_dir")
+    if cfg.get("threads"):
+        import torch
+
+        torch.set_num_threads(int(cfg.threads))
+    todo = [run for run in runs if not finished(run, out).is_file()]
+    progress = Progress(len(runs), "benchmark run", work=len(todo))  # the ETA counts runs still to train
+    for run in runs:
+        if finished(run, out).is_file():
+            progress.start(f"{run.id}: finished before, skipped", work=0)
+            continue
+        progress.start(run.id)
+        row = run_one(run, out, cache_dir)
+        if row["error"]:
+            print(f"{run.id} failed: {row['error']}", file=sys.stderr)
     progress.done()
-    return rows
-
-
-def summarise(rows: list[dict], metrics: tuple[str, ...] = ("test/traj_rel_err", "test/energy_abs_err",
-                                                             "wall_time_s")) -> list[dict]:
-    """Mean and std over seeds per (system, model)."""
-    groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
-    for row in rows:
-        groups[(row["system"], row["model"])].append(row)
-    summary = []
-    for (system, model), group in groups.items():
-        entry = {"system": system, "model": model, "runs": len(group)}
-        for key in metrics:
-            values = [r[key] for r in group if key in r]
-            if values:
-                mean = sum(values) / len(values)
-                entry[key] = mean
-                entry[f"{key}_std"] = (sum((v - mean) ** 2 for v in values) / max(1, len(values) - 1)) ** 0.5
-        summary.append(entry)
-    return summary
-
-
-def write_csv(path: Path, rows: list[dict]) -> None:
-    keys = list(dict.fromkeys(k for row in rows for k in row))
-    with path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=keys)
-        writer.writeheader()
-        writer.writerows(rows)
-
-
-def print_table(summary: list[dict], horizon: int = 4) -> None:
-    table = Table(title="encons benchmark (mean ± std over seeds)")
-    for col in ("system", "model", f"traj rel err (T={horizon})", "energy abs err", "wall time [s]"):
-        table.add_column(col)
-    for e in summary:
-        cell = lambda k: f"{e[k]:.3g} ± {e[k + '_std']:.2g}" if k in e else "failed"
-        table.add_row(e["system"], e["model"], cell("test/traj_rel_err"), cell("test/energy_abs_err"),
-                      cell("wall_time_s"))
-    Console().print(table)
+    write_report(out)
+    return out
 
 
 def main(argv: list[str] | None = None) -> None:
-    from encons.plots import comparison_figures
+    import os
 
-    api.quiet_upstream()
-    args = OmegaConf.from_dotlist([a for a in (argv or sys.argv[1:]) if a.split("=")[0] in GRID_KEYS])
-    overrides = [a for a in (argv or sys.argv[1:]) if a.split("=")[0] not in GRID_KEYS]
-    out = Path(args.get("out") or f"benchmarks/results/{time.strftime('%Y-%m-%d_%H-%M-%S')}")
-    out.mkdir(parents=True, exist_ok=True)
-    pick = lambda key, group, default: api.catalogue(group) if args.get(key) == "all" else list(args.get(key, default))
-    rows = run_grid(pick("systems", "system", ["pendulum2"]), pick("models", "model", ["node", "hnn"]),
-                    list(args.get("seeds", [0])), out, ["logger=none", *overrides])
-    summary = summarise(rows)
-    write_csv(out / "results.csv", rows)
-    write_csv(out / "summary.csv", summary)
-    (out / "overrides.json").write_text(json.dumps(overrides))
-    horizon = rows[0]["horizon"] if rows else 4
-    comparison_figures(rows, summary, out, horizon)
-    print_table(summary, horizon)
-    print(f"results: {out}")
+    os.environ.setdefault("WANDB_MODE", "disabled")
+    try:
+        run_profile(compose_benchmark(list(sys.argv[1:] if argv is None else argv)))
+    except EnconsError as err:
+        print(f"encons: error: {err}", file=sys.stderr)
+        sys.exit(2)
 
 
 if __name__ == "__main__":

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import inspect
+import math
 import os
 import types
 import typing
@@ -22,7 +23,35 @@ from encons.models.base import DynamicsModel
 from encons.paths import config_dir
 from encons.systems.base import System
 
-POSITIVE_MODEL_KEYS = ("hidden", "depth")
+
+def _at_least(low: float) -> tuple[Any, str]:
+    return (lambda v: v >= low), f">= {low}"
+
+
+_POSITIVE = ((lambda v: v > 0), "> 0")
+_COUNT = ((lambda v: v >= 1), "a positive integer")
+_SEED = ((lambda v: 0 <= v < 2**32), "0..2**32-1 (numpy's seed range)")
+
+#: Ranges of numeric keys, checked after their types (a key absent from the config is skipped);
+#: every value must also be finite.
+BOUNDS: dict[str, tuple[Any, str]] = {
+    "seed": _SEED, "data.seed": _SEED, "horizon": _at_least(1),
+    "data.dt": _POSITIVE, "data.noise": _at_least(0), "data.n_val": _at_least(0),
+    "optim.lr": _POSITIVE, "optim.weight_decay": _at_least(0), "optim.patience": _at_least(0),
+    "optim.factor": ((lambda v: 0 < v < 1), "in (0, 1)"),
+    "regulariser.weight": _at_least(0), "integrator.rtol": _POSITIVE, "integrator.atol": _POSITIVE,
+    "model.hidden": _COUNT, "model.depth": _COUNT, "trainer.gradient_clip_val": _at_least(0),
+}
+
+
+def check_bounds(cfg: DictConfig) -> None:
+    """Refuse a value outside its range in :data:`BOUNDS`, naming key, value and the range."""
+    for key, (fits, allowed) in BOUNDS.items():
+        value = OmegaConf.select(cfg, key, default=None)
+        if value is None or isinstance(value, bool) or not isinstance(value, (int, float)):
+            continue
+        if not (math.isfinite(value) and fits(value)):
+            raise ConfigError(f"{key}={value}; allowed: {allowed}")
 
 
 def compose_train(overrides: list[str], output_dir: str | Path, cache_dir: str | Path | None = None) -> DictConfig:
@@ -86,7 +115,7 @@ def check_types(values: dict, target: Any, key: str) -> None:
 def check_node_types(cfg: DictConfig, key: str) -> None:
     """Type-check the values of node ``cfg[key]`` against its ``_target_``'s constructor (if importable:
     an unimportable target is reported where it is instantiated)."""
-    values = OmegaConf.to_container(cfg[key], resolve=True)
+    values = OmegaConf.to_container(OmegaConf.select(cfg, key), resolve=True)
     try:
         target = get_class(values["_target_"])
     except Exception:  # noqa: BLE001
@@ -101,7 +130,7 @@ def instantiate_node(cfg: DictConfig, key: str, **kwargs: Any) -> Any:
     Hydra 1.4 re-raises the target's own exception (adding a ``full_key`` note) rather than an
     ``InstantiationException``, so both are caught here, at the one place configs become objects.
     """
-    node = cfg[key]
+    node = OmegaConf.select(cfg, key)
     values = OmegaConf.to_container(node, resolve=True)
     check_node_types(cfg, key)
     try:
@@ -113,20 +142,39 @@ def instantiate_node(cfg: DictConfig, key: str, **kwargs: Any) -> Any:
         if isinstance(cause, EnconsError):
             raise cause from None
         message = str(cause).splitlines()[0] if str(cause) else type(cause).__name__
-        shown = ", ".join(f"{key}.{k}={v}" for k, v in values.items() if not k.startswith("_") and not isinstance(v, dict))
+        given = {k: v for k, v in values.items() if not k.startswith("_") and not isinstance(v, dict)}
+        named = ({k: v for k, v in given.items() if k.lower() in message.lower()}  # the keys it names,
+                 or {k: v for k, v in given.items() if f"{key}.{k}" in _overridden()} or given)  # or the user set
+        shown = ", ".join(f"{key}.{k}={v}" for k, v in named.items())
         raise ConfigError(f"{shown or key}: {type(cause).__name__}: {message}; allowed: the values documented "
-                          f"in conf/{key}/ for {values.get('_target_', '?')}") from None
+                          f"in conf/{key.split('.')[0]}/ for {values.get('_target_', '?')}") from None
+
+
+def _overridden() -> set[str]:
+    """The keys this run's command line overrides (empty outside Hydra)."""
+    if not HydraConfig.initialized():
+        return set()
+    return {o.split("=", 1)[0].lstrip("+~") for o in HydraConfig.get().overrides.task}
 
 
 def _top_level_keys(seed: int, horizon: int, test: bool) -> None:
     """The annotated top-level keys of ``train.yaml`` (for ``check_types``)."""
 
 
+#: (group, key) of the folders loggers and callbacks write to, checked like the run's own.
+FOLDER_KEYS = (("logger", "save_dir"), ("callbacks", "dirpath"))
+
+
 def check_folders(cfg: DictConfig) -> None:
     """Create the run's output folders and the cache folder, refusing a path that is a file or unwritable."""
     out = Path(cfg.paths.output_dir)
-    for key, folder in (("paths.output_dir", out), ("paths.output_dir", out / "checkpoints"),
-                        ("paths.output_dir", out / "figures"), ("paths.cache_dir", Path(cfg.paths.cache_dir))):
+    folders = [("paths.output_dir", out), ("paths.output_dir", out / "checkpoints"),
+               ("paths.output_dir", out / "figures"), ("paths.cache_dir", Path(cfg.paths.cache_dir))]
+    for group, leaf in FOLDER_KEYS:  # folders a logger or callback writes to
+        for name, node in (cfg.get(group) or {}).items():
+            if isinstance(node, DictConfig) and node.get(leaf) is not None:
+                folders.append((f"{group}.{name}.{leaf}", Path(node[leaf])))
+    for key, folder in folders:
         blocking = next((p for p in (folder, *folder.parents) if p.exists() and not p.is_dir()), None)
         if blocking is not None:
             raise ConfigError(f"{key}={str(folder)!r}: {str(blocking)!r} is a file, not a folder; "
@@ -153,15 +201,16 @@ def check_config(cfg: DictConfig) -> None:
         if cfg.get(key):
             check_node_types(cfg, key)
     check_types(OmegaConf.to_container(cfg.integrator, resolve=True), Integrator, "integrator")
-    for key in POSITIVE_MODEL_KEYS:
-        value = cfg.model.get(key)
-        if value is not None and value < 1:
-            raise ConfigError(f"model.{key}={value}; allowed: a positive integer")
+    clip = cfg.trainer.get("gradient_clip_val")
+    if clip is not None and not _matches(clip, float):
+        raise ConfigError(f"trainer.gradient_clip_val={clip!r} has type {type(clip).__name__}; allowed: float or null")
     epochs = cfg.trainer.get("max_epochs")
     if epochs is not None and (not isinstance(epochs, int) or isinstance(epochs, bool) or epochs < 1):
         raise ConfigError(f"trainer.max_epochs={epochs!r}; allowed: an integer >= 1")
-    if cfg.horizon < 1:
-        raise ConfigError(f"horizon={cfg.horizon}; allowed: an integer >= 1 (steps)")
+    check_bounds(cfg)
+    if cfg.data.get("n_val") == 0 and str(cfg.optimized_metric).startswith("val/"):
+        raise ConfigError(f"data.n_val=0 leaves no validation set for optimized_metric={cfg.optimized_metric}; "
+                          f"allowed: data.n_val >= 1, or optimized_metric=train/loss")
     check_folders(cfg)
 
 

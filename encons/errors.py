@@ -1,4 +1,12 @@
-"""Errors that end a run with one clear line (see ``encons.train.main``)."""
+"""Errors that end a run with one clear line, and :func:`one_line_errors`, which turns them (and
+Hydra's own composition and run-folder errors) into that line on stderr with exit status 2."""
+
+from __future__ import annotations
+
+import re
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 
 class EnconsError(Exception):
@@ -19,3 +27,46 @@ class DataError(EnconsError):
 
 class DivergenceError(EnconsError):
     """Training produced a non-finite loss."""
+
+
+class SweepError(EnconsError):
+    """A sweep stopped because more of its trials failed than it allows."""
+
+
+@contextmanager
+def one_line_errors() -> Iterator[None]:
+    """Print a user's error as ``encons: error: <line>`` on stderr, last, and exit 2; a bug keeps its traceback.
+
+    Wraps the whole CLI (with ``HYDRA_FULL_ERROR=1``, so that Hydra lets its own errors through
+    rather than printing its search path after them)."""
+    from hydra.errors import ConfigCompositionException, InstantiationException, OverrideParseException
+
+    try:
+        yield
+    except (EnconsError, ConfigCompositionException, OverrideParseException, InstantiationException) as err:
+        print(f"encons: error: {user_line(err)}", file=sys.stderr)
+        sys.exit(2)
+    except (FileExistsError, NotADirectoryError, PermissionError) as err:  # e.g. Hydra creating hydra.run.dir
+        print(f"encons: error: {err.filename!r}: {err.strerror}; allowed: a writable folder for hydra.run.dir, "
+              f"hydra.sweep.dir and paths.*", file=sys.stderr)
+        sys.exit(2)
+
+
+def user_line(err: Exception) -> str:
+    """The one line of an encons error, or of Hydra's composition, override and instantiation errors."""
+    from hydra.errors import InstantiationException, MissingConfigException, OverrideParseException
+
+    if isinstance(err, EnconsError):
+        return str(err)
+    if isinstance(err, InstantiationException):
+        return f"{str(err).splitlines()[0]} ({err.__cause__}); allowed: the values documented in conf/"
+    if isinstance(err, MissingConfigException) and err.missing_cfg_file and err.options:
+        group, _, name = err.missing_cfg_file.rpartition("/")
+        return f"{group}={name} is unknown; allowed: {', '.join(sorted(o for o in err.options if not o.startswith('_')))}"
+    lines = str(err).strip().splitlines()
+    missing = re.match(r"Could not override '([^']+)'", lines[0])
+    if missing:
+        return (f"{missing.group(1)} is not a key of the config; allowed: the keys `--cfg job` prints, "
+                f"or +{missing.group(1)}=VALUE to add one")
+    return lines[0] + ("; allowed: key=value overrides (Hydra's override grammar)"
+                       if isinstance(err, OverrideParseException) else "")

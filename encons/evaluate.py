@@ -14,7 +14,7 @@ from __future__ import annotations
 import sys
 
 from encons import api
-from encons.errors import EnconsError
+from encons.errors import one_line_errors
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -25,11 +25,8 @@ def main(argv: list[str] | None = None) -> None:
     api.quiet_upstream()
     overrides = [a for a in argv[1:] if not a.startswith("ckpt=")]
     ckpt = next((a.split("=", 1)[1] for a in argv[1:] if a.startswith("ckpt=")), "best")
-    try:
+    with one_line_errors():
         api.evaluate(argv[0], overrides, ckpt=ckpt)
-    except EnconsError as err:
-        print(f"encons: error: {err}", file=sys.stderr)
-        sys.exit(2)
 
 
 api._callable_module(__name__, api.evaluate)  # ``encons.evaluate(run)`` stays the API function

@@ -12,6 +12,7 @@ present, inputs ``u`` and ``rates``.
 from __future__ import annotations
 
 import json
+import math
 import logging
 from pathlib import Path
 from typing import Callable
@@ -29,6 +30,7 @@ from encons.systems.base import System
 
 log = logging.getLogger(__name__)
 OBJECTIVES = ("rollout", "derivative", "residual")
+SCHEDULERS = (None, "cosine", "onecycle", "plateau")
 Regulariser = Callable[[DynamicsModel, Tensor, Tensor | None], Tensor]
 Batch = dict[str, Tensor]
 
@@ -37,7 +39,7 @@ class DynamicsModule(pl.LightningModule):
     """Trains ``model`` on windows of ``system`` trajectories sampled every ``dt``."""
 
     def __init__(self, model: DynamicsModel, system: System, dt: float, integrator: Integrator,
-                 lr: float = 1e-3, weight_decay: float = 1e-2, scheduler: str | None = None,
+                 lr: float = 1e-3, weight_decay: float = 1e-2, scheduler: str | None = None, warmup: float = 0.0,
                  patience: int = 50, factor: float = 0.7,
                  objective: str | None = None, regulariser: Regulariser | None = None,
                  horizon: int = 4, output_dir: str | None = None):
@@ -46,14 +48,16 @@ class DynamicsModule(pl.LightningModule):
         if objective not in model.objectives:
             raise ConfigError(f"objective={objective} does not apply to {type(model).__name__}; "
                               f"allowed: {', '.join(model.objectives)}")
-        if scheduler not in (None, "cosine", "plateau"):
-            raise ConfigError(f"optim.scheduler={scheduler!r} is unknown; allowed: null, cosine, plateau")
+        if scheduler not in SCHEDULERS:
+            raise ConfigError(f"optim.scheduler={scheduler!r} is unknown; allowed: {', '.join(map(str, SCHEDULERS))}")
+        if not 0 <= warmup < 1:
+            raise ConfigError(f"optim.warmup={warmup} must lie in [0, 1): the fraction of steps warming up")
         if patience < 0 or not 0 < factor < 1:
             raise ConfigError(f"optim.patience={patience}; allowed: >= 0 and optim.factor={factor} in (0, 1)")
         if lr <= 0:
             raise ConfigError(f"optim.lr={lr}; allowed: > 0")
         self.model, self.system, self.dt, self.integrator = model, system, dt, integrator
-        self.lr, self.weight_decay, self.scheduler_name = lr, weight_decay, scheduler
+        self.lr, self.weight_decay, self.scheduler_name, self.warmup = lr, weight_decay, scheduler, warmup
         self.patience, self.factor = patience, factor
         self.objective, self.regulariser, self.horizon = objective, regulariser, horizon
         self.output_dir = Path(output_dir) if output_dir else None
@@ -146,11 +150,26 @@ class DynamicsModule(pl.LightningModule):
         return f"{type(self.model).__name__} on {self.system.name} ({self.model.chart} chart)"
 
     def configure_optimizers(self):
+        """AdamW at ``lr``, optionally scheduled per optimiser step over the whole run.
+
+        ``cosine``: linear warm-up from 0 over the first ``warmup`` fraction of steps, then cosine
+        decay to 0. ``onecycle``: torch's ``OneCycleLR`` peaking at ``lr`` after ``warmup`` of the
+        steps (0: its default 0.3), momentum cycled. The step count is Lightning's estimate for
+        ``max_epochs``; a run stopped by ``max_time`` or ``max_steps`` ends before the decay does.
+        ``plateau``: ``ReduceLROnPlateau`` on ``val/loss`` each epoch (``patience``, ``factor``).
+        """
         opt = torch.optim.AdamW(self.parameters(), lr=self.lr, weight_decay=self.weight_decay)
         if self.scheduler_name is None:
             return opt
         if self.scheduler_name == "plateau":  # on the validation loss, every epoch (Santos et al. §7)
             sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, patience=self.patience, factor=self.factor)
             return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "monitor": "val/loss"}}
-        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, self.trainer.max_epochs or 1))
-        return {"optimizer": opt, "lr_scheduler": sched}
+        total = max(1, int(self.trainer.estimated_stepping_batches))
+        if self.scheduler_name == "onecycle":
+            sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=self.lr, total_steps=total,
+                                                        pct_start=self.warmup or 0.3)
+        else:
+            warm = int(self.warmup * total)
+            sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda step: (step + 1) / warm if step < warm else
+                                                      0.5 * (1 + math.cos(math.pi * (step - warm) / max(1, total - warm))))
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}

@@ -131,3 +131,48 @@ def log_figures(logger, paths: list[Path]) -> None:
     if logger is not None and hasattr(logger, "log_image"):
         for path in paths:
             logger.log_image(key=f"figures/{path.stem}", images=[str(path)])
+
+
+def energy_rmse_figure(summary: list[dict], paper: dict[str, dict], out_dir: Path) -> list[Path]:
+    """Lim & Kasim Table 1 as a plot: median energy-deviation RMSE per model with its 2.5–97.5 %
+    range over test trajectories (averaged over seeds), the paper's median as a cross, per system."""
+    entries = [e for e in summary if "test/energy_rmse_median" in e]
+    systems = list(dict.fromkeys(e["system"] for e in entries))
+    if not systems:
+        return []
+    fig, axes = plt.subplots(1, len(systems), figsize=(4.5 * len(systems), 4), squeeze=False)
+    for ax, system in zip(axes[0], systems):
+        rows = [e for e in entries if e["system"] == system]
+        x = range(len(rows))
+        med = [e["test/energy_rmse_median"] for e in rows]
+        lo = [m - e["test/energy_rmse_p2_5"] for m, e in zip(med, rows)]
+        hi = [e["test/energy_rmse_p97_5"] - m for m, e in zip(med, rows)]
+        ax.errorbar(x, med, yerr=[lo, hi], fmt="o", capsize=3, label="encons (median, 2.5–97.5 %)")
+        published = [(k, paper.get(f"{system}/{e['model']}", {}).get("energy_rmse_median")) for k, e in enumerate(rows)]
+        published = [(k, v) for k, v in published if v is not None and v != float("inf")]
+        if published:
+            ax.plot(*zip(*published), "x", color="k", label="paper (median)")
+        ax.set_xticks(list(x), [e["model"] for e in rows], rotation=60)
+        ax.set_yscale("log")
+        ax.set_ylabel("RMSE of E(ŝ_t) − E(s_t) [energy units]")
+        ax.set_title(system)
+        ax.legend(fontsize=7)
+    return [_save(fig, out_dir / "energy_rmse.png")]
+
+
+def data_efficiency_figure(summary: list[dict], out_dir: Path) -> list[Path]:
+    """Zhong et al. Fig. 5: test trajectory relative error against the number of training
+    trajectories, one line per model (mean over seeds, bars: std over seeds)."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for model in dict.fromkeys(e["model"] for e in summary):
+        rows = sorted((e for e in summary if e["model"] == model and "test/traj_rel_err" in e),
+                      key=lambda e: e["n_train"])
+        ax.errorbar([e["n_train"] for e in rows], [e["test/traj_rel_err"] for e in rows],
+                    yerr=[e["test/traj_rel_err_sd"] for e in rows], marker="o", capsize=3, label=model)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("training trajectories")
+    ax.set_ylabel("trajectory relative error (T = 4)")
+    ax.set_title(f"data efficiency on {summary[0]['system']}")
+    ax.legend(fontsize=7)
+    return [_save(fig, out_dir / "data_efficiency.png")]

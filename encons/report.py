@@ -1,14 +1,30 @@
-"""Summary tables printed at the end of a run or a benchmark, and copied into the run's log file."""
+"""Summary tables: one run's metrics (also copied into its log file), progress lines, and a
+benchmark's report rebuilt from its finished runs.
+
+    python -m encons.report DIR     # DIR: a benchmark's output folder (it holds runs/*/result.json)
+
+Writes ``results.csv`` (one row per run), ``summary.csv`` and ``summary.md`` (every test metric per
+model × system, mean ± std over seeds, beside the paper's published value where the profile gives
+one) and the papers' figures: trajectory relative error per model (Zhong et al. Fig. 2), relative
+and energy error vs time (Figs. 3–4), data efficiency (Fig. 5, when the profile has ``n_train``
+runs) and the energy-deviation RMSE median with 2.5–97.5 % bars (Lim & Kasim Table 1). No training.
+"""
 
 from __future__ import annotations
 
+import csv
+import json
 import logging
+import math
 import sys
 import time
+from collections import defaultdict
 from pathlib import Path
 
 from rich.console import Console
 from rich.table import Table
+
+from encons.errors import ConfigError, EnconsError
 
 
 def print_summary(title: str, results: dict[str, float], output_dir: Path, note: str = "") -> None:
@@ -69,3 +85,119 @@ class Progress:
 def _duration(seconds: float) -> str:
     minutes, secs = divmod(int(seconds), 60)
     return f"{minutes // 60}h{minutes % 60:02d}m" if minutes >= 60 else f"{minutes}m{secs:02d}s"
+
+
+def load_rows(out: Path) -> list[dict]:
+    """The rows of the finished runs under ``out/runs`` (sorted by run folder)."""
+    files = sorted((out / "runs").glob("*/result.json"))
+    if not files:
+        raise ConfigError(f"{str(out)!r} holds no finished benchmark runs (no runs/*/result.json)")
+    return [json.loads(f.read_text()) for f in files]
+
+
+def summarise(rows: list[dict]) -> list[dict]:
+    """Mean and std over seeds of every metric per (system, model, n_train), in first-seen order."""
+    groups: dict[tuple, list[dict]] = defaultdict(list)
+    for row in rows:
+        groups[(row["system"], row["model"], row["n_train"], row.get("data_efficiency", False))].append(row)
+    metrics = list(dict.fromkeys(k for row in rows for k in row if k.startswith("test/") or k == "wall_time_s"))
+    summary = []
+    for (system, model, n_train, efficiency), group in groups.items():
+        entry = {"system": system, "model": model, "n_train": n_train, "data_efficiency": efficiency,
+                 "runs": len(group), "failed": sum(bool(r.get("error")) for r in group)}
+        for key in metrics:
+            values = [r[key] for r in group if key in r and not r.get("error")]
+            if values:
+                mean = sum(values) / len(values)
+                entry[key] = mean
+                entry[f"{key}_sd"] = math.sqrt(sum((v - mean) ** 2 for v in values) / max(1, len(values) - 1))
+        summary.append(entry)
+    return summary
+
+
+def published(out: Path) -> dict[str, dict]:
+    """``"system/model" -> {metric: value}`` from the profile saved beside the runs."""
+    from omegaconf import OmegaConf
+
+    path = out / "benchmark.yaml"
+    if not path.is_file():
+        return {}
+    cfg = OmegaConf.to_container(OmegaConf.load(path))
+    paper = dict(cfg.get("paper") or {})
+    for run in cfg.get("runs") or []:
+        if run.get("paper"):
+            paper[f"{run['system']}/{run['label']}"] = run["paper"]
+    return paper
+
+
+def write_csv(path: Path, rows: list[dict]) -> None:
+    keys = list(dict.fromkeys(k for row in rows for k in row))
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=keys)
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def markdown(summary: list[dict], paper: dict[str, dict], source: str = "") -> str:
+    """One Markdown table: model × system rows, every metric as mean ± std, paper values beside."""
+    metrics = list(dict.fromkeys(k for e in summary for k in e
+                                 if (k.startswith("test/") or k == "wall_time_s") and not k.endswith("_sd")))
+    paper_keys = list(dict.fromkeys(m for values in paper.values() for m in values))
+    head = ["system", "model", "n_train", "runs", *[m.removeprefix("test/") for m in metrics],
+            *[f"paper {m}" for m in paper_keys]]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for e in summary:
+        cells = [e["system"], e["model"], str(e["n_train"]), f"{e['runs'] - e['failed']}/{e['runs']}"]
+        cells += [f"{e[m]:.3g} ± {e[m + '_sd']:.2g}" if m in e else "failed" for m in metrics]
+        values = paper.get(f"{e['system']}/{e['model']}", {}) if not e["data_efficiency"] else {}
+        cells += [f"{values[m]:.3g}" if m in values else "" for m in paper_keys]
+        lines.append("| " + " | ".join(cells) + " |")
+    note = f"\nPublished values: {source}\n" if source and paper_keys else ""
+    return "\n".join(lines) + "\n" + note
+
+
+def write_report(out: str | Path) -> list[Path]:
+    """Tables and figures of the finished runs under ``out``; returns the files written."""
+    from omegaconf import OmegaConf
+
+    from encons import plots
+
+    out = Path(out)
+    rows = load_rows(out)
+    summary = summarise(rows)
+    paper = published(out)
+    source = ""
+    if (out / "benchmark.yaml").is_file():
+        source = OmegaConf.load(out / "benchmark.yaml").get("paper_source", "")
+    write_csv(out / "results.csv", rows)
+    write_csv(out / "summary.csv", [{**e, **{f"paper {m}": v for m, v in
+                                            paper.get(f"{e['system']}/{e['model']}", {}).items()}}
+                                    for e in summary])
+    (out / "summary.md").write_text(f"# {out.name}\n\n" + markdown(summary, paper, source))
+    grid = [r for r in rows if not r.get("data_efficiency") and not r.get("error")]
+    grid_summary = [e for e in summary if not e["data_efficiency"]]
+    files = [out / "results.csv", out / "summary.csv", out / "summary.md"]
+    if grid:
+        files += plots.comparison_figures(grid, grid_summary, out)
+        files += plots.energy_rmse_figure(grid_summary, paper, out)
+    efficiency = [e for e in summary if e["data_efficiency"]]
+    if efficiency:
+        files += plots.data_efficiency_figure(efficiency, out)
+    Console(width=200).print(markdown(summary, paper, source))
+    return files
+
+
+def main() -> None:
+    if len(sys.argv) != 2 or sys.argv[1] in ("-h", "--help"):
+        print(__doc__)
+        sys.exit(0 if len(sys.argv) == 2 else 2)
+    try:
+        for path in write_report(sys.argv[1]):
+            print(path)
+    except EnconsError as err:
+        print(f"encons: error: {err}", file=sys.stderr)
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()

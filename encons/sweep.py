@@ -34,7 +34,7 @@ from optuna.trial import TrialState
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import NoSuchModuleError, OperationalError
 
-from encons.errors import ConfigError
+from encons.errors import ConfigError, SweepError, one_line_errors
 
 log = logging.getLogger(__name__)
 TRIAL_KEY = "sweeps.trial"  # the job's config key that receives the trial number
@@ -55,6 +55,8 @@ class OptunaSweeper(Sweeper):
         for key, value in dict(n_trials=n_trials, n_jobs=n_jobs).items():
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ConfigError(f"hydra.sweeper.{key}={value!r}; allowed: an integer >= 1")
+        if not isinstance(max_failure_rate, (int, float)) or not 0 <= max_failure_rate <= 1:
+            raise ConfigError(f"hydra.sweeper.max_failure_rate={max_failure_rate!r}; allowed: a number in [0, 1]")
         self.sampler_config, self.direction, self.storage, self.study_name = sampler, direction, storage, study_name
         self.n_trials, self.n_jobs, self.max_failure_rate = n_trials, n_jobs, max_failure_rate
         self.params = OmegaConf.to_container(params) if params else {}
@@ -89,16 +91,28 @@ class OptunaSweeper(Sweeper):
             failed += sum(_tell(study, t, r) == TrialState.FAIL for t, r in zip(trials, returns))
             if failed > self.max_failure_rate * self.n_trials:
                 report(study, sweep_dir)
-                raise RuntimeError(f"{failed} of {job_idx} trials failed, more than hydra.sweeper."
-                                   f"max_failure_rate={self.max_failure_rate} of {self.n_trials}; "
-                                   f"reasons in {sweep_dir / 'trials.csv'}")
+                first = next(t.user_attrs["fail_reason"] for t in study.trials
+                             if t.state == TrialState.FAIL and "fail_reason" in t.user_attrs)
+                raise SweepError(f"hydra.sweeper.max_failure_rate={self.max_failure_rate}: {failed} of {job_idx} "
+                                 f"trials failed (first: {first.splitlines()[0]}); allowed: fix that, or a higher "
+                                 f"rate (reasons in {sweep_dir / 'trials.csv'})")
         report(study, sweep_dir)
 
     def _sampler(self, n_stored: int) -> optuna.samplers.BaseSampler:
         config = OmegaConf.to_container(self.sampler_config, resolve=True)
         if config.get("seed") is not None:
-            config["seed"] = int(SeedSequence([config["seed"], n_stored]).generate_state(1)[0])
-        sampler = instantiate(config, _execution_whitelist_=("optuna.samplers.*",))
+            seed = config["seed"]
+            if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed < 2**32:
+                raise ConfigError(f"hydra.sweeper.sampler.seed={seed!r} (default: the run's seed); "
+                                  f"allowed: an integer in 0..2**32-1")
+            config["seed"] = int(SeedSequence([seed, n_stored]).generate_state(1)[0])
+        try:
+            sampler = instantiate(config, _execution_whitelist_=("optuna.samplers.*",))
+        except Exception as err:  # noqa: BLE001 - an unknown sampler or keyword is the user's config
+            cause = err.__cause__ or err
+            raise ConfigError(f"hydra.sweeper.sampler={config.get('_target_')!r}: {type(cause).__name__}: "
+                              f"{str(cause).splitlines()[0] if str(cause) else ''}; allowed: hydra/sweeper/sampler="
+                              f"tpe | random | cmaes | gp | qmc and their keywords") from None
         if not isinstance(sampler, optuna.samplers.BaseSampler):
             raise ConfigError(f"hydra.sweeper.sampler={config['_target_']} needs the search space up front; "
                               f"for a grid use Hydra's basic sweeper (see sweeps/model_grid.yaml)")
@@ -248,7 +262,17 @@ def main() -> None:
     parser.add_argument("study")
     parser.add_argument("out", nargs="?", default=".", help="folder for trials.csv and figures")
     args = parser.parse_args()
-    report(optuna.load_study(study_name=args.study, storage=args.storage), Path(args.out))
+    with one_line_errors():
+        report(load_study(args.storage, args.study), Path(args.out))
+
+
+def load_study(storage: str, study_name: str) -> optuna.Study:
+    """The stored study ``study_name``; one that is not there is one line naming those that are."""
+    store = check_storage(storage)
+    names = [s.study_name for s in store.get_all_studies()]
+    if study_name not in names:
+        raise ConfigError(f"study={study_name!r} is not in {storage}; allowed: {', '.join(names) or 'none stored'}")
+    return optuna.load_study(study_name=study_name, storage=store)
 
 
 if __name__ == "__main__":

@@ -1,24 +1,62 @@
-"""The benchmark grid trains every combination on shared data and writes tables and figures."""
+"""The benchmark runner: profile=smoke writes every table and figure, a rerun skips finished runs,
+and ``encons.report`` rebuilds the report from the runs alone."""
 
 from __future__ import annotations
 
 import csv
+import json
 
 import pytest
 
-from encons.benchmark import main
+from encons.benchmark import compose_benchmark, expand, main
+from encons.errors import ConfigError
+from encons.report import write_report
 
-pytestmark = pytest.mark.slow  # four end-to-end runs
+FIGURES = ("traj_rel_err.png", "rel_err_vs_time.png", "energy_err_vs_time.png", "energy_rmse.png",
+           "data_efficiency.png")
 
 
-def test_grid_writes_tables_and_figures(tmp_path):
-    out = tmp_path / "bench"
-    main(["systems=[pendulum1]", "models=[node,hnn]", "seeds=[0,1]", f"out={out}", "debug=fast",
-          f"paths.cache_dir={tmp_path / 'cache'}"])
+def test_smoke_profile_writes_report_and_resumes(tmp_path, capsys):
+    out, cache = tmp_path / "bench", tmp_path / "cache"
+    main(["profile=smoke", f"out={out}", f"cache_dir={cache}"])
     with (out / "results.csv").open() as f:
         rows = list(csv.DictReader(f))
-    assert [(r["model"], r["seed"]) for r in rows] == [("node", "0"), ("node", "1"), ("hnn", "0"), ("hnn", "1")]
+    assert len(rows) == 6 and not any(r["error"] for r in rows)
     assert all(float(r["test/traj_rel_err"]) > 0 for r in rows)
-    assert len(list((tmp_path / "cache").iterdir())) == 1  # one dataset, shared by every run
-    for name in ("summary.csv", "traj_rel_err.png", "rel_err_vs_time.png", "energy_err_vs_time.png"):
-        assert (out / name).is_file()
+    assert len(list(cache.iterdir())) == 2  # n_train 8 and 16 (the grid runs share the n16 data)
+    md = (out / "summary.md").read_text()
+    assert "| pendulum1 | hnn | 16 |" in md and "traj_rel_err" in md
+    for name in ("summary.csv", *FIGURES):
+        assert (out / name).stat().st_size > 0, name
+    stamps = {p: p.stat().st_mtime_ns for p in (out / "runs").glob("*/result.json")}
+    capsys.readouterr()
+    main(["profile=smoke", f"out={out}", f"cache_dir={cache}"])
+    printed = capsys.readouterr().err
+    assert printed.count("finished before, skipped") == 6 and "benchmark run 6 of 6 done" in printed
+    assert stamps == {p: p.stat().st_mtime_ns for p in (out / "runs").glob("*/result.json")}
+    (out / "summary.md").unlink()
+    write_report(out)  # the report alone, from the finished runs
+    assert (out / "summary.md").read_text() == md
+
+
+def test_profiles_expand_and_carry_published_numbers():
+    finzi = expand(compose_benchmark(["profile=finzi"]))
+    assert len(finzi) == 2 * 2 * 3 and all("data.noise=0.0" in r.overrides for r in finzi)
+    lim_kasim = expand(compose_benchmark(["profile=lim_kasim"]))
+    assert {r.label for r in lim_kasim} >= {"node+C_H", "hnn", "nsf", "node+C_D"}
+    assert next(r for r in lim_kasim if r.label == "node+C_H" and r.system == "pendulum").paper == {
+        "energy_rmse_median": 0.024}
+    quick = expand(compose_benchmark(["profile=quick"]))
+    assert len(quick) == 11 * 4 * 3
+    zhong = expand(compose_benchmark(["profile=zhong"]))
+    assert {r.n_train for r in zhong} == {None, 10, 100, 1000, 10000}
+
+
+def test_unknown_profile_is_one_line_error():
+    with pytest.raises(ConfigError, match="profile=nope is unknown; allowed: .*quick"):
+        compose_benchmark(["profile=nope"])
+
+
+def test_report_of_a_folder_without_runs(tmp_path):
+    with pytest.raises(ConfigError, match="no finished benchmark runs"):
+        write_report(tmp_path)

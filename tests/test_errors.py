@@ -172,6 +172,12 @@ def test_cache_files_are_group_readable_and_orphans_of_dead_writers_go(tmp_path)
     (["modl.hidden=3"], "modl.hidden is not a key"),
     (["-m", "sweeps=optuna", "hydra.sweeper.n_trials=0"], "hydra.sweeper.n_trials=0"),
     (["-m", "sweeps=optuna", "sweeps.storage=mysql://u@localhost/x"], "sweeps.storage='mysql://u@localhost/x'"),
+    (["-m", "seed=-1"], "seed=-1"),
+    (["-m", "sweeps=optuna", "seed=-1", "optim.lr=tag(log,interval(1e-4,1e-2))"], "hydra.sweeper.sampler.seed=-1"),
+    (["-m", "sweeps=optuna", "hydra.sweeper.n_trials=2", "data.n_train=-1", "optim.lr=tag(log,interval(1e-4,1e-2))"],
+     "first: ConfigError: data.n_train=-1"),
+    (["trainer.accelerator=tpu"], "trainer.accelerator=tpu"),
+    (["seed=["], "seed=["),
 ])
 def test_cli_ends_with_the_one_line(tmp_path, args, key):
     proc = run_cli("debug=fast", *args, f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path,
@@ -188,3 +194,92 @@ def test_a_sweep_dir_without_sweeps_dir_creates_the_study_folder(tmp_path):
                    "optim.lr=tag(log,interval(1e-4,1e-2))", cwd=tmp_path, env={"ENCONS_ROOT": str(tmp_path)})
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert (tmp_path / "new" / "study" / "optuna.db").is_file()
+
+
+# ranges: one table (encons.config.BOUNDS), every value finite
+@pytest.mark.parametrize("overrides, key", [
+    (["seed=-1"], "seed=-1"),
+    (["seed=4294967296"], "seed=4294967296"),
+    (["data.seed=-5"], "data.seed=-5"),
+    (["data.noise=-1"], "data.noise=-1"),
+    (["data.n_val=-1"], "data.n_val=-1"),
+    (["data.n_val=0"], "data.n_val=0"),
+    (["optim.weight_decay=-1"], "optim.weight_decay=-1"),
+    (["optim.factor=2"], "optim.factor=2"),
+    (["integrator=dopri5", "integrator.rtol=-1"], "integrator.rtol=-1"),
+    (["integrator=dopri5", "integrator.atol=0"], "integrator.atol=0"),
+    (["regulariser=hamiltonian", "regulariser.weight=nan"], "regulariser.weight=nan"),
+    (["regulariser=hamiltonian", "regulariser.weight=inf"], "regulariser.weight=inf"),
+    (["trainer.gradient_clip_val=-1"], "trainer.gradient_clip_val=-1"),
+    (["trainer.gradient_clip_val=abc"], "trainer.gradient_clip_val='abc'"),
+])
+def test_values_out_of_range_are_one_line(tmp_path, overrides, key):
+    assert refused(tmp_path, overrides, key, ConfigError).startswith(key)
+
+
+# class 1 for the trainer, loggers and callbacks (built by encons.api.build_trainer)
+@pytest.mark.parametrize("overrides, key", [
+    (["trainer.accelerator=tpu"], "trainer.accelerator=tpu"),
+    (["trainer.devices=abc"], "trainer.devices=abc"),
+    (["+trainer.precision=13"], "trainer.precision=13"),
+    (["callbacks.best.mode=sideways"], "callbacks.best.mode=sideways"),
+    (["callbacks.best.save_top_k=abc"], "callbacks.best.save_top_k='abc'"),
+    (["logger=csv", "+logger.csv.flush_logs_every_n_steps=abc"], "logger.csv.flush_logs_every_n_steps='abc'"),
+    (["logger=csv", "+logger.csv.bogus=1"], "logger.csv"),
+])
+def test_trainer_logger_and_callback_errors_are_one_line(tmp_path, overrides, key):
+    from encons.api import build_trainer
+
+    with pytest.raises(ConfigError) as err:
+        build_trainer(compose_train(["debug=fast", *overrides], tmp_path / "run", tmp_path / "cache"))
+    line = str(err.value)
+    assert "\n" not in line and key in line and "allowed" in line, line
+
+
+@pytest.mark.parametrize("overrides, key", [
+    (["callbacks.best.dirpath=/proc/encons"], "callbacks.best.dirpath='/proc/encons'"),
+    (["logger=csv", "logger.csv.save_dir=/proc/encons"], "logger.csv.save_dir='/proc/encons'"),
+])
+def test_folders_of_loggers_and_callbacks_are_checked(tmp_path, overrides, key):
+    refused(tmp_path, overrides, key, ConfigError)
+
+
+def test_an_unlogged_optimized_metric_names_the_logged_ones(train_run):
+    with pytest.raises(ConfigError, match=r"optimized_metric='val/nope' is not a metric this run logs; "
+                                          r"allowed: .*val/traj_rel_err"):
+        train_run(["model=node", "system=pendulum1", "trainer.max_epochs=1", "optimized_metric=val/nope"])
+
+
+# class 6 in-process: the sweeper's own keys, and the study a report reads
+def test_sweeper_keys_are_one_line(tmp_path):
+    from omegaconf import OmegaConf
+
+    from encons.sweep import OptunaSweeper
+
+    def sweeper(sampler=None, **keys):
+        args = dict(direction="minimize", storage=None, study_name="s", n_trials=1, n_jobs=1,
+                    max_failure_rate=0.5, params=None) | keys
+        return OptunaSweeper(OmegaConf.create(sampler or {"_target_": "optuna.samplers.TPESampler"}), **args)
+
+    for keys, key in ((dict(n_trials=0), "hydra.sweeper.n_trials=0"), (dict(n_jobs=-1), "hydra.sweeper.n_jobs=-1"),
+                      (dict(max_failure_rate=2), "hydra.sweeper.max_failure_rate=2"),
+                      (dict(direction="up"), "hydra.sweeper.direction='up'")):
+        with pytest.raises(ConfigError, match=f"^{key}.*; allowed: "):
+            sweeper(**keys)
+    with pytest.raises(ConfigError, match=r"^hydra.sweeper.sampler.seed=-1 .*allowed: an integer"):
+        sweeper({"_target_": "optuna.samplers.TPESampler", "seed": -1})._sampler(0)
+    with pytest.raises(ConfigError, match=r"^hydra.sweeper.sampler='optuna.samplers.TPESampler': TypeError: .*bogus"):
+        sweeper({"_target_": "optuna.samplers.TPESampler", "bogus": 1})._sampler(0)
+
+
+def test_a_missing_study_names_the_stored_ones(tmp_path):
+    import optuna
+
+    from encons.sweep import load_study
+
+    url = f"sqlite:///{tmp_path / 'db' / 'optuna.db'}"
+    (tmp_path / "db").mkdir()
+    optuna.create_study(storage=url, study_name="kept")
+    with pytest.raises(ConfigError, match=r"^study='gone' is not in .*; allowed: kept$"):
+        load_study(url, "gone")
+    assert load_study(url, "kept").study_name == "kept"

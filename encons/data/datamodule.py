@@ -86,8 +86,9 @@ class TrajectoryDataModule(pl.LightningDataModule):
                                batch_size=batch_size).items():
             if value < 1:
                 raise ConfigError(f"data.{key}={value}; allowed: >= 1")
-        if dt <= 0 or noise < 0 or n_val < 0:
-            raise ConfigError(f"data.dt={dt}; allowed: > 0, data.noise={noise} and data.n_val={n_val} >= 0")
+        for key, value, low in (("dt", dt, "> 0"), ("noise", noise, ">= 0"), ("n_val", n_val, ">= 0")):
+            if not (value > 0 if low == "> 0" else value >= 0):
+                raise ConfigError(f"data.{key}={value}; allowed: {low}")
         if test_steps is not None and test_steps < n_steps:
             raise ConfigError(f"data.test_steps={test_steps} is shorter than data.n_steps={n_steps}; allowed: "
                               f"null (= n_steps) or an integer >= {n_steps}")
