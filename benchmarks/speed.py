@@ -75,7 +75,7 @@ def time_step(model: DynamicsModel, system: System, batch: Tensor, dt: float, st
     for i in range(steps + 1):
         start, start_cpu = time.perf_counter(), time.process_time()
         opt.zero_grad(set_to_none=True)
-        module.loss(batch).backward()
+        module.loss({"states": batch}).backward()  # a data-module batch (the seam's dict)
         opt.step()
         if i:
             wall.append(1e3 * (time.perf_counter() - start))
@@ -140,7 +140,12 @@ def main() -> None:
         writer = csv.DictWriter(f, fieldnames=["system", "model", "order", "wall_ms", "cpu_ms", "ratio"])
         writer.writeheader()
         writer.writerows(rows)
-    print(f"\nwritten: {args.out}")
+    markdown = args.out.with_suffix(".md")
+    lines = ["| system | model | order | wall ms | CPU ms | × floor |", "|---|---|---|---|---|---|"]
+    lines += [f"| {r['system']} | {r['model']} | {r['order']} | {r['wall_ms']:.1f} | {r['cpu_ms']:.1f} | "
+              f"{r['ratio'] if r['ratio'] == '' else format(r['ratio'], '.2f')} |" for r in rows]
+    markdown.write_text("\n".join(lines) + "\n")
+    print(f"\nwritten: {args.out}, {markdown}")
 
 
 if __name__ == "__main__":

@@ -7,7 +7,7 @@ import math
 
 import pytest
 from encons import api
-from encons.errors import ConfigError, DivergenceError
+from encons.errors import ConfigError
 from tests.helpers import simulated_systems
 
 
@@ -25,9 +25,6 @@ def test_trains_end_to_end(train_run, tmp_path, model, system):
             build_model(cfg, build_system(cfg))
     except ConfigError as err:
         pytest.skip(str(err))
-    try:
-        results = train_run([f"model={model}", f"system={system}"])
-    except DivergenceError as err:  # reported as XFAIL with its reason (pytest -rx): a model limit to fix
-        pytest.xfail(str(err))
+    results = train_run([f"model={model}", f"system={system}"])  # a DivergenceError fails the test
     assert math.isfinite(results["test/traj_rel_err"])
     assert math.isfinite(results["best/val/traj_rel_err"])

@@ -17,7 +17,7 @@ from encons.systems.base import System, apply_point_matrix, split_state
 from encons.systems.constrained import (
     constrained_acceleration,
     constrained_hamiltonian_field,
-    constraint_jacobians,
+    jacobians,
 )
 
 
@@ -86,6 +86,6 @@ class CHNN(CartesianModel):
         minv = self._mass_inverse()
         apply_minv = lambda u: apply_point_matrix(minv, u, self.dim)  # noqa: E731
         velocity = apply_minv(p)
-        jac, d_rate = constraint_jacobians(self.constraints, x, velocity)
+        jac, d_rate = jacobians(self.constraints, x, velocity)
         grad_h = torch.cat([self._grad_potential(x), velocity], -1)
         return constrained_hamiltonian_field(grad_h, jac, d_rate, apply_minv)

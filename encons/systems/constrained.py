@@ -2,13 +2,14 @@
 
 Shared by the true Cartesian fields of the systems and by the models that learn V and the
 masses (CLNN, CHNN), so the equations are written once. Jacobians of Φ through ``torch.func``;
-Φ takes any leading batch shape, as every ``System`` function does.
+Φ takes any leading batch shape, as every ``System`` function does. Distance and linear
+constraints declared as structure (``DistanceConstraints``) get DΦ, D_xΦ̇ in closed form.
 Lagrangian form on s = (x, ẋ): eq. (15); Hamiltonian form on z = (x, p), p = M ẋ: eq. (20).
 """
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, Sequence
 
 import torch
 from torch import Tensor
@@ -36,6 +37,52 @@ def constraint_jacobians(phi: Constraint, x: Tensor, v: Tensor) -> tuple[Tensor,
     return jac.movedim(0, -2), d_rate.movedim(0, -2)
 
 
+class DistanceConstraints:
+    """Φ(x) = (|x_i − x_j|² − l²_ij over ``edges``, then A x) on points of ``dim`` coordinates.
+
+    ``edges`` (i, j) index points, j = −1 meaning the fixed origin (a pivot); ``linear`` is A
+    (K_l, D), e.g. a rigid body's pivot point, may have no rows. Callable as Φ itself. Closed
+    forms (``jacobians``): row k of DΦ is 2 (x_i − x_j) at point i and its negative at point j,
+    and D_xΦ̇ (Φ̇ = 2 (x_i − x_j)·(v_i − v_j)) the same on velocities; linear rows are A and 0.
+    Both through one constant incidence matrix E (K_d, n_points): differences are E @ points.
+    """
+
+    def __init__(self, n_points: int, dim: int, edges: Sequence[tuple[int, int]], lengths: Sequence[float],
+                 linear: Tensor | None = None):
+        self.dim = dim
+        incidence = torch.zeros(len(edges), n_points, dtype=torch.float64)
+        for k, (i, j) in enumerate(edges):  # once, at build
+            incidence[k, i] += 1.0
+            if j >= 0:
+                incidence[k, j] -= 1.0
+        self.incidence = incidence
+        self.lengths_sq = torch.as_tensor(lengths, dtype=torch.float64) ** 2
+        self.linear = torch.zeros(0, n_points * dim, dtype=torch.float64) if linear is None else linear.double()
+
+    def _differences(self, y: Tensor) -> Tensor:
+        return self.incidence.to(y) @ y.unflatten(-1, (self.incidence.shape[1], self.dim))
+
+    def __call__(self, x: Tensor) -> Tensor:
+        """Φ(x), shape (..., K)."""
+        distance = self._differences(x).square().sum(-1) - self.lengths_sq.to(x)
+        return torch.cat([distance, x @ self.linear.to(x).T], -1)
+
+    def jacobians(self, x: Tensor, v: Tensor) -> tuple[Tensor, Tensor]:
+        """DΦ(x) and D_xΦ̇ at velocities v, each (..., K, D), in closed form."""
+        spread = 2.0 * self.incidence.to(x)[:, :, None]  # (K_d, n_points, 1)
+        linear = self.linear.to(x).expand(*x.shape[:-1], *self.linear.shape)
+        jac = (spread * self._differences(x)[..., :, None, :]).flatten(-2)
+        d_rate = (spread * self._differences(v)[..., :, None, :]).flatten(-2)
+        return torch.cat([jac, linear], -2), torch.cat([d_rate, torch.zeros_like(linear)], -2)
+
+
+def jacobians(phi: Constraint, x: Tensor, v: Tensor) -> tuple[Tensor, Tensor]:
+    """DΦ(x), D_xΦ̇ (..., K, D): closed form for ``DistanceConstraints``, else autodiff."""
+    if isinstance(phi, DistanceConstraints):
+        return phi.jacobians(x, v)
+    return constraint_jacobians(phi, x, v)
+
+
 def constrained_acceleration(
     x: Tensor, v: Tensor, minv: MatVec, grad_v: Tensor, phi: Constraint
 ) -> Tensor:
@@ -43,7 +90,7 @@ def constrained_acceleration(
 
     ``minv`` applies the constant inverse mass matrix to vectors (..., D); ``grad_v`` is ∇V(x).
     """
-    jac, d_rate = constraint_jacobians(phi, x, v)
+    jac, d_rate = jacobians(phi, x, v)
     minv_grad = minv(grad_v)
     minv_jt = minv(jac)  # rows of DΦ M⁻¹ = (M⁻¹ DΦᵀ)ᵀ, M symmetric
     gram = jac @ minv_jt.transpose(-1, -2)

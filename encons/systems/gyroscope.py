@@ -20,7 +20,7 @@ from torch.func import jvp
 
 from encons.errors import ConfigError
 from encons.systems.base import CartesianLayout, System, apply_point_matrix, point_mass_matrix, split_state
-from encons.systems.constrained import constrained_acceleration
+from encons.systems.constrained import DistanceConstraints, constrained_acceleration
 
 
 def _rotation(q: Tensor) -> Tensor:
@@ -70,6 +70,12 @@ class Gyroscope(System):
                          theta_rate=float(theta_rate_range), spin_mean=float(spin_mean),
                          spin_scale=float(spin_scale))
         self.min_sin_theta = float(min_sin_theta)
+        # Φ: unit body axes |x_k − x_c|² = 1, orthogonal |x_i − x_j|² = 2, pivot x_c − ℓ (x_3 − x_c) = 0.
+        pivot = torch.zeros(3, 4, 3, dtype=torch.float64)
+        eye = torch.eye(3, dtype=torch.float64)
+        pivot[:, 0], pivot[:, 3] = (1 + self.ell) * eye, -self.ell * eye
+        self.constraints = DistanceConstraints(4, 3, [(1, 0), (2, 0), (3, 0), (1, 2), (1, 3), (2, 3)],
+                                               [1.0] * 3 + [2.0**0.5] * 3, pivot.flatten(1))
         self.rejection_reason = f"|sin θ| < min_sin_theta={self.min_sin_theta}: gimbal lock of the angle chart"
         self.layout = CartesianLayout(4, 3, ((0, 1, 2, 3),))
 
@@ -95,15 +101,6 @@ class Gyroscope(System):
 
     def cartesian_potential(self, x: Tensor) -> Tensor:
         return self.m * self.g * x[..., 2]
-
-    def constraints(self, x: Tensor) -> Tensor:
-        pts = x.unflatten(-1, (4, 3))
-        com, axes = pts[..., 0, :], pts[..., 1:, :]
-        i, j = torch.triu_indices(3, 3, 1, device=x.device)
-        unit = ((axes - com[..., None, :]) ** 2).sum(-1) - 1
-        right = ((axes[..., i, :] - axes[..., j, :]) ** 2).sum(-1) - 2
-        pivot = com - self.ell * (axes[..., 2, :] - com)
-        return torch.cat([unit, right, pivot], -1)
 
     def vector_field(self, s: Tensor, chart: str) -> Tensor:
         self.check_chart(chart)

@@ -14,7 +14,7 @@ from torch import Tensor
 
 from encons.errors import ConfigError
 from encons.systems.base import CartesianLayout, System, apply_point_matrix, point_mass_matrix, split_state
-from encons.systems.constrained import constrained_acceleration
+from encons.systems.constrained import DistanceConstraints, constrained_acceleration
 
 
 def _per_link(value: float | Sequence[float], n: int, what: str) -> Tensor:
@@ -45,6 +45,8 @@ class NPendulum(System):
         idx = torch.arange(n_links)
         self.coeff = self.mu[torch.maximum(idx[:, None], idx[None, :])] * self.l[:, None] * self.l[None, :]
         self.layout = CartesianLayout(n_links, 2, tuple((i,) for i in range(n_links)))
+        self.constraints = DistanceConstraints(n_links, 2, [(0, -1)] + [(k, k - 1) for k in range(1, n_links)],
+                                               self.l.tolist())  # tether, then rods
 
     def coord_dim(self, chart: str) -> int:
         self.check_chart(chart)
@@ -67,11 +69,6 @@ class NPendulum(System):
 
     def cartesian_potential(self, x: Tensor) -> Tensor:
         return self.g * (self.m.to(x) * x[..., 1::2]).sum(-1)
-
-    def constraints(self, x: Tensor) -> Tensor:
-        pts = x.unflatten(-1, (self.n, 2))
-        rel = torch.cat([pts[..., :1, :], pts[..., 1:, :] - pts[..., :-1, :]], -2)
-        return (rel**2).sum(-1) - self.l.to(x) ** 2
 
     def vector_field(self, s: Tensor, chart: str) -> Tensor:
         self.check_chart(chart)

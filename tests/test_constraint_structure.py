@@ -1,0 +1,65 @@
+"""Constraints declared as structure (``DistanceConstraints``): Φ as written by hand, closed-form
+DΦ, D_xΦ̇ equal to autodiff, and CHNN/CLNN fields equal to the general (autodiff) path."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from encons.models.constrained import CHNN, CLNN
+from encons.systems.constrained import DistanceConstraints, constraint_jacobians
+from encons.systems.gyroscope import Gyroscope
+from encons.systems.pendulum import NPendulum
+
+SYSTEMS = {"pendulum1": lambda: NPendulum(1), "pendulum2": lambda: NPendulum(2, masses=[1.0, 1.5], lengths=[1.0, 0.8]),
+           "pendulum4": lambda: NPendulum(4, lengths=[1.0, 0.7, 1.2, 0.9]), "gyroscope": Gyroscope}
+
+
+def hand_written_phi(system, x):
+    """Φ as the systems wrote it before the structure existed."""
+    if isinstance(system, Gyroscope):
+        pts = x.unflatten(-1, (4, 3))
+        com, axes = pts[..., 0, :], pts[..., 1:, :]
+        unit = ((axes - com[..., None, :]) ** 2).sum(-1) - 1
+        i, j = torch.triu_indices(3, 3, 1)
+        right = ((axes[..., i, :] - axes[..., j, :]) ** 2).sum(-1) - 2
+        return torch.cat([unit, right, com - system.ell * (axes[..., 2, :] - com)], -1)
+    pts = x.unflatten(-1, (system.n, 2))
+    rel = torch.cat([pts[..., :1, :], pts[..., 1:, :] - pts[..., :-1, :]], -2)
+    return (rel**2).sum(-1) - system.l.to(x) ** 2
+
+
+def off_manifold_states(system, n=16):
+    gen = torch.Generator().manual_seed(3)
+    s = system.to_chart(system.sample_initial(n, gen), "angle", "cartesian")
+    return s + 0.1 * torch.randn(s.shape, generator=gen, dtype=s.dtype)
+
+
+@pytest.mark.parametrize("system_name", SYSTEMS)
+def test_closed_form_jacobians_equal_autodiff(system_name):
+    system = SYSTEMS[system_name]()
+    assert isinstance(system.constraints, DistanceConstraints)
+    x, v = off_manifold_states(system).chunk(2, -1)
+    assert torch.allclose(system.constraints(x), hand_written_phi(system, x), rtol=0, atol=1e-12)
+    jac, d_rate = system.constraints.jacobians(x, v)
+    jac_ad, d_rate_ad = constraint_jacobians(lambda y: hand_written_phi(system, y), x, v)
+    assert (jac - jac_ad).abs().max() < 1e-10
+    assert (d_rate - d_rate_ad).abs().max() < 1e-10
+
+
+@pytest.mark.parametrize("system_name", SYSTEMS)
+@pytest.mark.parametrize("cls", [CHNN, CLNN], ids=lambda c: c.__name__)
+def test_fast_field_equals_general_path(cls, system_name):
+    system = SYSTEMS[system_name]()
+    torch.manual_seed(0)
+    fast = cls(system, hidden=16, depth=2).double()
+    with torch.no_grad():
+        for p in fast.masses.parameters():
+            p.normal_(0.0, 0.5)  # learned (random) masses
+    general = cls(system, hidden=16, depth=2).double()
+    general.load_state_dict(fast.state_dict())
+    general.constraints = lambda y: hand_written_phi(system, y)  # an arbitrary Φ: the autodiff path
+    s = off_manifold_states(system)
+    z = fast.encode(s)
+    t = torch.tensor(0.0, dtype=torch.float64)
+    assert (fast(t, z) - general(t, z)).abs().max() < 1e-10 * max(1.0, general(t, z).abs().max().item())
