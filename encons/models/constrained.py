@@ -52,11 +52,6 @@ class CartesianModel(DynamicsModel):
 class CLNN(CartesianModel):
     """Constrained Lagrangian dynamics on s = (x, ẋ), Zhong et al. eq. (15) (Finzi et al. 2020)."""
 
-    def lagrangian(self, s: Tensor) -> Tensor:
-        """L = ½ ẋᵀ M ẋ − V(x) of states (..., 2D)."""
-        x, v = split_state(s)
-        return 0.5 * (v * apply_point_matrix(self.point_masses(), v, self.dim)).sum(-1) - self.potential(x)
-
     def forward(self, t: Tensor, s: Tensor) -> Tensor:
         x, v = split_state(s)
         minv = self._mass_inverse()
@@ -67,11 +62,6 @@ class CLNN(CartesianModel):
 
 class CHNN(CartesianModel):
     """Constrained Hamiltonian dynamics on z = (x, p), p = M ẋ, Zhong et al. eq. (20) (Finzi et al. 2020)."""
-
-    def hamiltonian(self, z: Tensor) -> Tensor:
-        """H = ½ pᵀ M⁻¹ p + V(x) of internal states (..., 2D)."""
-        x, p = split_state(z)
-        return 0.5 * (p * apply_point_matrix(self._mass_inverse(), p, self.dim)).sum(-1) + self.potential(x)
 
     def encode(self, s: Tensor) -> Tensor:
         x, v = split_state(s)

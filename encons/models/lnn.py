@@ -83,11 +83,6 @@ class LNNStructure(MassPotentialModel):
     fixed q̇, whose M and Ṁ = dM/dt along q̇ come from one jvp of M inside it (one M forward).
     """
 
-    def lagrangian(self, s: Tensor) -> Tensor:
-        """L(q, q̇) of states (..., 2n)."""
-        q, qd = split_state(s)
-        return 0.5 * (qd * (self.mass(q) @ qd.unsqueeze(-1)).squeeze(-1)).sum(-1) - self.potential(q)
-
     def forward(self, t: Tensor, s: Tensor) -> Tensor:
         q, qd = split_state(s)
 
