@@ -48,6 +48,9 @@ class TrueMass(torch.nn.Module):
     def solve(self, q, p):
         return torch.linalg.solve(self.system.mass_matrix(q), p.unsqueeze(-1)).squeeze(-1)
 
+    def cholesky(self, q):
+        return torch.linalg.cholesky(self.system.mass_matrix(q))
+
 
 def with_true_physics(model, system, potential_scale=1.0):
     """Swap the system's own physical quantities into ``model`` (V scaled by ``potential_scale``)."""
@@ -71,7 +74,8 @@ def with_true_physics(model, system, potential_scale=1.0):
         model.hamiltonian = lambda z: kinetic(split_state(z)[0], mass.solve(*split_state(z))) + potential(
             split_state(z)[0])
     else:
-        model.mass, model.potential = mass, potential
+        model.mass = mass
+        model.factor_potential = lambda q: (mass.cholesky(q), potential(q))
     return model
 
 

@@ -35,7 +35,7 @@ class HamiltonianModel(DynamicsModel):
         q, p = split_state(z)
         return torch.cat([q, self.mass.solve(q, p)], -1)
 
-    def forward(self, t: Tensor, z: Tensor) -> Tensor:
+    def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
         dh = batched_grad(self.hamiltonian, z)
         dq, dp = split_state(dh)
         return torch.cat([dp, -dq], -1)
@@ -56,11 +56,14 @@ class HNN(HamiltonianModel):
         return self.hamiltonian_net(torch.cat([embed_angles(q, self.angular), p], -1)).squeeze(-1)
 
 
-
 class HNNStructure(HamiltonianModel, MassPotentialModel):
-    """H = ½ pᵀ M(q)⁻¹ p + V(q) with learned M and V (SymODEN, Zhong et al. 2020a; eqs. (8)–(9))."""
+    """H = ½ pᵀ M(q)⁻¹ p + V(q) with learned M and V (SymODEN, Zhong et al. 2020a; eqs. (8)–(9)).
+
+    ½ pᵀ M⁻¹ p = ½ |L⁻¹ p|² by one triangular solve with the Cholesky factor L of M.
+    """
 
     def hamiltonian(self, z: Tensor) -> Tensor:
         q, p = split_state(z)
-        return 0.5 * (p * self.mass.solve(q, p)).sum(-1) + self.potential(q)
-
+        factor, potential = self.factor_potential(q)
+        w = torch.linalg.solve_triangular(factor, p.unsqueeze(-1), upper=False).squeeze(-1)
+        return 0.5 * w.square().sum(-1) + potential

@@ -20,6 +20,7 @@ from encons.models.networks import cranmer_init_, embed_angles, mlp
 from encons.models.structured import MassPotentialModel
 from encons.systems.base import System, split_state
 
+
 def euler_lagrange_acceleration(lagrangian: Callable[[Tensor], Tensor], s: Tensor, damping: float) -> Tensor:
     """q̈ of Zhong et al. eq. (3) at states s = (q, q̇) (..., 2n) of a batch-aware scalar L(s).
 
@@ -71,27 +72,31 @@ class LNN(DynamicsModel):
         q, qd = split_state(s)
         return self.lagrangian_net(torch.cat([embed_angles(q, self.angular), qd], -1)).squeeze(-1)
 
-    def forward(self, t: Tensor, s: Tensor) -> Tensor:
+    def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         return torch.cat([split_state(s)[1], euler_lagrange_acceleration(self.lagrangian, s, self.damping)], -1)
 
 
-
 class LNNStructure(MassPotentialModel):
-    """L = ½ q̇ᵀ M(q) q̇ − V(q) with learned M and V, eq. (5) (DeLaN, Lutter et al. 2019).
+    """L = ½ q̇ᵀ M(q) q̇ − V(q) with learned M = L_M L_Mᵀ and V, eq. (5) (DeLaN, Lutter et al. 2019).
 
     q̈ = M⁻¹ [−Ṁ q̇ + ½ ∇_q(q̇ᵀ M q̇) − ∇V]: one batched grad of q ↦ ½ q̇ᵀ M(q) q̇ − V(q) at
-    fixed q̇, whose M and Ṁ = dM/dt along q̇ come from one jvp of M inside it (one M forward).
+    fixed q̇; L_M and L̇_M along q̇ come from one jvp of the network inside it (one forward of
+    the shared trunk gives V too), Ṁ = L̇_M L_Mᵀ + L_M L̇_Mᵀ, and M⁻¹ by the Cholesky factor.
     """
 
-    def forward(self, t: Tensor, s: Tensor) -> Tensor:
+    def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         q, qd = split_state(s)
 
         def lagrangian(qi: Tensor) -> tuple[Tensor, tuple[Tensor, Tensor]]:
-            mass, mass_dot = jvp(self.mass, (qi,), (qd,))
+            if self.shared_trunk:
+                (factor, potential), (factor_dot, _) = jvp(self.factor_potential, (qi,), (qd,))
+            else:
+                (factor, factor_dot), potential = jvp(self.mass.cholesky, (qi,), (qd,)), self.potential_net(qi)
+            mass = factor @ factor.transpose(-1, -2)
+            mass_dot = factor_dot @ factor.transpose(-1, -2) + factor @ factor_dot.transpose(-1, -2)
             kinetic = 0.5 * (qd * (mass @ qd.unsqueeze(-1)).squeeze(-1)).sum(-1)
-            return (kinetic - self.potential(qi)).sum(), (mass, mass_dot)
+            return (kinetic - potential).sum(), (factor, mass_dot)
 
-        dl_dq, (mass, mass_dot) = grad(lagrangian, has_aux=True)(q)
+        dl_dq, (factor, mass_dot) = grad(lagrangian, has_aux=True)(q)
         rhs = dl_dq - (mass_dot @ qd.unsqueeze(-1)).squeeze(-1)
-        return torch.cat([qd, torch.linalg.solve(mass, rhs)], -1)
-
+        return torch.cat([qd, torch.cholesky_solve(rhs.unsqueeze(-1), factor).squeeze(-1)], -1)

@@ -61,21 +61,32 @@ def embedded_width(n: int, angular: Angular) -> int:
 
 
 class CholeskyMass(nn.Module):
-    """M(q) = L(q) L(q)ᵀ with L lower triangular, softplus diagonal + ``eps`` (Zhong et al. §3)."""
+    """M(q) = L(q) L(q)ᵀ with L lower triangular, softplus diagonal + ``eps`` (Zhong et al. §3).
 
-    def __init__(self, n: int, angular: Angular, hidden: int, depth: int, activation: str, eps: float):
+    With ``extra`` > 0 the same network has ``extra`` more outputs (``factor``): a trunk shared
+    with another head, e.g. V(q) in the structured models (one forward for both).
+    """
+
+    def __init__(self, n: int, angular: Angular, hidden: int, depth: int, activation: str, eps: float,
+                 extra: int = 0):
         super().__init__()
         self.n, self.angular, self.eps = n, angular, eps
         rows, cols = torch.tril_indices(n, n)
+        self.entries = len(rows)
         self.register_buffer("diag", rows == cols, persistent=False)
         self.register_buffer("scatter", nn.functional.one_hot(rows * n + cols, n * n).float(), persistent=False)
-        self.net = mlp(embedded_width(n, angular), len(rows), hidden, depth, activation)
+        self.net = mlp(embedded_width(n, angular), self.entries + extra, hidden, depth, activation)
+
+    def factor(self, q: Tensor) -> tuple[Tensor, Tensor]:
+        """L(q) (..., n, n) and the ``extra`` outputs (..., extra) of one network forward."""
+        out = self.net(embed_angles(q, self.angular))
+        entries = out[..., :self.entries]
+        entries = torch.where(self.diag, nn.functional.softplus(entries) + self.eps, entries)
+        return (entries @ self.scatter.to(entries)).unflatten(-1, (self.n, self.n)), out[..., self.entries:]
 
     def cholesky(self, q: Tensor) -> Tensor:
         """L(q), shape (..., n, n)."""
-        entries = self.net(embed_angles(q, self.angular))
-        entries = torch.where(self.diag, nn.functional.softplus(entries) + self.eps, entries)
-        return (entries @ self.scatter.to(entries)).unflatten(-1, (self.n, self.n))
+        return self.factor(q)[0]
 
     def forward(self, q: Tensor) -> Tensor:
         """M(q), shape (..., n, n)."""

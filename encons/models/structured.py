@@ -10,17 +10,32 @@ from encons.systems.base import System
 
 
 class MassPotentialModel(DynamicsModel):
-    """Learns ``mass`` (Cholesky M(q), ``forward``/``solve``) and ``potential`` V(q); "-angle" via ``angular``."""
+    """Learns the Cholesky factor L(q) of M(q) (``mass``: ``forward``/``solve``) and V(q); "-angle" via ``angular``.
+
+    ``shared_trunk=True`` (default): one ``depth`` × ``hidden`` network with n(n+1)/2 + 1 outputs
+    gives L(q) and V(q), so a field evaluation runs one network instead of two (about half the
+    cost; issue 11). ``False``: two separate networks as in Zhong et al. (SymODEN, DeLaN).
+    Fields get both through ``factor_potential``.
+    """
 
     default_chart = "angle"
 
     def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
-                 activation: str = "softplus", mass_eps: float = 1e-3, angular: bool = False):
+                 activation: str = "softplus", mass_eps: float = 1e-3, angular: bool = False,
+                 shared_trunk: bool = True):
         super().__init__(system, chart)
-        self.angular = angular
-        self.mass = CholeskyMass(self.n, self.angular, hidden, depth, activation, mass_eps)
-        self.potential_net = Potential(self.n, self.angular, hidden, depth, activation)
+        self.angular, self.shared_trunk = angular, shared_trunk
+        self.mass = CholeskyMass(self.n, self.angular, hidden, depth, activation, mass_eps, extra=int(shared_trunk))
+        if not shared_trunk:
+            self.potential_net = Potential(self.n, self.angular, hidden, depth, activation)
+
+    def factor_potential(self, q: Tensor) -> tuple[Tensor, Tensor]:
+        """L(q) (..., n, n) and V(q) (...): one network forward with the shared trunk."""
+        if self.shared_trunk:
+            factor, extra = self.mass.factor(q)
+            return factor, extra.squeeze(-1)
+        return self.mass.cholesky(q), self.potential_net(q)
 
     def potential(self, q: Tensor) -> Tensor:
         """V(q)."""
-        return self.potential_net(q)
+        return self.factor_potential(q)[1]
