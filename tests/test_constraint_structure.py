@@ -1,5 +1,6 @@
 """Constraints declared as structure (``DistanceConstraints``): Φ as written by hand, closed-form
-DΦ, D_xΦ̇ equal to autodiff, and CHNN/CLNN fields equal to the general (autodiff) path."""
+DΦ, D_xΦ̇ equal to autodiff, and CHNN/CLNN fields (closed-form masses and inverse) equal to the general path (autodiff Jacobians,
+assembled and inverted mass matrix)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import pytest
 import torch
 
 from encons.models.constrained import CHNN, CLNN
+from encons.systems.base import point_mass_matrix
 from encons.systems.constrained import DistanceConstraints, constraint_jacobians
 from encons.systems.gyroscope import Gyroscope
 from encons.systems.pendulum import NPendulum
@@ -59,7 +61,14 @@ def test_fast_field_equals_general_path(cls, system_name):
     general = cls(system, hidden=16, depth=2).double()
     general.load_state_dict(fast.state_dict())
     general.constraints = lambda y: hand_written_phi(system, y)  # an arbitrary Φ: the autodiff path
+    masses = [p.exp() for p in general.masses.log_params]
+    general.point_masses = lambda: point_mass_matrix(system.layout, masses)  # assembled, then inverted
+    general.point_masses_inverse = lambda: torch.linalg.inv(general.point_masses())
+    assert (fast.point_masses() - general.point_masses()).abs().max() < 1e-12
+    assert (fast.point_masses_inverse() - general.point_masses_inverse()).abs().max() < 1e-10
     s = off_manifold_states(system)
     z = fast.encode(s)
     t = torch.tensor(0.0, dtype=torch.float64)
+    assert (z - general.encode(s)).abs().max() < 1e-12
     assert (fast(t, z) - general(t, z)).abs().max() < 1e-10 * max(1.0, general(t, z).abs().max().item())
+    assert (fast.decode(z) - s).abs().max() < 1e-10

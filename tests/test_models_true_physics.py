@@ -57,6 +57,7 @@ def with_true_physics(model, system, potential_scale=1.0):
     if isinstance(model, CartesianModel):
         model.potential = lambda x: potential_scale * system.cartesian_potential(x)
         model.point_masses = system.point_masses
+        model.point_masses_inverse = lambda: torch.linalg.inv(system.point_masses())
         return model
     mass = TrueMass(system)
 

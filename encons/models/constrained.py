@@ -13,10 +13,11 @@ from torch import Tensor
 from encons.batching import batched_grad
 from encons.models.base import DynamicsModel
 from encons.models.networks import PointMasses, Potential
-from encons.systems.base import System, apply_point_matrix, split_state
+from encons.systems.base import System, split_state
 from encons.systems.constrained import (
     constrained_acceleration,
     constrained_hamiltonian_field,
+    full_mass_matrix,
     jacobians,
 )
 
@@ -42,8 +43,9 @@ class CartesianModel(DynamicsModel):
         """The (n_points, n_points) mass matrix Mp over points."""
         return self.masses()
 
-    def _mass_inverse(self) -> Tensor:
-        return torch.linalg.inv(self.point_masses())
+    def point_masses_inverse(self) -> Tensor:
+        """Mp⁻¹, in closed form (``PointMasses.inverse``)."""
+        return self.masses.inverse()
 
     def _grad_potential(self, x: Tensor) -> Tensor:
         return batched_grad(self.potential, x)
@@ -52,12 +54,10 @@ class CartesianModel(DynamicsModel):
 class CLNN(CartesianModel):
     """Constrained Lagrangian dynamics on s = (x, ẋ), Zhong et al. eq. (15) (Finzi et al. 2020)."""
 
-    def forward(self, t: Tensor, s: Tensor) -> Tensor:
+    def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         x, v = split_state(s)
-        minv = self._mass_inverse()
-        acc = constrained_acceleration(x, v, lambda u: apply_point_matrix(minv, u, self.dim),
-                                       self._grad_potential(x), self.constraints)
-        return torch.cat([v, acc], -1)
+        minv = full_mass_matrix(self.point_masses_inverse(), self.dim)
+        return torch.cat([v, constrained_acceleration(x, v, minv, self._grad_potential(x), self.constraints)], -1)
 
 
 class CHNN(CartesianModel):
@@ -65,17 +65,16 @@ class CHNN(CartesianModel):
 
     def encode(self, s: Tensor) -> Tensor:
         x, v = split_state(s)
-        return torch.cat([x, apply_point_matrix(self.point_masses(), v, self.dim)], -1)
+        return torch.cat([x, v @ full_mass_matrix(self.point_masses(), self.dim)], -1)
 
     def decode(self, z: Tensor) -> Tensor:
         x, p = split_state(z)
-        return torch.cat([x, apply_point_matrix(self._mass_inverse(), p, self.dim)], -1)
+        return torch.cat([x, p @ full_mass_matrix(self.point_masses_inverse(), self.dim)], -1)
 
-    def forward(self, t: Tensor, z: Tensor) -> Tensor:
+    def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
         x, p = split_state(z)
-        minv = self._mass_inverse()
-        apply_minv = lambda u: apply_point_matrix(minv, u, self.dim)  # noqa: E731
-        velocity = apply_minv(p)
+        minv = full_mass_matrix(self.point_masses_inverse(), self.dim)
+        velocity = p @ minv
         jac, d_rate = jacobians(self.constraints, x, velocity)
         grad_h = torch.cat([self._grad_potential(x), velocity], -1)
-        return constrained_hamiltonian_field(grad_h, jac, d_rate, apply_minv)
+        return constrained_hamiltonian_field(grad_h, jac, d_rate, minv)

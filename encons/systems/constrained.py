@@ -17,7 +17,6 @@ from torch.func import grad
 
 
 Constraint = Callable[[Tensor], Tensor]
-MatVec = Callable[[Tensor], Tensor]
 
 
 def constraint_jacobians(phi: Constraint, x: Tensor, v: Tensor) -> tuple[Tensor, Tensor]:
@@ -58,21 +57,34 @@ class DistanceConstraints:
         self.incidence = incidence
         self.lengths_sq = torch.as_tensor(lengths, dtype=torch.float64) ** 2
         self.linear = torch.zeros(0, n_points * dim, dtype=torch.float64) if linear is None else linear.double()
+        self._cache: dict[tuple, tuple[Tensor, Tensor, Tensor, Tensor]] = {}
+
+    def _constants(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """E, l², A and 2E (K_d, n_points, 1) in ``like``'s dtype and device, converted once."""
+        key = (like.dtype, like.device)
+        if key not in self._cache:
+            incidence = self.incidence.to(like)
+            self._cache[key] = (incidence, self.lengths_sq.to(like), self.linear.to(like), 2.0 * incidence[:, :, None])
+        return self._cache[key]
 
     def _differences(self, y: Tensor) -> Tensor:
-        return self.incidence.to(y) @ y.unflatten(-1, (self.incidence.shape[1], self.dim))
+        incidence = self._constants(y)[0]
+        return incidence @ y.unflatten(-1, (incidence.shape[1], self.dim))
 
     def __call__(self, x: Tensor) -> Tensor:
         """Φ(x), shape (..., K)."""
-        distance = self._differences(x).square().sum(-1) - self.lengths_sq.to(x)
-        return torch.cat([distance, x @ self.linear.to(x).T], -1)
+        _, lengths_sq, linear, _ = self._constants(x)
+        distance = self._differences(x).square().sum(-1) - lengths_sq
+        return torch.cat([distance, x @ linear.T], -1)
 
     def jacobians(self, x: Tensor, v: Tensor) -> tuple[Tensor, Tensor]:
         """DΦ(x) and D_xΦ̇ at velocities v, each (..., K, D), in closed form."""
-        spread = 2.0 * self.incidence.to(x)[:, :, None]  # (K_d, n_points, 1)
-        linear = self.linear.to(x).expand(*x.shape[:-1], *self.linear.shape)
+        _, _, linear, spread = self._constants(x)  # spread: (K_d, n_points, 1)
         jac = (spread * self._differences(x)[..., :, None, :]).flatten(-2)
         d_rate = (spread * self._differences(v)[..., :, None, :]).flatten(-2)
+        if not len(linear):
+            return jac, d_rate
+        linear = linear.expand(*x.shape[:-1], *linear.shape)
         return torch.cat([jac, linear], -2), torch.cat([d_rate, torch.zeros_like(linear)], -2)
 
 
@@ -83,41 +95,47 @@ def jacobians(phi: Constraint, x: Tensor, v: Tensor) -> tuple[Tensor, Tensor]:
     return constraint_jacobians(phi, x, v)
 
 
-def constrained_acceleration(
-    x: Tensor, v: Tensor, minv: MatVec, grad_v: Tensor, phi: Constraint
-) -> Tensor:
+def full_mass_matrix(mp: Tensor, dim: int) -> Tensor:
+    """kron(``mp``, I_dim): a matrix over points (n_points, n_points) as one over coordinates (D, D)."""
+    eye = torch.eye(dim, dtype=mp.dtype, device=mp.device)
+    return (mp[:, None, :, None] * eye[None, :, None, :]).reshape(mp.shape[0] * dim, mp.shape[1] * dim)
+
+
+def constrained_acceleration(x: Tensor, v: Tensor, minv: Tensor, grad_v: Tensor, phi: Constraint) -> Tensor:
     """ẍ of Zhong et al. eq. (15): Lagrangian dynamics with explicit constraints.
 
-    ``minv`` applies the constant inverse mass matrix to vectors (..., D); ``grad_v`` is ∇V(x).
+    ``minv`` is the constant inverse mass matrix (D, D) (``full_mass_matrix``); ``grad_v`` is ∇V(x).
+    ẍ = M⁻¹ Aᵀ λ − M⁻¹ ∇V with (A M⁻¹ Aᵀ) λ = A M⁻¹ ∇V − C v, A = DΦ, C = D_xΦ̇; the products
+    with M⁻¹ and with A are one matmul each.
     """
     jac, d_rate = jacobians(phi, x, v)
-    minv_grad = minv(grad_v)
-    minv_jt = minv(jac)  # rows of DΦ M⁻¹ = (M⁻¹ DΦᵀ)ᵀ, M symmetric
-    gram = jac @ minv_jt.transpose(-1, -2)
-    rhs = ((jac @ minv_grad.unsqueeze(-1)) - d_rate @ v.unsqueeze(-1)).squeeze(-1)
-    lam = torch.linalg.solve(gram, rhs)
-    return (minv_jt.transpose(-1, -2) @ lam.unsqueeze(-1)).squeeze(-1) - minv_grad
+    k = jac.shape[-2]
+    scaled = torch.cat([jac, grad_v.unsqueeze(-2)], -2) @ minv  # rows of A M⁻¹, then (M⁻¹ ∇V)ᵀ (M symmetric)
+    prod = torch.cat([jac, d_rate], -2) @ torch.cat([scaled, v.unsqueeze(-2)], -2).transpose(-1, -2)
+    lam = torch.linalg.solve(prod[..., :k, :k], prod[..., :k, k] - prod[..., k:, k + 1])
+    return (lam.unsqueeze(-2) @ scaled[..., :k, :]).squeeze(-2) - scaled[..., k, :]
 
 
-def constrained_hamiltonian_field(grad_h: Tensor, jac: Tensor, d_rate: Tensor, minv: MatVec) -> Tensor:
+def constrained_hamiltonian_field(grad_h: Tensor, jac: Tensor, d_rate: Tensor, minv: Tensor) -> Tensor:
     """ż of Zhong et al. eq. (20) on z = (x, p): J∇H minus its part that would leave Ψ(z) = 0.
 
     ``grad_h`` is ∇H (..., 2D). Ψ = (Φ(x), DΦ(x) M⁻¹ p) (§2.4) enters through the blocks of
     DΨ = [[A, 0], [C, A M⁻¹]]: ``jac`` A = DΦ and ``d_rate`` C = D_x Φ̇ (..., K, D), with
-    ``minv`` applying the constant M⁻¹. Then DΨ J DΨᵀ = [[0, S], [−S, W]] with S = A M⁻¹ Aᵀ and
+    ``minv`` the constant M⁻¹ (D, D). Then DΨ J DΨᵀ = [[0, S], [−S, W]] with S = A M⁻¹ Aᵀ and
     W = C M⁻¹ Aᵀ − A M⁻¹ Cᵀ, and eq. (20) needs one K × K solve (K + 2 right-hand sides)
     instead of a 2K × 2K one: λ₂ = S⁻¹ A ∇_p H, λ₁ = S⁻¹ (W λ₂ − C ∇_p H + A M⁻¹ ∇_x H),
-    ẋ = ∇_p H − M⁻¹ Aᵀ λ₂, ṗ = −∇_x H + Aᵀ λ₁ + Cᵀ λ₂.
+    ẋ = ∇_p H − M⁻¹ Aᵀ λ₂, ṗ = −∇_x H + Aᵀ λ₁ + Cᵀ λ₂. Every product with [A; C] is one matmul.
     """
     grad_x, grad_p = grad_h.chunk(2, -1)
-    jac_minv = minv(jac)  # rows of A M⁻¹ (M symmetric)
-    cross = d_rate @ jac_minv.transpose(-1, -2)
-    b_1 = jac @ grad_p.unsqueeze(-1)
-    b_2 = d_rate @ grad_p.unsqueeze(-1) - jac_minv @ grad_x.unsqueeze(-1)
-    solved = torch.linalg.solve(jac @ jac_minv.transpose(-1, -2),
-                                torch.cat([b_1, b_2, cross - cross.transpose(-1, -2)], -1))
+    k = jac.shape[-2]
+    rows = torch.cat([jac, d_rate], -2)  # [A; C]
+    scaled = torch.cat([jac, grad_x.unsqueeze(-2)], -2) @ minv  # rows of A M⁻¹, then (M⁻¹ ∇_x H)ᵀ
+    prod = rows @ torch.cat([grad_p.unsqueeze(-2), scaled], -2).transpose(-1, -2)  # [A; C] [∇_pH, M⁻¹Aᵀ, M⁻¹∇_xH]
+    cross = prod[..., k:, 1:k + 1]  # C M⁻¹ Aᵀ
+    rhs = torch.cat([prod[..., :k, :1], prod[..., k:, :1] - prod[..., :k, k + 1:], cross - cross.transpose(-1, -2)], -1)
+    solved = torch.linalg.solve(prod[..., :k, 1:k + 1], rhs)
     lam_2 = solved[..., :1]
     lam_1 = solved[..., 2:] @ lam_2 - solved[..., 1:2]
-    dx = grad_p - (jac_minv.transpose(-1, -2) @ lam_2).squeeze(-1)
-    dp = -grad_x + (torch.cat([jac, d_rate], -2).transpose(-1, -2) @ torch.cat([lam_1, lam_2], -2)).squeeze(-1)
-    return torch.cat([dx, dp], -1)
+    mult = torch.cat([torch.cat([lam_1, lam_2], -1), torch.cat([lam_2, torch.zeros_like(lam_2)], -1)], -2)
+    back = (rows.transpose(-1, -2) @ mult).unbind(-1)  # Aᵀ λ₁ + Cᵀ λ₂, Aᵀ λ₂
+    return torch.cat([grad_p - back[1] @ minv, back[0] - grad_x], -1)

@@ -20,7 +20,7 @@ from torch.func import jvp
 
 from encons.errors import ConfigError
 from encons.systems.base import CartesianLayout, System, apply_point_matrix, point_mass_matrix, split_state
-from encons.systems.constrained import DistanceConstraints, constrained_acceleration
+from encons.systems.constrained import DistanceConstraints, constrained_acceleration, full_mass_matrix
 
 
 def _rotation(q: Tensor) -> Tensor:
@@ -108,8 +108,8 @@ class Gyroscope(System):
         if chart == "cartesian":
             grad_v = torch.zeros_like(q)
             grad_v[..., 2] = self.m * self.g
-            minv = torch.linalg.inv(self.point_masses().to(q))
-            acc = constrained_acceleration(q, qd, lambda v: apply_point_matrix(minv, v, 3), grad_v, self.constraints)
+            minv = full_mass_matrix(torch.linalg.inv(self.point_masses().to(q)), 3)
+            acc = constrained_acceleration(q, qd, minv, grad_v, self.constraints)
             return torch.cat([qd, acc], -1)
         # Euler-Lagrange equations; p_φ and p_ψ = J_3 ω_3 conserved, ω_3 = ψ̇ + φ̇ cos θ.
         c, s_ = torch.cos(q[..., 1]), torch.sin(q[..., 1])

@@ -14,7 +14,7 @@ from torch import Tensor
 
 from encons.errors import ConfigError
 from encons.systems.base import CartesianLayout, System, apply_point_matrix, point_mass_matrix, split_state
-from encons.systems.constrained import DistanceConstraints, constrained_acceleration
+from encons.systems.constrained import DistanceConstraints, constrained_acceleration, full_mass_matrix
 
 
 def _per_link(value: float | Sequence[float], n: int, what: str) -> Tensor:
@@ -76,8 +76,8 @@ class NPendulum(System):
         if chart == "cartesian":
             grad_v = torch.zeros_like(q)
             grad_v[..., 1::2] = self.g * self.m.to(q)
-            minv = torch.linalg.inv(self.point_masses().to(q))
-            acc = constrained_acceleration(q, qd, lambda v: apply_point_matrix(minv, v, 2), grad_v, self.constraints)
+            minv = full_mass_matrix(torch.linalg.inv(self.point_masses().to(q)), 2)
+            acc = constrained_acceleration(q, qd, minv, grad_v, self.constraints)
             return torch.cat([qd, acc], -1)
         _, l, mu = self._consts(q)
         coeff = self.coeff.to(q)
