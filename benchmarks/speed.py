@@ -1,39 +1,57 @@
-"""Speed of one training step per model, against the bare floor of its derivative order.
+"""Speed of one training step per model, against the bare floor of its derivative order and
+against a straightforward implementation of the same model (``make bench``; issue 11).
 
 A step is what ``DynamicsModule`` does per batch: roll out 200 windows of 5 states with RK4
 (4 steps, 16 field evaluations), L1 loss, backward, AdamW step, 3 × 256 Softplus networks
 (DESIGN.md "Speed targets"). The floors are the same step with the simplest field of each
 derivative order, through one 3 × 256 network V(q) and batched ``autograd.grad``
 (``create_graph=True``): order 1 is q̈ = −∇V(q); order 2 is q̈ = −∇²V(q) q̇ (one
-Hessian-vector product). The fastest of a few steps is reported, as wall time and as process
-CPU time; ratios to the floor use CPU time, which other people's load on a shared machine
-disturbs least (run with ``--threads 1`` there). Also times paper-size dataset generation (900 trajectories × 100
-steps). Usage: ``python benchmarks/speed.py [--systems ...] [--models ...] [--out CSV]``.
+Hessian-vector product). The straightforward ("naive") implementations share the model's
+parameters and compute the same field the way one writes it first: CHNN by the dense 2K × 2K
+solve of eq. (20) with DΨ from one ``autograd.grad`` per constraint row and M⁻¹ assembled and
+inverted per evaluation; CLNN by eq. (15) likewise; LNN and LNN-structure by a Python loop over
+samples, each with its full Hessian (``torch.autograd.functional.hessian``), timed on the first
+``--naive-samples`` windows and scaled to the batch (the loop is linear in it). Timed: the fastest of
+a few steps, as wall time and as process CPU time; ratios use CPU time, which other people's load on
+a shared machine disturbs least (run with ``--threads 1`` there). Peak memory: the high-water mark
+of the tensors torch allocates during one step (profiler memory events, in order). Also times
+dataset generation (1,000 trajectories × 100 steps; target ≤ 2 s for pendulum2). Writes CSV and
+Markdown (with the machine) to ``benchmarks/results/``.
+Usage: ``python benchmarks/speed.py [--systems ...] [--models ...] [--threads 1] [--out CSV]``.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import os
+import platform
 import time
+import warnings
 from pathlib import Path
+from typing import Callable
 
-import torch
-from hydra import compose, initialize_config_dir
-from torch import Tensor
+os.environ.setdefault("KINETO_LOG_LEVEL", "5")  # the profiler (peak memory) quiet on stderr
+import torch  # noqa: E402
+from hydra import compose, initialize_config_dir  # noqa: E402
+from torch import Tensor  # noqa: E402
 
-from encons.config import build_model, build_system
-from encons.data.simulate import sample_trajectories, simulate
-from encons.integrators import Integrator
-from encons.models.base import DynamicsModel
-from encons.models.networks import mlp
-from encons.module import DynamicsModule
-from encons.paths import config_dir
-from encons.systems.base import System, split_state
+from encons.api import catalogue  # noqa: E402
+from encons.config import build_model, build_system  # noqa: E402
+from encons.data.simulate import sample_trajectories, simulate  # noqa: E402
+from encons.errors import ConfigError  # noqa: E402
+from encons.integrators import Integrator  # noqa: E402
+from encons.models.base import DynamicsModel  # noqa: E402
+from encons.models.constrained import CHNN, CLNN  # noqa: E402
+from encons.models.lnn import LNN, LNNStructure  # noqa: E402
+from encons.models.networks import mlp  # noqa: E402
+from encons.module import DynamicsModule  # noqa: E402
+from encons.paths import config_dir  # noqa: E402
+from encons.systems.base import System, point_mass_matrix, split_state  # noqa: E402
 
-MODELS = ("node", "hnn", "hnn_angle", "hnn_structure", "hnn_structure_angle", "lnn", "lnn_angle",
-          "lnn_structure", "lnn_structure_angle", "chnn", "clnn")
 ORDER = {"lnn": 2, "lnn_angle": 2}  # derivative order of the networks in the field; 1 for the rest
+FIELDS = ["system", "model", "order", "wall_ms", "cpu_ms", "steps_per_s", "peak_mb", "ratio_floor",
+          "naive_cpu_ms", "speedup_vs_naive"]
 
 
 class BareFloor(DynamicsModel):
@@ -44,7 +62,7 @@ class BareFloor(DynamicsModel):
         self.order = order
         self.net = mlp(self.n, 1, hidden, depth)
 
-    def forward(self, t: Tensor, s: Tensor) -> Tensor:
+    def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         q, qd = split_state(s)
         with torch.enable_grad():
             q = q if q.requires_grad else q.requires_grad_()
@@ -54,8 +72,89 @@ class BareFloor(DynamicsModel):
         return torch.cat([qd, -dv], -1)
 
 
+def rows_jacobian(out: Tensor, x: Tensor) -> Tensor:
+    """d out / d x (B, K, D) by one ``autograd.grad`` per output row (create_graph)."""
+    return torch.stack([torch.autograd.grad(out[..., k].sum(), x, create_graph=True)[0]
+                        for k in range(out.shape[-1])], -2)
+
+
+class NaiveCartesian(DynamicsModel):
+    """A model's Cartesian field the straightforward way (same parameters, no structure used)."""
+
+    def __init__(self, model: CHNN | CLNN, system: System):
+        super().__init__(system, model.chart)
+        self.model, self.system = model, system
+        self.hamiltonian = isinstance(model, CHNN)
+
+    def encode(self, s: Tensor) -> Tensor:
+        return self.model.encode(s)
+
+    def decode(self, z: Tensor) -> Tensor:
+        return self.model.decode(z)
+
+    def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
+        layout, phi = self.system.layout, self.model.constraints
+        mass = torch.kron(point_mass_matrix(layout, [p.exp() for p in self.model.masses.log_params]),
+                          torch.eye(layout.dim, dtype=z.dtype))
+        minv = torch.linalg.inv(mass)
+        with torch.enable_grad():
+            z = z if z.requires_grad else z.requires_grad_()
+            x, w = split_state(z)
+            jac = rows_jacobian(phi(x), z)[..., : x.shape[-1]]  # DΦ (B, K, D)
+            if not self.hamiltonian:  # eq. (15): ẍ = M⁻¹(Aᵀλ − ∇V), (A M⁻¹ Aᵀ) λ = A M⁻¹ ∇V − C v
+                grad_v = torch.autograd.grad(self.model.potential(x).sum(), x, create_graph=True)[0]
+                d_rate = rows_jacobian((jac @ w.unsqueeze(-1)).squeeze(-1), z)[..., : x.shape[-1]]
+                rhs = (jac @ minv @ grad_v.unsqueeze(-1)).squeeze(-1) - (d_rate @ w.unsqueeze(-1)).squeeze(-1)
+                lam = torch.linalg.solve(jac @ minv @ jac.transpose(-1, -2), rhs)
+                acc = ((lam.unsqueeze(-2) @ jac).squeeze(-2) - grad_v) @ minv
+                return torch.cat([w, acc], -1)
+            # eq. (20), dense: ż = J∇H − J DΨᵀ (DΨ J DΨᵀ)⁻¹ DΨ J∇H, Ψ = (Φ, DΦ M⁻¹ p)
+            energy = self.model.potential(x) + 0.5 * ((w @ minv) * w).sum(-1)
+            j_grad = torch.autograd.grad(energy.sum(), z, create_graph=True)[0]
+            d = x.shape[-1]
+            j_grad = torch.cat([j_grad[..., d:], -j_grad[..., :d]], -1)
+            psi = torch.cat([phi(x), (jac @ (w @ minv).unsqueeze(-1)).squeeze(-1)], -1)
+            dpsi = rows_jacobian(psi, z)  # (B, 2K, 2D)
+            j_dpsi_t = torch.cat([dpsi[..., d:], -dpsi[..., :d]], -1).transpose(-1, -2)  # J DΨᵀ
+            lam = torch.linalg.solve(dpsi @ j_dpsi_t, (dpsi @ j_grad.unsqueeze(-1)))
+            return j_grad - (j_dpsi_t @ lam).squeeze(-1)
+
+
+class NaiveLagrangian(DynamicsModel):
+    """Euler–Lagrange q̈ = (∇²_q̇ L)⁻¹ (∇_q L − ∇_q̇∇_qᵀ L q̇), a Python loop over samples, each
+    with its full Hessian of L (same parameters as the model)."""
+
+    def __init__(self, model: LNN | LNNStructure, system: System):
+        super().__init__(system, model.chart)
+        self.model = model
+
+    def lagrangian(self, s: Tensor) -> Tensor:
+        if isinstance(self.model, LNN):
+            return self.model.lagrangian(s)
+        q, qd = split_state(s)
+        return 0.5 * qd @ self.model.mass(q) @ qd - self.model.potential(q)
+
+    def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
+        n, out = self.n, []
+        for si in s.reshape(-1, 2 * n):
+            with torch.enable_grad():
+                si = si if si.requires_grad else si.requires_grad_()
+                dl = torch.autograd.grad(self.lagrangian(si), si, create_graph=True)[0]
+                hess = torch.autograd.functional.hessian(self.lagrangian, si, create_graph=True)
+            out.append(torch.linalg.solve(hess[n:, n:], dl[:n] - hess[n:, :n] @ si[n:]))
+        return torch.cat([s[..., n:], torch.stack(out).reshape(s[..., n:].shape)], -1)
+
+
+def naive_of(model: DynamicsModel, system: System) -> DynamicsModel | None:
+    if isinstance(model, (CHNN, CLNN)):
+        return NaiveCartesian(model, system)
+    if isinstance(model, (LNN, LNNStructure)):
+        return NaiveLagrangian(model, system)
+    return None
+
+
 def compose_cfg(system: str, model: str, hidden: int, depth: int):
-    with initialize_config_dir(config_dir=config_dir(), job_name="bench", version_base=None):
+    with initialize_config_dir(config_dir=config_dir(), job_name="bench", version_base="1.3"):
         return compose("train", overrides=[f"system={system}", f"model={model}", f"model.hidden={hidden}",
                                            f"model.depth={depth}", "logger=none"])
 
@@ -67,35 +166,64 @@ def windows(system: System, chart: str, dt: float, batch: int, chunk: int) -> Te
     return system.to_chart(simulate(system, s0, t), system.base_chart, chart).float()
 
 
-def time_step(model: DynamicsModel, system: System, batch: Tensor, dt: float, steps: int) -> tuple[float, float]:
-    """Fastest wall and process-CPU time (ms) of ``steps`` training steps after one warm-up step."""
+def stepper(model: DynamicsModel, params: list, system: System, batch: Tensor, dt: float) -> Callable[[], None]:
     module = DynamicsModule(model, system, dt, Integrator("rk4"))
-    opt = torch.optim.AdamW(model.parameters(), lr=1e-3)
-    wall, cpu = [], []
-    for i in range(steps + 1):
-        start, start_cpu = time.perf_counter(), time.process_time()
+    opt = torch.optim.AdamW(params, lr=1e-3)
+
+    def step() -> None:
         opt.zero_grad(set_to_none=True)
         module.loss({"states": batch}).backward()  # a data-module batch (the seam's dict)
         opt.step()
-        if i:
+
+    return step
+
+
+def time_step(step: Callable[[], None], steps: int, warm_up: bool = True) -> tuple[float, float]:
+    """Fastest wall and process-CPU time (ms) of ``steps`` calls, after one warm-up call if ``warm_up``."""
+    wall, cpu = [], []
+    for i in range(steps + warm_up):
+        start, start_cpu = time.perf_counter(), time.process_time()
+        step()
+        if i or not warm_up:
             wall.append(1e3 * (time.perf_counter() - start))
             cpu.append(1e3 * (time.process_time() - start_cpu))
     return min(wall), min(cpu)
 
 
-def time_generation(system: System, dt: float, n: int = 900, n_steps: int = 100) -> tuple[float, float]:
-    """Wall and process-CPU time (ms) to simulate ``n`` paper-size trajectories (float64 RK4, 10 substeps)."""
+def peak_memory(step: Callable[[], None]) -> float:
+    """MiB: the high-water mark of torch's allocations during one call, from the profiler's memory
+    events in order (tensors alive before the call, e.g. parameters, not counted)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CPU], profile_memory=True) as prof:
+        step()
+    level = peak = 0
+    for event in sorted(prof.events(), key=lambda e: e.time_range.start):
+        level += event.self_cpu_memory_usage
+        peak = max(peak, level)
+    return peak / 2**20
+
+
+def time_generation(system: System, dt: float, n: int = 1000, n_steps: int = 100) -> tuple[float, float]:
+    """Wall and process-CPU time (ms) to simulate ``n`` trajectories (float64 RK4, 10 substeps)."""
     t = torch.arange(n_steps + 1, dtype=torch.float64) * dt
     start, start_cpu = time.perf_counter(), time.process_time()
     sample_trajectories(system, n, t, torch.Generator().manual_seed(0))
     return 1e3 * (time.perf_counter() - start), 1e3 * (time.process_time() - start_cpu)
 
 
+def fmt(value, spec: str) -> str:
+    return "" if value == "" else format(value, spec)
+
+
 def main() -> None:
+    models = catalogue("model")
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--systems", nargs="+", default=["pendulum2", "gyroscope"])
-    parser.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS)
+    parser.add_argument("--models", nargs="+", default=models, choices=models)
     parser.add_argument("--steps", type=int, default=5, help="timed steps per model (fastest reported)")
+    parser.add_argument("--naive-steps", type=int, default=1, help="timed steps per naive implementation (0: skip)")
+    parser.add_argument("--naive-samples", type=int, default=20, help="windows the per-sample loops are timed on")
     parser.add_argument("--batch", type=int, default=200)
     parser.add_argument("--chunk", type=int, default=5)
     parser.add_argument("--hidden", type=int, default=256)
@@ -105,46 +233,73 @@ def main() -> None:
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
+    warnings.filterwarnings("ignore", message=".*_execution_whitelist_")  # Hydra's, on every compose
     torch.manual_seed(0)
     rows = []
-    for system_name in args.systems:
+
+    def add(**row) -> None:
+        rows.append({key: row.get(key, "") for key in FIELDS})
+
+    total = len(args.systems) * len(args.models)
+    for i_system, system_name in enumerate(args.systems):
         cfg = compose_cfg(system_name, "node", args.hidden, args.depth)
         system, dt = build_system(cfg), float(cfg.data.dt)
         wall, cpu = time_generation(system, dt)
-        rows.append(dict(system=system_name, model="dataset generation (900 × 100 steps)", order="",
-                         wall_ms=wall, cpu_ms=cpu, ratio=""))
+        add(system=system_name, model="dataset generation (1000 × 100 steps)", wall_ms=wall, cpu_ms=cpu)
         print(f"{system_name}: dataset generation {wall:.0f} ms", flush=True)
         floors = {}
         for order in (1, 2):
             model = BareFloor(system, system.base_chart, order, args.hidden, args.depth)
-            batch = windows(system, system.base_chart, dt, args.batch, args.chunk)
-            wall, floors[order] = time_step(model, system, batch, dt, args.steps)
-            rows.append(dict(system=system_name, model=f"floor (order {order})", order=order, wall_ms=wall,
-                             cpu_ms=floors[order], ratio=1.0))
+            step = stepper(model, list(model.parameters()), system,
+                           windows(system, system.base_chart, dt, args.batch, args.chunk), dt)
+            wall, floors[order] = time_step(step, args.steps)
+            add(system=system_name, model=f"floor (order {order})", order=order, wall_ms=wall, cpu_ms=floors[order],
+                steps_per_s=1e3 / wall, peak_mb=peak_memory(step), ratio_floor=1.0)
             print(f"{system_name}: floor order {order}: {wall:.1f} ms", flush=True)
-        for model_name in args.models:
-            model = build_model(compose_cfg(system_name, model_name, args.hidden, args.depth), system)
+        for i_model, model_name in enumerate(args.models):
+            progress = f"[{i_system * len(args.models) + i_model + 1}/{total}] {system_name}: {model_name}"
+            try:
+                model = build_model(compose_cfg(system_name, model_name, args.hidden, args.depth), system)
+            except ConfigError as err:
+                print(f"{progress}: skipped ({err})", flush=True)
+                continue
             batch = windows(system, model.chart, dt, args.batch, args.chunk)
-            wall, cpu = time_step(model, system, batch, dt, args.steps)
+            step = stepper(model, list(model.parameters()), system, batch, dt)
+            wall, cpu = time_step(step, args.steps)
             order = ORDER.get(model_name, 1)
-            rows.append(dict(system=system_name, model=model_name, order=order, wall_ms=wall, cpu_ms=cpu,
-                             ratio=cpu / floors[order]))
-            print(f"{system_name}: {model_name}: {wall:.1f} ms", flush=True)
-    print(f"\n{'system':<10} {'model':<38} {'order':>5} {'wall ms':>9} {'CPU ms':>9} {'× floor':>8}")
-    for r in rows:
-        ratio = f"{r['ratio']:.2f}" if r["ratio"] != "" else ""
-        print(f"{r['system']:<10} {r['model']:<38} {r['order']!s:>5} {r['wall_ms']:>9.1f} {r['cpu_ms']:>9.1f} "
-              f"{ratio:>8}")
+            row = dict(system=system_name, model=model_name, order=order, wall_ms=wall, cpu_ms=cpu,
+                       steps_per_s=1e3 / wall, peak_mb=peak_memory(step), ratio_floor=cpu / floors[order])
+            naive = naive_of(model, system) if args.naive_steps else None
+            if naive is not None:
+                part = batch[: args.naive_samples] if isinstance(naive, NaiveLagrangian) else batch
+                _, naive_cpu = time_step(stepper(naive, list(model.parameters()), system, part, dt), args.naive_steps,
+                                         warm_up=False)  # seconds per step: no warm-up needed
+                naive_cpu *= len(batch) / len(part)
+                row.update(naive_cpu_ms=naive_cpu, speedup_vs_naive=naive_cpu / cpu)
+            add(**row)
+            print(f"{progress}: {wall:.1f} ms" + (f", naive {row['naive_cpu_ms']:.0f} ms" if naive else ""),
+                  flush=True)
+    header = ["system", "model", "order", "wall ms", "CPU ms", "steps/s", "peak MiB", "× floor", "naive CPU ms",
+              "speed-up vs naive"]
+    specs = ["", "", "", ".1f", ".1f", ".2f", ".0f", ".2f", ".0f", ".1f"]
+    lines = [[fmt(r[k], s) if s else str(r[k]) for k, s in zip(FIELDS, specs)] for r in rows]
+    widths = [max(len(h), *(len(line[i]) for line in lines)) for i, h in enumerate(header)]
+    print()
+    for line in [header] + lines:
+        print("  ".join(cell.ljust(w) if i < 2 else cell.rjust(w) for i, (cell, w) in enumerate(zip(line, widths))))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with args.out.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=["system", "model", "order", "wall_ms", "cpu_ms", "ratio"])
+        writer = csv.DictWriter(f, fieldnames=FIELDS)
         writer.writeheader()
         writer.writerows(rows)
+    machine = (f"{platform.machine()} {platform.processor() or platform.platform()}, "
+               f"{torch.get_num_threads()} torch thread(s), torch {torch.__version__}, "
+               f"batch {args.batch} × chunk {args.chunk}, {args.depth} × {args.hidden}, "
+               f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
     markdown = args.out.with_suffix(".md")
-    lines = ["| system | model | order | wall ms | CPU ms | × floor |", "|---|---|---|---|---|---|"]
-    lines += [f"| {r['system']} | {r['model']} | {r['order']} | {r['wall_ms']:.1f} | {r['cpu_ms']:.1f} | "
-              f"{r['ratio'] if r['ratio'] == '' else format(r['ratio'], '.2f')} |" for r in rows]
-    markdown.write_text("\n".join(lines) + "\n")
+    table = [f"Machine: {machine}.", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    table += ["| " + " | ".join(line) + " |" for line in lines]
+    markdown.write_text("\n".join(table) + "\n")
     print(f"\nwritten: {args.out}, {markdown}")
 
 
