@@ -31,23 +31,20 @@ import warnings
 from pathlib import Path
 from typing import Callable
 
-os.environ.setdefault("KINETO_LOG_LEVEL", "5")  # the profiler (peak memory) quiet on stderr
-import torch  # noqa: E402
-from hydra import compose, initialize_config_dir  # noqa: E402
-from torch import Tensor  # noqa: E402
+import torch
+from torch import Tensor
 
-from encons.api import catalogue  # noqa: E402
-from encons.config import build_model, build_system  # noqa: E402
-from encons.data.simulate import sample_trajectories, simulate  # noqa: E402
-from encons.errors import ConfigError  # noqa: E402
-from encons.integrators import Integrator  # noqa: E402
-from encons.models.base import DynamicsModel  # noqa: E402
-from encons.models.constrained import CHNN, CLNN  # noqa: E402
-from encons.models.lnn import LNN, LNNStructure  # noqa: E402
-from encons.models.networks import mlp  # noqa: E402
-from encons.module import DynamicsModule  # noqa: E402
-from encons.paths import config_dir  # noqa: E402
-from encons.systems.base import System, point_mass_matrix, split_state  # noqa: E402
+from encons.api import catalogue, compose
+from encons.config import build_model, build_system
+from encons.data.simulate import sample_trajectories, simulate
+from encons.errors import ConfigError
+from encons.integrators import Integrator
+from encons.models.base import DynamicsModel
+from encons.models.constrained import CHNN, CLNN
+from encons.models.lnn import LNN, LNNStructure
+from encons.models.networks import mlp
+from encons.module import DynamicsModule
+from encons.systems.base import System, point_mass_matrix, split_state
 
 ORDER = {"lnn": 2, "lnn_angle": 2}  # derivative order of the networks in the field; 1 for the rest
 FIELDS = ["system", "model", "order", "wall_ms", "cpu_ms", "steps_per_s", "peak_mb", "ratio_floor",
@@ -154,9 +151,7 @@ def naive_of(model: DynamicsModel, system: System) -> DynamicsModel | None:
 
 
 def compose_cfg(system: str, model: str, hidden: int, depth: int):
-    with initialize_config_dir(config_dir=config_dir(), job_name="bench", version_base="1.3"):
-        return compose("train", overrides=[f"system={system}", f"model={model}", f"model.hidden={hidden}",
-                                           f"model.depth={depth}", "logger=none"])
+    return compose(f"system={system}", f"model={model}", f"model.hidden={hidden}", f"model.depth={depth}", "logger=none")
 
 
 def windows(system: System, chart: str, dt: float, batch: int, chunk: int) -> Tensor:
@@ -195,8 +190,15 @@ def peak_memory(step: Callable[[], None]) -> float:
     events in order (tensors alive before the call, e.g. parameters, not counted)."""
     from torch.profiler import ProfilerActivity, profile
 
-    with profile(activities=[ProfilerActivity.CPU], profile_memory=True) as prof:
-        step()
+    saved, devnull = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 2)  # the profiler's C++ start/stop lines
+    os.close(devnull)
+    try:
+        with profile(activities=[ProfilerActivity.CPU], profile_memory=True) as prof:
+            step()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
     level = peak = 0
     for event in sorted(prof.events(), key=lambda e: e.time_range.start):
         level += event.self_cpu_memory_usage
@@ -233,7 +235,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
-    warnings.filterwarnings("ignore", message=".*_execution_whitelist_")  # Hydra's, on every compose
+    warnings.filterwarnings("ignore", message=r"hydra\.utils\.instantiate\(\) resolved")  # Hydra's, on every build
     torch.manual_seed(0)
     rows = []
 
