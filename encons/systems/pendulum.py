@@ -13,7 +13,7 @@ import torch
 from torch import Tensor
 
 from encons.errors import ConfigError
-from encons.systems.base import CartesianLayout, System, apply_point_matrix, point_mass_matrix, split_state
+from encons.systems.base import CartesianLayout, System, point_mass_matrix, split_state
 from encons.systems.constrained import DistanceConstraints, constrained_acceleration, full_mass_matrix
 
 
