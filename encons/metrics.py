@@ -92,11 +92,12 @@ def mse_curves(pred: Tensor, true: Tensor, pred_energy: Tensor | None = None,
 
 def constant_rollout(start: Tensor, steps: int) -> Tensor:
     """The no-motion predictor ŝ_t = s_0 from states (..., D) for ``steps`` times: (..., steps, D)."""
-    return start.unsqueeze(-2).expand(*start.shape[:-1], steps, start.shape[-1])
+    return start.unsqueeze(-2).expand(*start.shape[:-1], steps, start.shape[-1]).clone()
 
 
 def fit_linear_ode(states: Tensor, dt: float) -> Tensor:
-    """The least-squares linear ODE ṡ = A s + b through trajectories (N, T, D) sampled every ``dt``.
+    """The least-squares linear ODE ṡ = A s + b through trajectories (N, T, D) sampled every ``dt`` (inputs
+    of a controlled system are ignored: a trivial baseline).
 
     ṡ is estimated by central differences (second order; one-sided at both ends, so T >= 3), then
     (A, b) = argmin Σ ‖A s + b − ṡ‖² over every sample (minimum-norm where the samples do not fix
