@@ -66,8 +66,8 @@ def _angle_mask(angles: list[bool], width: int) -> Tensor:
 def _angles(angles: bool | list[bool] | None, n: int) -> list[bool]:
     if angles is None or isinstance(angles, bool):
         return [bool(angles)] * n
-    if len(angles) != n or not all(isinstance(a, bool) for a in angles):
-        raise ConfigError(f"data.recording.angles={list(angles)}; allowed: null, true, false or {n} booleans "
+    if not isinstance(angles, (list, tuple)) or len(angles) != n or not all(isinstance(a, bool) for a in angles):
+        raise ConfigError(f"data.recording.angles={angles!r}; allowed: null, true, false or {n} booleans "
                           f"(one per coordinate q)")
     return list(angles)
 
