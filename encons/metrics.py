@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Callable
+
 import torch
 from torch import Tensor
 
@@ -75,3 +77,80 @@ def energy_mse(pred_energy: Tensor, true_energy: Tensor) -> Tensor:
 def mass_matrix_mse(pred_mass: Tensor, true_mass: Tensor) -> Tensor:
     """MSE over entries of learned against true M(q), (..., n, n) (Santos et al. §7 "inertial loss")."""
     return ((pred_mass - true_mass) ** 2).mean()
+
+
+# Long-rollout errors against time (Xiao, Zhang & Tang, Figs. 3 and 5) and two trivial baselines.
+def mse_curves(pred: Tensor, true: Tensor, pred_energy: Tensor | None = None,
+               true_energy: Tensor | None = None) -> dict[str, Tensor]:
+    """State MSE (over trajectories and coordinates) and, given energies, energy MSE (over trajectories)
+    at each time; each of shape (T,)."""
+    curves = {"state_mse": ((pred - true) ** 2).mean((0, -1))}
+    if pred_energy is not None and true_energy is not None:
+        curves["energy_mse"] = ((pred_energy - true_energy) ** 2).mean(0)
+    return curves
+
+
+def constant_rollout(start: Tensor, steps: int) -> Tensor:
+    """The no-motion predictor ŝ_t = s_0 from states (..., D) for ``steps`` times: (..., steps, D)."""
+    return start.unsqueeze(-2).expand(*start.shape[:-1], steps, start.shape[-1]).clone()
+
+
+def fit_linear_ode(states: Tensor, dt: float) -> Tensor:
+    """The least-squares linear ODE ṡ = A s + b through trajectories (N, T, D) sampled every ``dt`` (inputs
+    of a controlled system are ignored: a trivial baseline).
+
+    ṡ is estimated by central differences (second order; one-sided at both ends, so T >= 3), then
+    (A, b) = argmin Σ ‖A s + b − ṡ‖² over every sample (minimum-norm where the samples do not fix
+    it). Returns the generator G = [[A, b], [0, 0]] (D + 1, D + 1) of the augmented state (s, 1).
+    """
+    rates = torch.gradient(states, spacing=dt, dim=-2, edge_order=2)[0]
+    features = torch.cat([states, torch.ones_like(states[..., :1])], -1).reshape(-1, states.shape[-1] + 1)
+    coeffs = torch.linalg.lstsq(features, rates.reshape(-1, states.shape[-1]), driver="gelsd").solution
+    return torch.cat([coeffs.T, torch.zeros_like(coeffs[:, :1].T)], 0)
+
+
+def linear_ode_rollout(generator: Tensor, start: Tensor, t: Tensor) -> Tensor:
+    """The exact flow of ṡ = A s + b (``generator`` from ``fit_linear_ode``) from states (..., D) over
+    times ``t`` (T,) from t[0]: s(t) = first D entries of expm(G (t − t₀)) (s₀, 1); (..., T, D)."""
+    flows = torch.linalg.matrix_exp((t - t[0])[:, None, None] * generator)
+    augmented = torch.cat([start, torch.ones_like(start[..., :1])], -1)
+    return torch.einsum("tij,...j->...ti", flows, augmented)[..., :-1]
+
+
+def long_rollout_errors(true: Tensor, pred: Tensor, train: Tensor, dt: float,
+                        to_common: Callable[[Tensor], Tensor] = lambda s: s,
+                        energy: Callable[[Tensor], Tensor] | None = None,
+                        horizon: int = 4) -> tuple[dict[str, float], dict[str, dict[str, Tensor]]]:
+    """State and energy MSE against time (Xiao et al. Figs. 3 and 5) of the model's rollouts ``pred`` and
+    of two baselines on the same test windows ``true`` (N, T, 2n): the constant predictor ŝ_t = s_0
+    and the linear ODE least-squares fitted to the training states ``train`` (``fit_linear_ode``).
+
+    States are compared after ``to_common`` (the common chart); energies (``energy``, None when the
+    physics is unknown) in the data chart. Returns scalars — ``state_mse`` (over all times) and
+    ``state_mse_final`` (last step), the same for ``energy_mse``, and for the baselines also
+    ``traj_rel_err``, under ``baseline_constant/`` and ``baseline_linear_ode/`` — and the curves
+    {predictor: {"state_mse"[, "energy_mse"]: (T,)}}.
+    """
+    t = torch.arange(true.shape[-2], dtype=true.dtype, device=true.device) * dt
+    predictions = {"model": pred, "baseline_constant": constant_rollout(true[..., 0, :], len(t)),
+                   "baseline_linear_ode": linear_ode_rollout(fit_linear_ode(train, dt), true[..., 0, :], t)}
+    true_c = to_common(true)
+    true_e = None if energy is None else energy(true)
+    scalars, curves = {}, {}
+    for name, p in predictions.items():
+        p_c, prefix = to_common(p), "" if name == "model" else f"{name}/"
+        curves[name] = mse_curves(p_c, true_c, None if energy is None else energy(p), true_e)
+        if name != "model":
+            scalars[f"{prefix}traj_rel_err"] = trajectory_relative_error(p_c, true_c, horizon).mean().item()
+        for key, curve in curves[name].items():
+            scalars.update({f"{prefix}{key}": curve.mean().item(), f"{prefix}{key}_final": curve[-1].item()})
+    return scalars, curves
+
+
+def curves_table(t: Tensor, curves: dict[str, dict[str, Tensor]], marks: int = 4) -> str:
+    """The curves of ``long_rollout_errors`` at ``marks`` evenly spaced times, as a text table."""
+    at = sorted({round(i * (len(t) - 1) / marks) for i in range(1, marks + 1)})
+    lines = [f"{'MSE vs time t =':<36}" + "".join(f"{t[i].item():>11.4g}" for i in at)]
+    for name, c in curves.items():
+        lines += [f"{key + ' ' + name:<36}" + "".join(f"{v[i].item():>11.3e}" for i in at) for key, v in c.items()]
+    return "\n".join(lines)

@@ -2,7 +2,8 @@
 
 Objectives: ``rollout`` (Zhong et al. §4.1: L1 loss summed over a window rolled out from its
 first state, or first ``model.history`` states), ``derivative`` (Lim & Kasim eq. (2): squared
-error of the field against the state derivatives the data module pairs with the states) or
+error of the field against the state derivatives the data module pairs with the states),
+``acceleration`` (Xiao et al. §3: the same on the q̈ half only) or
 ``residual`` (the squared norm of a discrete model's own residual, e.g. SyMo's DEL equations).
 A model lists the objectives it supports in ``objectives``. An optional regulariser adds a
 weighted penalty. Batches are dicts (see ``encons.data.datamodule``): ``states`` and, where
@@ -29,7 +30,7 @@ from encons.models.base import DynamicsModel
 from encons.systems.base import System
 
 log = logging.getLogger(__name__)
-OBJECTIVES = ("rollout", "derivative", "residual")
+OBJECTIVES = ("rollout", "derivative", "acceleration", "residual")
 SCHEDULERS = (None, "cosine", "onecycle", "plateau")
 Regulariser = Callable[[DynamicsModel, Tensor, Tensor | None], Tensor]
 Batch = dict[str, Tensor]
@@ -84,9 +85,12 @@ class DynamicsModule(pl.LightningModule):
         if self.objective == "residual":
             return (self.model.residual(states, self.times(states.shape[1], states), u) ** 2).sum(-1).mean()
         if "rates" not in batch:
-            raise ConfigError("objective=derivative needs batches with rates; allowed: a data module built "
-                              "with objective='derivative' (data.objective: ${objective})")
-        return ((state_derivative(self.model, states, u) - batch["rates"]) ** 2).sum(-1).mean()
+            raise ConfigError(f"objective={self.objective} needs batches with rates; allowed: a data module built "
+                              f"with objective='{self.objective}' (data.objective: ${{objective}})")
+        error = state_derivative(self.model, states, u) - batch["rates"]
+        if self.objective == "acceleration":  # q̈ only
+            error = error[..., error.shape[-1] // 2:]
+        return (error**2).sum(-1).mean()
 
     def training_step(self, batch: Batch, batch_idx: int) -> Tensor:
         states, u = batch["states"], batch.get("u")
@@ -127,21 +131,29 @@ class DynamicsModule(pl.LightningModule):
         if self.trainer.world_size > 1:  # DDP: each process rolled out its share of the test set
             batches = self.all_gather(batches).transpose(0, 1).flatten(1, 2)
         true, pred = batches.double()
-        energies = None
-        if self.system.known_physics:
-            energies = [self.system.energy(x, self.model.chart) for x in (pred, true)]
+        energy = (lambda x: self.system.energy(x, self.model.chart)) if self.system.known_physics else None
+        if energy is None:
+            log.info("energy metrics skipped: system '%s' has no known energy", self.system.name)
+        energies = [energy(x) for x in (pred, true)] if energy else None
         true_c, pred_c = self.to_common(true), self.to_common(pred)
         self.test_metrics = metrics.summarise(pred_c, true_c, *(energies or (None, None)), horizon=self.horizon)
+        scalars, curves = metrics.long_rollout_errors(true, pred, self.trainer.datamodule.states["train"].to(true),
+                                                      self.dt, self.to_common, energy, self.horizon)
+        self.test_metrics.update(scalars)
+        log.info("%s", metrics.curves_table(self.times(true.shape[1], true), curves))
         self.log_dict({f"test/{k}": v for k, v in self.test_metrics.items()}, sync_dist=True)
         if self.output_dir is not None and self.trainer.is_global_zero:
             self.output_dir.mkdir(parents=True, exist_ok=True)
             (self.output_dir / "test_metrics.json").write_text(json.dumps(self.test_metrics, indent=2))
+            figures = plots.mse_figure(self.times(true.shape[1], true).cpu(), curves, self.output_dir / "figures",
+                                       title=self.run_title())
             curves = {"t": self.times(true.shape[1], true).cpu().numpy(),
-                      "rel_err": metrics.relative_error(pred_c, true_c).cpu().numpy()}
+                      "rel_err": metrics.relative_error(pred_c, true_c).cpu().numpy(),
+                      **{f"{k}_{name}": v.cpu().numpy() for name, c in curves.items() for k, v in c.items()}}
             if energies:
                 curves["energy_err"] = metrics.energy_abs_error(*energies).cpu().numpy()
             np.savez(self.output_dir / "test_curves.npz", **curves)
-            figures = plots.test_figures(self.times(true.shape[1], true).cpu(), pred_c.cpu(), true_c.cpu(),
+            figures += plots.test_figures(self.times(true.shape[1], true).cpu(), pred_c.cpu(), true_c.cpu(),
                                          [e.cpu() for e in energies] if energies else None,
                                          self.output_dir / "figures", title=self.run_title())
             plots.log_figures(self.logger, figures)

@@ -176,3 +176,23 @@ def data_efficiency_figure(summary: list[dict], out_dir: Path) -> list[Path]:
     ax.set_title(f"data efficiency on {summary[0]['system']}")
     ax.legend(fontsize=7)
     return [_save(fig, out_dir / "data_efficiency.png")]
+
+
+def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], out_dir: Path, title: str) -> list[Path]:
+    """State MSE and (if known) energy MSE against time of the model and the baselines on the test
+    windows (Xiao et al. Figs. 3 and 5; curves from ``metrics.long_rollout_errors``), from the first step
+    (at t = 0 every rollout starts on the truth): ``mse_vs_time.png``."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    keys = list(curves["model"])
+    labels = {"state_mse": "state MSE, common chart [(units of s)²]", "energy_mse": "energy MSE [J²]"}
+    fig, axes = plt.subplots(1, len(keys), figsize=(6 * len(keys), 4), squeeze=False)
+    for ax, key in zip(axes[0], keys):
+        for name, c in curves.items():
+            ax.plot(t[1:], c[key][1:].clamp_min(1e-16), label=name.removeprefix("baseline_").replace("_", " "),
+                    lw=1.8 if name == "model" else 1.1, ls="-" if name == "model" else "--")
+        ax.set_yscale("log")
+        ax.set_xlabel(TIME)
+        ax.set_ylabel(labels[key])
+        ax.legend(title="mean over test windows", fontsize=8)
+    fig.suptitle(f"{title}\nlong-rollout error against time, model vs trivial baselines", fontsize=9)
+    return [_save(fig, out_dir / "mse_vs_time.png")]

@@ -48,7 +48,7 @@ def test_cli_trains_quietly_and_writes_outputs(tmp_path):
     run_dir = next((tmp_path / "outputs" / "pendulum1-hnn").iterdir())
     assert (run_dir / "checkpoints" / "last.ckpt").is_file()
     assert {p.name for p in (run_dir / "figures").iterdir()} == {"rollout.png", "relative_error.png",
-                                                                 "energy_error.png"}
+                                                                 "energy_error.png", "mse_vs_time.png"}
     assert "test/traj_rel_err" in proc.stdout
     assert "Warning" not in proc.stderr and "💡" not in proc.stdout + proc.stderr, proc.stderr  # quiet run
     log = (run_dir / "train.log").read_text()

@@ -7,9 +7,12 @@ added to training states only: validation and test compare rollouts with the cle
 trajectories (for a loaded file, with what the file holds), so the validation error that sweeps,
 pruners and the best checkpoint steer by sees the model, not the noise floor.
 Batches are dicts: ``states`` (B, T, 2n); ``u`` (B, T, m), the inputs of each step, when the
-system takes inputs; and for ``objective="derivative"`` (Lim & Kasim eq. (2)) ``rates``: ds/dt,
-the true field at the clean simulated states (the authors' protocol), or central differences
-of the observed states for loaded data.
+system takes inputs; and for ``objective="derivative"`` (Lim & Kasim eq. (2)) or ``"acceleration"``
+(Xiao et al. §3) ``rates``: ds/dt, the true field at the clean simulated states (the authors'
+protocol), or central differences of the observed states for loaded data (second order, one-sided
+at trajectory ends; so q̈ comes from the recorded q̇).
+A loaded file holding one long recording is cut by time as ``encons.data.recording`` says
+(options ``recording``: ``test_fraction``, ``val_fraction``, ``angles``, ``gap``).
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from torch.func import jvp
 from torch.utils.data import DataLoader, Dataset, Sampler
 
 from encons.data import store
+from encons.data.recording import is_recording, load_recording
 from encons.data.simulate import sample_trajectories
 from encons.errors import ConfigError, DataError
 from encons.report import Progress
@@ -80,7 +84,8 @@ class TrajectoryDataModule(pl.LightningDataModule):
                  n_train: int = 800, n_val: int = 100, n_test: int = 100, n_steps: int = 100,
                  test_steps: int | None = None, dt: float = 0.03,
                  noise: float = 0.01, substeps: int = 10, chunk_len: int = 5, batch_size: int = 200,
-                 seed: int = 0, cache_dir: str = ".cache/encons", objective: str | None = "rollout"):
+                 seed: int = 0, cache_dir: str = ".cache/encons", objective: str | None = "rollout",
+                 recording: dict | None = None):
         super().__init__()
         for key, value in dict(n_train=n_train, n_test=n_test, n_steps=n_steps, substeps=substeps,
                                batch_size=batch_size).items():
@@ -100,7 +105,7 @@ class TrajectoryDataModule(pl.LightningDataModule):
         self.n_steps, self.dt, self.noise, self.substeps = n_steps, dt, noise, substeps
         self.test_steps = test_steps or n_steps
         self.chunk_len, self.batch_size, self.seed = chunk_len, batch_size, seed
-        self.objective = objective
+        self.objective, self.recording = objective, dict(recording or {})
         gen_config = dict(system=system_config or {"name": system.name}, sizes=self.sizes, n_steps=n_steps,
                           test_steps=self.test_steps, dt=dt, substeps=substeps, seed=seed)
         self.cache_file = Path(cache_dir) / f"{system.name}-{store.config_hash(gen_config)}.npz"
@@ -131,8 +136,13 @@ class TrajectoryDataModule(pl.LightningDataModule):
         if hasattr(self, "t"):
             return
         source = Path(self.path) if self.path is not None else self.cache_file
+        inputs = None
         try:
-            t, splits, chart = store.load(source)
+            if self.path is not None and is_recording(source):
+                t, splits, chart, inputs = load_recording(source, self.n_steps, self.test_steps, self.recording,
+                                                          self.system.n_controls)
+            else:
+                t, splits, chart = store.load(source)
         except DataError as err:
             if self.path is not None:
                 raise
@@ -149,7 +159,8 @@ class TrajectoryDataModule(pl.LightningDataModule):
             if arr.shape[-1] != width:
                 raise DataError(f"data file {str(source)!r}: '{name}' has {arr.shape[-1]} state entries; "
                                 f"allowed: {width}, the {chart} chart of '{self.system.name}'")
-        inputs = store.load_inputs(source, splits, self.system.n_controls)
+        if inputs is None:
+            inputs = store.load_inputs(source, splits, self.system.n_controls)
         if "val" not in splits:
             n_val = max(1, splits["train"].shape[0] // 10)
             for arrays in (splits, inputs):
@@ -164,7 +175,7 @@ class TrajectoryDataModule(pl.LightningDataModule):
         self.arrays = {k: {"states": v.float()} for k, v in served.items()}
         for name, u in inputs.items():
             self.arrays[name]["u"] = u.float()
-        if self.objective == "derivative":
+        if self.objective in ("derivative", "acceleration"):
             self.arrays["train"]["rates"] = self._rates(splits["train"], chart, served["train"],
                                                         inputs.get("train")).float()
         if self.chunk_len > len(t):

@@ -21,8 +21,10 @@ from encons.models.structured import MassPotentialModel
 from encons.systems.base import System, split_state
 
 
-def euler_lagrange_acceleration(lagrangian: Callable[[Tensor], Tensor], s: Tensor, damping: float) -> Tensor:
-    """q̈ of Zhong et al. eq. (3) at states s = (q, q̇) (..., 2n) of a batch-aware scalar L(s).
+def euler_lagrange_acceleration(lagrangian: Callable[[Tensor], Tensor], s: Tensor, damping: float,
+                                force: Tensor | None = None) -> Tensor:
+    """q̈ of Zhong et al. eq. (3) at states s = (q, q̇) (..., 2n) of a batch-aware scalar L(s); with a
+    non-conservative generalised ``force`` F (..., n), of the generalised Lagrange equation (Xiao et al. eq. (11)).
 
     ∇L comes from one batched grad; the Hessian rows from n + 1 vector products with it,
     vmapped over the vectors only (reverse over reverse, ~25% faster here than forward over
@@ -44,6 +46,8 @@ def euler_lagrange_acceleration(lagrangian: Callable[[Tensor], Tensor], s: Tenso
     (rows,) = vmap(pullback)(vectors)
     hessian_vv = rows[1:, ..., n:].movedim(0, -2)
     rhs = dl[..., :n] - rows[0, ..., n:]
+    if force is not None:
+        rhs = rhs + force
     ht = hessian_vv.transpose(-1, -2)
     normal = ht @ hessian_vv + damping**2 * torch.eye(n, dtype=s.dtype, device=s.device)
     return torch.linalg.solve(normal, (ht @ rhs.unsqueeze(-1))).squeeze(-1)

@@ -1,7 +1,8 @@
 """A system known only through a user's trajectory file: one chart, no true physics.
 
-Energy metrics and physics-structured models that need constraints are unavailable; the
-error metrics are computed in the file's chart.
+The file holds split trajectories (``encons.data.store``) or one long recording, which the data
+module cuts by time (``encons.data.recording``). Energy metrics and physics-structured models that
+need constraints are unavailable; the error metrics are computed in the file's chart.
 """
 
 from __future__ import annotations
@@ -11,22 +12,27 @@ import torch
 from torch import Tensor
 
 from encons.data import store
+from encons.data.recording import describe, is_recording
 from encons.systems.base import System
 
 
 class FileSystem(System):
-    """Dimensions and chart read from an ``.npz`` file in the format of ``encons.data.store``."""
+    """Dimensions and chart read from an ``.npz`` file: split trajectories (``encons.data.store``) or a
+    recording (``encons.data.recording``)."""
 
     known_physics = False
 
     def __init__(self, path: str, chart: str | None = None):
-        t, splits, file_chart = store.load(path)
         self.name = "from_file"
+        if is_recording(path):
+            self.n, file_chart, self.n_controls = describe(path)
+        else:
+            t, splits, file_chart = store.load(path)
+            self.n = splits["train"].shape[-1] // 2
+            with np.load(path, allow_pickle=False) as f:  # inputs, if any: checked in full by the data module
+                self.n_controls = int(f["u_train"].shape[-1]) if "u_train" in f.files else 0
         self.charts = (chart or file_chart or "angle",)
         self.common_chart = self.charts[0]
-        self.n = splits["train"].shape[-1] // 2
-        with np.load(path, allow_pickle=False) as f:  # inputs, if any: checked in full by the data module
-            self.n_controls = int(f["u_train"].shape[-1]) if "u_train" in f.files else 0
 
     def coord_dim(self, chart: str) -> int:
         self.check_chart(chart)

@@ -1,0 +1,66 @@
+"""Non-conservative second-order models (Xiao, Zhang & Tang 2024): GLNN and its baseline.
+
+The state is s = (q, q̇) and the field ṡ = (q̇, q̈). ``angular=True`` embeds each angle as
+(cos q, sin q) at the networks' inputs. Both train on ``objective=acceleration`` (the paper's
+first loss, squared error of q̈) or ``rollout`` (its second, on states).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from encons.models.base import DynamicsModel
+from encons.models.lnn import LNN, euler_lagrange_acceleration
+from encons.models.networks import embed_angles, embedded_width, mlp
+from encons.systems.base import System, split_state
+
+OBJECTIVES = ("rollout", "acceleration", "derivative")
+
+
+def _inputs(s: Tensor, angular: bool) -> Tensor:
+    q, qd = split_state(s)
+    return torch.cat([embed_angles(q, angular), qd], -1)
+
+
+class GLNN(LNN):
+    """Generalised Lagrangian neural network, Xiao et al. eq. (11): networks L(q, q̇) and F(q, q̇),
+
+    q̈ = (∇_q̇∇_q̇ᵀ L)⁻¹ [∇_q L − (∇_q∇_q̇ᵀ L) q̇ + F],
+
+    through ``euler_lagrange_acceleration`` (torch.func Hessian-vector products, batched; the
+    guarded solve of LNN with λ = ``damping``, 0 for the plain inverse of eq. (11)). L starts from
+    Cranmer et al.'s initialisation as in LNN; F from PyTorch's default. Limits: L and F are not
+    identifiable apart (any F can absorb a change of L), so only q̈ is learned, not the energy split.
+    """
+
+    objectives = OBJECTIVES
+
+    def __init__(self, system: System, chart: str | None = None, hidden: int = 200, depth: int = 3,
+                 activation: str = "softplus", damping: float = 0.1, angular: bool = False):
+        super().__init__(system, chart, hidden, depth, activation, damping, angular)
+        self.force_net = mlp(embedded_width(self.n, angular) + self.n, self.n, hidden, depth, activation)
+
+    def force(self, s: Tensor) -> Tensor:
+        """F(q, q̇) of states (..., 2n), shape (..., n)."""
+        return self.force_net(_inputs(s, self.angular))
+
+    def forward(self, t: Tensor, s: Tensor) -> Tensor:
+        qd = split_state(s)[1]
+        return torch.cat([qd, euler_lagrange_acceleration(self.lagrangian, s, self.damping, self.force(s))], -1)
+
+
+class SecondOrder(DynamicsModel):
+    """The paper's baseline 2 (Xiao et al. §4.1): q̈ = F(q, q̇) by one MLP, ṡ = (q̇, F(q, q̇))."""
+
+    default_chart = "angle"
+    objectives = OBJECTIVES
+
+    def __init__(self, system: System, chart: str | None = None, hidden: int = 200, depth: int = 3,
+                 activation: str = "softplus", angular: bool = False):
+        super().__init__(system, chart)
+        self.angular = angular
+        self.net = mlp(embedded_width(self.n, angular) + self.n, self.n, hidden, depth, activation)
+
+    def forward(self, t: Tensor, s: Tensor) -> Tensor:
+        return torch.cat([split_state(s)[1], self.net(_inputs(s, self.angular))], -1)
