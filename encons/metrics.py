@@ -48,9 +48,14 @@ def percentiles(values: Tensor, qs: tuple[float, ...] = (0.025, 0.5, 0.975)) -> 
 
 def summarise(pred: Tensor, true: Tensor, pred_energy: Tensor | None, true_energy: Tensor | None,
               horizon: int = 4) -> dict[str, float]:
-    """Scalar test metrics of rollouts ``pred`` against ``true`` in one common chart."""
+    """Scalar test metrics of rollouts ``pred`` against ``true`` in one common chart.
+
+    ``diverged`` is the fraction of rollouts with a non-finite state; the means over trajectories
+    are then NaN on purpose (the horizon-``horizon`` ``traj_rel_err`` may still be finite).
+    """
     tre = trajectory_relative_error(pred, true, horizon)
     out = {
+        "diverged": (~pred.isfinite().all(-1).all(-1)).double().mean().item(),
         "traj_rel_err": tre.mean().item(),
         "traj_rel_err_std": tre.std().item() if tre.numel() > 1 else 0.0,
         "rel_err_final": relative_error(pred, true)[..., -1].mean().item(),
