@@ -138,10 +138,18 @@ def write_csv(path: Path, rows: list[dict]) -> None:
         writer.writerows(rows)
 
 
-def markdown(summary: list[dict], paper: dict[str, dict], source: str = "") -> str:
-    """One Markdown table: model × system rows, every metric as mean ± std, paper values beside."""
+HEADLINE = ("wall_time_s", "test/diverged", "test/traj_rel_err", "test/geom_rel_err", "test/energy_rmse_median",
+            "test/state_mse_final", "test/energy_mse_final", "test/baseline_constant/state_mse_final",
+            "test/baseline_linear_ode/state_mse_final")
+
+
+def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", headline: bool = False) -> str:
+    """A Markdown table: model × system rows, metrics as mean ± std, paper values beside; every metric,
+    or with ``headline`` the ``HEADLINE`` ones the runs have."""
     metrics = list(dict.fromkeys(k for e in summary for k in e
                                  if (k.startswith("test/") or k == "wall_time_s") and not k.endswith("_sd")))
+    if headline:
+        metrics = [m for m in HEADLINE if m in metrics]
     paper_keys = list(dict.fromkeys(m for values in paper.values() for m in values))
     head = ["system", "model", "n_train", "runs", *[m.removeprefix("test/") for m in metrics],
             *[f"paper {m}" for m in paper_keys]]
@@ -173,7 +181,8 @@ def write_report(out: str | Path) -> list[Path]:
     write_csv(out / "summary.csv", [{**e, **{f"paper {m}": v for m, v in
                                             paper.get(f"{e['system']}/{e['model']}", {}).items()}}
                                     for e in summary])
-    (out / "summary.md").write_text(f"# {out.name}\n\n" + markdown(summary, paper, source))
+    (out / "summary.md").write_text(f"# {out.name}\n\n" + markdown(summary, paper, source, headline=True)
+                                    + "\n## Every metric\n\n" + markdown(summary, paper, source))
     grid = [r for r in rows if not r.get("data_efficiency") and not r.get("error")]
     grid_summary = [e for e in summary if not e["data_efficiency"]]
     files = [out / "results.csv", out / "summary.csv", out / "summary.md"]
@@ -183,7 +192,7 @@ def write_report(out: str | Path) -> list[Path]:
     efficiency = [e for e in summary if e["data_efficiency"]]
     if efficiency:
         files += plots.data_efficiency_figure(efficiency, out)
-    Console(width=200).print(markdown(summary, paper, source))
+    Console(width=200).print(markdown(summary, paper, source, headline=True))
     return files
 
 
