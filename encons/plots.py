@@ -75,7 +75,8 @@ def test_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] |
 def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, horizon: int = 4) -> list[Path]:
     """The papers' comparison plots over a benchmark grid, one panel per system.
 
-    Trajectory relative error per model (Zhong et al. Fig. 2), and relative error and absolute
+    Trajectory relative error per model (Zhong et al. Fig. 2: mean and std of its log over test
+    trajectories; diverged trajectories left out), and relative error and absolute
     energy error vs time averaged over test trajectories and seeds (Figs. 3–4), read from each
     run's ``test_curves.npz``.
     """
@@ -83,18 +84,26 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
 
     systems = list(dict.fromkeys(e["system"] for e in summary))
     paths = []
-    fig, axes = plt.subplots(1, len(systems), figsize=(5 * len(systems), 4.5), squeeze=False)
+    fig, axes = plt.subplots(1, len(systems), figsize=(5.5 * len(systems), 5), squeeze=False)
     for ax, system in zip(axes[0], systems):
-        entries = [e for e in summary if e["system"] == system and "test/traj_rel_err" in e]
-        ax.errorbar([e["model"] for e in entries], [e["test/traj_rel_err"] for e in entries],
-                    yerr=[e["test/traj_rel_err_std"] for e in entries], fmt="o", capsize=3,
-                    label="mean ± std over seeds")
+        errors: dict[str, list] = {}  # per test trajectory, pooled over seeds
+        for row in rows:
+            path = Path(row["run_dir"]) / "test_curves.npz"
+            if row["system"] == system and path.is_file():
+                with np.load(path) as f:
+                    errors.setdefault(row["model"], []).append(f["rel_err"][:, : horizon + 1].sum(1))
+        models = list(errors)
+        logs = [np.log10(np.concatenate(errors[m])) for m in models]
+        mean = np.array([lg[np.isfinite(lg)].mean() for lg in logs])
+        std = np.array([lg[np.isfinite(lg)].std() for lg in logs])
+        ax.errorbar(range(len(models)), 10 ** mean, yerr=[10 ** mean - 10 ** (mean - std), 10 ** (mean + std) - 10 ** mean],
+                    fmt="o", capsize=3, label="geometric mean over test trajectories and seeds,\nbars: ± 1 std of log₁₀")
+        ax.set_xticks(range(len(models)), models, rotation=60, ha="right", rotation_mode="anchor")
         ax.set_yscale("log")
         ax.set_title(system)
         ax.set_xlabel("model")
         ax.set_ylabel(f"trajectory relative error, Σ over t ≤ {horizon} steps [–]")
         ax.legend(fontsize=7)
-        ax.tick_params(axis="x", rotation=60)
     paths.append(_save(fig, out_dir / "traj_rel_err.png"))
 
     for key, label, name in (("rel_err", REL_ERR, "rel_err_vs_time.png"),
