@@ -108,7 +108,8 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
 
     for key, label, name in (("rel_err", REL_ERR, "rel_err_vs_time.png"),
                              ("energy_err", ENERGY_ERR, "energy_err_vs_time.png")):
-        fig, axes = plt.subplots(1, len(systems), figsize=(4.5 * len(systems), 4), squeeze=False)
+        fig, axes = plt.subplots(1, len(systems), figsize=(4.5 * len(systems) + 2, 4), squeeze=False)
+        styles = {}  # one colour and line style per model, the same in every panel (11+ models)
         for ax, system in zip(axes[0], systems):
             curves: dict[str, list] = {}
             for row in rows:
@@ -118,18 +119,24 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
                         if key in f.files:
                             curves.setdefault(row["model"], []).append((f["t"], f[key].mean(0)))
             for model, runs in curves.items():
-                ax.plot(runs[0][0][1:], np.mean([c for _, c in runs], 0)[1:], label=model)
+                k = styles.setdefault(model, len(styles))
+                ax.plot(runs[0][0][1:], np.mean([c for _, c in runs], 0)[1:], label=model,
+                        color=plt.cm.tab20(k % 20), linestyle=("-", "--", ":")[k // 10 % 3])
             ax.set_yscale("log")
             ax.set_xlabel(TIME)
-            ax.set_ylabel(f"{label}, mean over test trajectories and seeds")
+            ax.set_ylabel(label)
             ax.set_title(system)
-            ax.legend(fontsize=7)
-        paths.append(_save(fig, out_dir / name))
+        handles = {h.get_label(): h for ax in axes[0] for h in ax.get_lines()}
+        fig.legend(list(handles.values()), list(handles), loc="center right", fontsize=7)
+        fig.suptitle("mean over test trajectories and seeds (a diverged rollout ends its model's curve)", fontsize=9)
+        fig.tight_layout(rect=(0, 0, 1 - 2.2 / fig.get_figwidth(), 1))
+        paths.append(_save(fig, out_dir / name, layout=False))
     return paths
 
 
-def _save(fig, path: Path) -> Path:
-    fig.tight_layout()
+def _save(fig, path: Path, layout: bool = True) -> Path:
+    if layout:
+        fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
