@@ -1,7 +1,7 @@
 """Benchmark runner: the runs of a profile (conf/profile/*.yaml), trained one by one, then the report.
 
     python -m encons.benchmark [profile=smoke|quick|zhong|finzi|lim_kasim] [seeds=[0,1]] [out=DIR]
-        ['train=[trainer.max_epochs=50]']
+        ['train=["trainer.max_epochs=50"]']   (quoted: Hydra's grammar wants '=' inside a list quoted)
 
 A profile lists its runs as a grid (``systems`` × ``models``), as explicit ``runs`` (a label and
 its train overrides, e.g. a model with a regulariser) and as data-efficiency runs (``n_train``);
@@ -151,12 +151,11 @@ def run_profile(cfg: DictConfig) -> Path:
 def main(argv: list[str] | None = None) -> None:
     import os
 
+    from encons.errors import one_line_errors
+
     os.environ.setdefault("WANDB_MODE", "disabled")
-    try:
+    with one_line_errors():
         run_profile(compose_benchmark(list(sys.argv[1:] if argv is None else argv)))
-    except EnconsError as err:
-        print(f"encons: error: {err}", file=sys.stderr)
-        sys.exit(2)
 
 
 if __name__ == "__main__":

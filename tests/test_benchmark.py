@@ -60,3 +60,11 @@ def test_unknown_profile_is_one_line_error():
 def test_report_of_a_folder_without_runs(tmp_path):
     with pytest.raises(ConfigError, match="no finished benchmark runs"):
         write_report(tmp_path)
+
+
+@pytest.mark.parametrize("arg", ["train=[trainer.max_epochs=3]", "profile=nope", "seeds=[0"])
+def test_bad_command_line_is_one_line_exit_2(tmp_path, capsys, arg):
+    with pytest.raises(SystemExit) as exit_:
+        main([arg, f"out={tmp_path}"])
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and "\n" not in err and err.startswith("encons: error: ") and "allowed:" in err
