@@ -59,7 +59,8 @@ class CouplingBlock(nn.Module):
         return (u * torch.exp(self.log_scale) + self.offset) @ self.rotation.T
 
     def inverse(self, y: Tensor) -> Tensor:
-        u = (y @ self.rotation - self.offset) * torch.exp(-self.log_scale)
+        # R⁻¹, not Rᵀ: R drawn in float32 is orthogonal to ~1e-7 only, which a float64 model would inherit.
+        u = (y @ torch.linalg.inv(self.rotation).T - self.offset) * torch.exp(-self.log_scale)
         u1, u2 = u[..., : self.split], u[..., self.split:]
         s, t = self._affine(u1)
         return torch.cat([u1, (u2 - t) * torch.exp(-s)], -1)
