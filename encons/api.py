@@ -269,25 +269,26 @@ def _best_checkpoint(trainer):
     return next((cb for cb in trainer.checkpoint_callbacks if cb.monitor and cb.best_model_path), None)
 
 
-def train(cfg: DictConfig) -> Run:
+def train(cfg: DictConfig, summary: bool = True) -> Run:
     """Train one model on one system, then test the best-by-validation checkpoint (the one kept).
 
     Returns a :class:`Run` whose module holds the tested weights, whose ``metrics`` are every
     logged value as floats (``test/...`` of the tested checkpoint, ``best_epoch``, ``wall_time_s``)
     and whose ``run_dir`` holds ``config.yaml``, ``checkpoints/``, ``figures/`` and ``train.log``.
     With no monitored checkpoint (``callbacks=null``) the last-epoch weights are tested.
+    ``summary=False`` leaves the metrics table out of the console (it still goes to ``train.log``).
     """
     from encons.errors import EnconsError
     from encons.report import to_log_files
 
     try:
-        return _train(cfg)
+        return _train(cfg, summary)
     except EnconsError as err:
         to_log_files(f"encons: error: {err}", logging.ERROR)  # the CLI prints the same line on stderr
         raise
 
 
-def _train(cfg: DictConfig) -> Run:
+def _train(cfg: DictConfig, summary: bool) -> Run:
     import torch
 
     from encons.config import check_checkpoint, resolve_checkpoint
@@ -323,7 +324,7 @@ def _train(cfg: DictConfig) -> Run:
         _finish_wandb(loggers)
     results["wall_time_s"] = time.perf_counter() - started
     if trainer.is_global_zero:
-        print_summary(module.run_title(), results, run_dir, note=_which(tested, results))
+        print_summary(module.run_title(), results, run_dir, note=_which(tested, results), console=summary)
     return Run(module, data, config, run_dir, tested, results)
 
 

@@ -103,10 +103,11 @@ def run_one(run: Run, out: Path, cache_dir: str | None) -> dict:
 
     done = finished(run, out)
     run_dir = done.parent
-    cfg = api.compose(*run.overrides, output_dir=run_dir, cache_dir=cache_dir)
+    # first, so a profile or the command line may turn the model table back on
+    cfg = api.compose("trainer.enable_model_summary=false", *run.overrides, output_dir=run_dir, cache_dir=cache_dir)
     started = time.perf_counter()
     try:
-        results, error = api.train(cfg).metrics, ""
+        results, error = api.train(cfg, summary=False).metrics, ""
     except EnconsError as err:
         results, error = {}, str(err)
     row = {"system": run.system, "model": run.label, "seed": run.seed, "n_train": cfg.data.n_train,
@@ -118,6 +119,13 @@ def run_one(run: Run, out: Path, cache_dir: str | None) -> dict:
     tmp.write_text(json.dumps(row, indent=1))
     tmp.replace(done)  # atomic: a run killed before this line is rerun
     return row
+
+
+def result_line(row: dict) -> str:
+    """The headline of a finished run: its test errors and wall time (the full table is in its train.log)."""
+    keys = ("test/traj_rel_err", "test/geom_rel_err", "test/energy_abs_err", "test/diverged")
+    shown = [f"{k.removeprefix('test/')} {row[k]:.3g}" for k in keys if k in row]
+    return ", ".join(shown + [f"{row['wall_time_s']:.0f} s"])
 
 
 def run_profile(cfg: DictConfig) -> Path:
@@ -143,17 +151,26 @@ def run_profile(cfg: DictConfig) -> Path:
         row = run_one(run, out, cache_dir)
         if row["error"]:
             print(f"{run.id} failed: {row['error']}", file=sys.stderr)
+        else:
+            print(f"{run.id}: {result_line(row)}", file=sys.stderr, flush=True)
     progress.done()
     write_report(out)
     return out
 
 
 def main(argv: list[str] | None = None) -> None:
+    import logging
     import os
 
+    from encons import api
     from encons.errors import one_line_errors
 
     os.environ.setdefault("WANDB_MODE", "disabled")
+    api.quiet_upstream()
+    import lightning.pytorch  # noqa: F401 - its import sets its loggers' level: quieten them after it
+
+    for name in ("lightning.pytorch", "lightning.fabric"):  # devices, stop reason, checkpoint restored: per run, not news
+        logging.getLogger(name).setLevel(logging.WARNING)
     with one_line_errors():
         run_profile(compose_benchmark(list(sys.argv[1:] if argv is None else argv)))
 

@@ -13,6 +13,7 @@ runs) and the energy-deviation RMSE median with 2.5–97.5 % bars (Lim & Kasim T
 from __future__ import annotations
 
 import csv
+import io
 import json
 import logging
 import math
@@ -27,21 +28,23 @@ from rich.table import Table
 from encons.errors import ConfigError, EnconsError
 
 
-def print_summary(title: str, results: dict[str, float], output_dir: Path, note: str = "") -> None:
+def print_summary(title: str, results: dict[str, float], output_dir: Path, note: str = "",
+                  console: bool = True) -> None:
     """One table of the run's validation and test metrics, ``note`` (which weights were tested) and
-    where its files are; the same text goes to the run's log files (``train.log`` under the CLI)."""
+    where its files are, on the console (unless ``console`` is false) and in the run's log files
+    (``train.log`` under the CLI)."""
     table = Table(title=title)
     table.add_column("metric")
     table.add_column("value", justify="right")
     for key in sorted(results):
         if key.startswith(("val/", "test/", "best/")) or key in ("wall_time_s", "best_epoch"):
             table.add_row(key, f"{results[key]:.4g}")
-    console = Console(record=True)
-    console.print(table)
+    out = Console(record=True) if console else Console(record=True, file=io.StringIO())
+    out.print(table)
     if note:
-        console.print(note)
-    console.print(f"outputs: {output_dir}  (checkpoints/, figures/, test_metrics.json)")
-    to_log_files(console.export_text())
+        out.print(note)
+    out.print(f"outputs: {output_dir}  (checkpoints/, figures/, test_metrics.json)")
+    to_log_files(out.export_text())
 
 
 def to_log_files(text: str, level: int = logging.INFO) -> None:
