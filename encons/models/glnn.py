@@ -11,12 +11,9 @@ import torch
 from torch import Tensor
 
 from encons.models.base import DynamicsModel
-from encons.models.lnn import LNN, euler_lagrange_acceleration
+from encons.models.lnn import LNN, SECOND_ORDER_OBJECTIVES, euler_lagrange_acceleration
 from encons.models.networks import embed_angles, embedded_width, mlp
 from encons.systems.base import System, split_state
-
-OBJECTIVES = ("rollout", "acceleration", "derivative")
-
 
 def _inputs(s: Tensor, angular: bool) -> Tensor:
     q, qd = split_state(s)
@@ -33,8 +30,6 @@ class GLNN(LNN):
     Cranmer et al.'s initialisation as in LNN; F from PyTorch's default. Limits: L and F are not
     identifiable apart (any F can absorb a change of L), so only q̈ is learned, not the energy split.
     """
-
-    objectives = OBJECTIVES
 
     def __init__(self, system: System, chart: str | None = None, hidden: int = 200, depth: int = 3,
                  activation: str = "softplus", damping: float = 0.1, angular: bool = False):
@@ -54,7 +49,7 @@ class SecondOrder(DynamicsModel):
     """The paper's baseline 2 (Xiao et al. §4.1): q̈ = F(q, q̇) by one MLP, ṡ = (q̇, F(q, q̇))."""
 
     default_chart = "angle"
-    objectives = OBJECTIVES
+    objectives = SECOND_ORDER_OBJECTIVES
 
     def __init__(self, system: System, chart: str | None = None, hidden: int = 200, depth: int = 3,
                  activation: str = "softplus", angular: bool = False):

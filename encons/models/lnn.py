@@ -53,6 +53,11 @@ def euler_lagrange_acceleration(lagrangian: Callable[[Tensor], Tensor], s: Tenso
     return torch.linalg.solve(normal, (ht @ rhs.unsqueeze(-1))).squeeze(-1)
 
 
+#: Objectives of models whose field is (q̇, q̈) by construction: q̈ alone is a complete target
+#: (``acceleration``, Xiao et al. §3), beside the rollout and full-derivative ones.
+SECOND_ORDER_OBJECTIVES = ("rollout", "acceleration", "derivative")
+
+
 class LNN(DynamicsModel):
     """Unstructured L(q, q̇) network, eq. (3) (Cranmer et al. 2020).
 
@@ -62,6 +67,7 @@ class LNN(DynamicsModel):
     """
 
     default_chart = "angle"
+    objectives = SECOND_ORDER_OBJECTIVES
 
     def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
                  activation: str = "softplus", damping: float = 0.1, angular: bool = False):
@@ -87,6 +93,8 @@ class LNNStructure(MassPotentialModel):
     fixed q̇; L_M and L̇_M along q̇ come from one jvp of the network inside it (one forward of
     the shared trunk gives V too), Ṁ = L̇_M L_Mᵀ + L_M L̇_Mᵀ, and M⁻¹ by the Cholesky factor.
     """
+
+    objectives = SECOND_ORDER_OBJECTIVES
 
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         q, qd = split_state(s)
