@@ -33,14 +33,14 @@ def test_tape_derivatives_are_autodiff_ones(activation):
     torch.manual_seed(0)
     net = mlp(5, 1, 16, 3, activation).double()
     x = torch.randn(7, 5, dtype=torch.float64)
-    directions = torch.randn(3, 7, 5, dtype=torch.float64)
+    directions = torch.randn(7, 3, 5, dtype=torch.float64)
     f = lambda xi: net(xi).squeeze(-1)  # noqa: E731
     tape = MLPTape(net, x)
     assert torch.equal(tape.out, net(x))
     assert gap(tape.pullback(torch.ones_like(tape.out)), batched_grad(f, x)) < 1e-13
     out_dot, tangents = tape.push(directions)
-    assert gap(out_dot, vmap(lambda d: jvp(net, (x,), (d,))[1])(directions)) < 1e-13
-    exact = torch.einsum("ibk,bkl,jbl->bij", directions, vmap(hessian(f))(x), directions)
+    assert gap(out_dot, vmap(lambda d: jvp(net, (x,), (d,))[1], 1, 1)(directions)) < 1e-13
+    exact = torch.einsum("bik,bkl,bjl->bij", directions, vmap(hessian(f))(x), directions)
     if activation != "relu":  # piecewise linear: zero curvature on both sides
         assert gap(tape.curvature(tangents, tangents), exact) < 1e-12
     else:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import torch
 from torch import Tensor
-from torch.func import grad
 
 from encons.batching import batched_grad
 from encons.models.base import DynamicsModel
@@ -71,8 +70,8 @@ class HNNStructure(HamiltonianModel, MassPotentialModel):
     """H = ½ pᵀ M(q)⁻¹ p + V(q) with learned M and V (SymODEN, Zhong et al. 2020a; eqs. (8)–(9)).
 
     ½ pᵀ M⁻¹ p = ½ |L⁻¹ p|² by one triangular solve with the Cholesky factor L of M.
-    ∇H in closed form: ∇_p H = M⁻¹ p, and ∇_q H pulls the cotangent of (L, V) on the network's
-    outputs (``torch.func.grad`` of the small head) back through the network(s) (``MLPTape``).
+    ∇H in closed form: ∇_p H = M⁻¹ p = L⁻ᵀ w (w = L⁻¹ p), and ∇_q H pulls the cotangent of (L, V),
+    ∂H/∂L = −M⁻¹p wᵀ and ∂H/∂V = 1, back through the head and the network(s) (``MLPTape``).
     """
 
     def hamiltonian(self, z: Tensor) -> Tensor:
@@ -84,9 +83,13 @@ class HNNStructure(HamiltonianModel, MassPotentialModel):
         q, p = split_state(z)
         x = embed_angles(q, self.angular)
         tape = MLPTape(self.mass.net, x)
-        g_out, g_p = grad(lambda out, p_: _kinetic(self.mass.head(out)[0], p_).sum(), (0, 1))(tape.out, p)
+        factor = self.mass.head(tape.out)[0]
+        w = torch.linalg.solve_triangular(factor, p.unsqueeze(-1), upper=False)
+        g_p = torch.linalg.solve_triangular(factor.transpose(-1, -2), w, upper=True)  # M⁻¹ p
+        g_out = self.mass.head_slopes(tape.out) * self.mass.lower_adjoint(-g_p @ w.transpose(-1, -2))  # ∂H/∂L = −M⁻¹p wᵀ
+        g_p = g_p.squeeze(-1)
         if self.shared_trunk:
-            g_x = tape.pullback(torch.cat([g_out[..., :-1], torch.ones_like(g_out[..., -1:])], -1))  # ∂H/∂V = 1
+            g_x = tape.pullback(torch.cat([g_out, torch.ones_like(g_out[..., :1])], -1))  # ∂H/∂V = 1
         else:
             potential = MLPTape(self.potential_net.net, x)
             g_x = tape.pullback(g_out) + potential.pullback(torch.ones_like(potential.out))

@@ -98,9 +98,8 @@ class LNN(DynamicsModel):
         width = g.shape[-1]
         units = torch.eye(width, dtype=s.dtype, device=s.device)[width - self.n:]
         along = torch.cat([embedding_jvp(q, self.angular, qd), torch.zeros_like(qd)], -1)
-        _, tangents = tape.push(torch.cat([units.reshape(self.n, *[1] * (s.dim() - 1), width).expand(
-            self.n, *along.shape), along[None]]))
-        curvature = tape.curvature([t[:self.n] for t in tangents], tangents)
+        _, tangents = tape.push(torch.cat([units.expand(*along.shape[:-1], *units.shape), along.unsqueeze(-2)], -2))
+        curvature = tape.curvature([t[..., :self.n, :] for t in tangents], tangents)
         return embedding_vjp(q, self.angular, g[..., :width - self.n]), curvature[..., :self.n], curvature[..., self.n]
 
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
@@ -130,20 +129,22 @@ class LNNStructure(MassPotentialModel):
     q̈ = M⁻¹ [−Ṁ q̇ + ½ ∇_q(q̇ᵀ M q̇) − ∇V], M⁻¹ by the Cholesky factor. The terms in closed form
     through the network(s) (``MLPTape``): one forward (L_M and V from the shared trunk), one
     forward tangent along q̇ for L̇_M (Ṁ = L̇_M L_Mᵀ + L_M L̇_Mᵀ) and one explicit backward of the
-    cotangent of ½ |L_Mᵀ q̇|² − V on the outputs for ∇_q; ``euler_lagrange_terms`` is the same by autodiff.
+    cotangent of ½ |L_Mᵀ q̇|² − V on the outputs for ∇_q, the small head (outputs → L_M) by hand
+    (``CholeskyMass.head_slopes``: torch.func on it cost ~10% of a step in decomposed ops);
+    ``euler_lagrange_terms`` is the same by autodiff.
     """
 
     def euler_lagrange_terms(self, q: Tensor, qd: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """``euler_lagrange_terms`` of the model's network(s), in closed form."""
         x = embed_angles(q, self.angular)
         tape = MLPTape(self.mass.net, x)
-        out_dot, _ = tape.push(embedding_jvp(q, self.angular, qd))
-        head = lambda out: self.mass.head(out)[0]  # noqa: E731
-        factor, factor_dot = jvp(head, (tape.out,), (out_dot,))
+        out_dot = tape.push(embedding_jvp(q, self.angular, qd).unsqueeze(-2))[0].squeeze(-2)
+        factor, slopes = self.mass.head(tape.out)[0], self.mass.head_slopes(tape.out)
+        factor_dot = self.mass.lower(slopes * out_dot[..., :self.mass.entries])
         w = (factor.transpose(-1, -2) @ qd.unsqueeze(-1)).squeeze(-1)
-        (g_out,) = vjp(head, tape.out)[1](qd.unsqueeze(-1) * w.unsqueeze(-2))  # ∂(½ |L_Mᵀ q̇|²)/∂L_M = q̇ wᵀ
+        g_out = slopes * self.mass.lower_adjoint(qd.unsqueeze(-1) * w.unsqueeze(-2))  # ∂(½ |L_Mᵀ q̇|²)/∂L_M = q̇ wᵀ
         if self.shared_trunk:
-            g_x = tape.pullback(torch.cat([g_out[..., :-1], -torch.ones_like(g_out[..., -1:])], -1))  # ∂(−V)/∂V
+            g_x = tape.pullback(torch.cat([g_out, -torch.ones_like(g_out[..., :1])], -1))  # ∂(−V)/∂V = −1
         else:
             potential = MLPTape(self.potential_net.net, x)
             g_x = tape.pullback(g_out) - potential.pullback(torch.ones_like(potential.out))

@@ -102,20 +102,20 @@ class MLPTape:
         return g
 
     def push(self, tangent: Tensor) -> tuple[Tensor, list[Tensor]]:
-        """∂out/∂x · t and the pre-activation tangents ż_k, for input tangents t (..., d) (any extra
-        leading axes, e.g. several directions, broadcast against the batch)."""
+        """∂out/∂x · t (..., k, out) and the pre-activation tangents ż_k (..., k, ·), for k input
+        tangents t (..., k, d) per sample (directions second to last: every product stays one matmul)."""
         tangents, a = [], tangent
         for linear, (slope, _) in zip(self.linears, self.slopes):
             tangents.append(a @ linear.weight.T)
-            a = slope * tangents[-1]
+            a = slope.unsqueeze(-2) * tangents[-1]
         return a @ self.linears[-1].weight.T, tangents
 
     def curvature(self, rows: list[Tensor], columns: list[Tensor]) -> Tensor:
-        """uᵢᵀ ∇²(cᵀ out) v_j (..., I, J) for the tangents ż_k of directions u (I, ..., ·) and v
-        (J, ..., ·) from ``push``, c the cotangent of the last ``pullback``."""
+        """uᵢᵀ ∇²(cᵀ out) v_j (..., I, J) for the tangents ż_k of directions u (..., I, ·) and v
+        (..., J, ·) from ``push``, c the cotangent of the last ``pullback``."""
         total = 0
         for row, column, adjoint, (_, second) in zip(rows, columns, self.adjoints, self.slopes):
-            total = total + (row * (adjoint * second())).movedim(0, -2) @ column.movedim(0, -1)
+            total = total + (row * (adjoint * second()).unsqueeze(-2)) @ column.transpose(-1, -2)
         return total
 
 
@@ -177,7 +177,20 @@ class CholeskyMass(nn.Module):
         """L and the ``extra`` outputs from the network's outputs ``out`` (..., entries + extra)."""
         entries = out[..., :self.entries]
         entries = torch.where(self.diag, nn.functional.softplus(entries) + self.eps, entries)
-        return (entries @ self.scatter.to(entries)).unflatten(-1, (self.n, self.n)), out[..., self.entries:]
+        return self.lower(entries), out[..., self.entries:]
+
+    def head_slopes(self, out: Tensor) -> Tensor:
+        """∂(entry of L)/∂(its output) (..., entries): softplus' σ' (sigmoid) on the diagonal, 1 below."""
+        entries = out[..., :self.entries]
+        return torch.where(self.diag, torch.sigmoid(entries), torch.ones_like(entries))
+
+    def lower(self, entries: Tensor) -> Tensor:
+        """The lower-triangular (..., n, n) matrix with ``entries`` (..., entries) row by row."""
+        return (entries @ self.scatter.to(entries)).unflatten(-1, (self.n, self.n))
+
+    def lower_adjoint(self, matrix: Tensor) -> Tensor:
+        """Adjoint of ``lower``: the cotangent of the entries for a cotangent ``matrix`` (..., n, n)."""
+        return matrix.flatten(-2) @ self.scatter.to(matrix).T
 
     def cholesky(self, q: Tensor) -> Tensor:
         """L(q), shape (..., n, n)."""
