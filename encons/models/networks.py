@@ -81,14 +81,12 @@ class MLPTape:
 
     def __init__(self, net: nn.Sequential, x: Tensor):
         self.linears = [layer for layer in net if isinstance(layer, nn.Linear)]
-        self.pre: list[Tensor] = []
         self.slopes: list[tuple[Tensor, Callable[[], Tensor]]] = []
         self.adjoints: list[Tensor] = []
         a = x
         for linear, activation in zip(self.linears, (layer for layer in net if not isinstance(layer, nn.Linear))):
             z = linear(a)
             a = activation(z)
-            self.pre.append(z)
             self.slopes.append(SLOPES[type(activation)](z))
         self.out = self.linears[-1](a)
 
