@@ -3,6 +3,9 @@
 Each model exposes its learned pieces under one name (``hamiltonian``, ``lagrangian``,
 ``mass``, ``potential``, ``point_masses``); swapping in the system's own quantities must give
 the system's vector field, and Cartesian models must keep Φ = 0 and Φ̇ = 0 along a rollout.
+The fields differentiate the models' own networks in closed form (``hamiltonian_gradient``,
+``lagrangian_derivatives``, ``euler_lagrange_terms``, ``potential_gradient``); with swapped-in
+pieces they take the autodiff versions of the same (tests/test_closed_form_fields.py: equal).
 """
 
 from __future__ import annotations
@@ -14,11 +17,12 @@ import pytest
 import torch
 from torch.func import jvp
 
+from encons.batching import batched_grad
 from encons.errors import ConfigError
 from encons.integrators import Integrator, rollout, state_derivative
 from encons.models.constrained import CHNN, CLNN, CartesianModel
 from encons.models.hnn import HNN, HNNStructure
-from encons.models.lnn import LNN, LNNStructure
+from encons.models.lnn import LNN, LNNStructure, euler_lagrange_terms, lagrangian_derivatives
 from encons.systems.base import split_state
 from encons.systems.gyroscope import Gyroscope
 from encons.systems.pendulum import NPendulum
@@ -56,6 +60,7 @@ def with_true_physics(model, system, potential_scale=1.0):
     """Swap the system's own physical quantities into ``model`` (V scaled by ``potential_scale``)."""
     if isinstance(model, CartesianModel):
         model.potential = lambda x: potential_scale * system.cartesian_potential(x)
+        model.potential_gradient = partial(batched_grad, model.potential)
         model.point_masses = system.point_masses
         model.point_masses_inverse = lambda: torch.linalg.inv(system.point_masses())
         return model
@@ -70,6 +75,7 @@ def with_true_physics(model, system, potential_scale=1.0):
     if isinstance(model, LNN):
         model.damping = 0.0  # the plain solve: the guard's O(λ²) bias is not physics
         model.lagrangian = lambda s: kinetic(*split_state(s)) - potential(split_state(s)[0])
+        model.lagrangian_derivatives = partial(lagrangian_derivatives, model.lagrangian)
     elif isinstance(model, HNN):
         model.mass = mass
         model.hamiltonian = lambda z: kinetic(split_state(z)[0], mass.solve(*split_state(z))) + potential(
@@ -77,6 +83,9 @@ def with_true_physics(model, system, potential_scale=1.0):
     else:
         model.mass = mass
         model.factor_potential = lambda q: (mass.cholesky(q), potential(q))
+        model.euler_lagrange_terms = partial(euler_lagrange_terms, model.factor_potential)
+    if isinstance(model, (HNN, HNNStructure)):
+        model.hamiltonian_gradient = partial(batched_grad, model.hamiltonian)
     return model
 
 

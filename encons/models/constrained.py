@@ -10,9 +10,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from encons.batching import batched_grad
 from encons.models.base import DynamicsModel
-from encons.models.networks import PointMasses, Potential
+from encons.models.networks import MLPTape, PointMasses, Potential
 from encons.systems.base import System, split_state
 from encons.systems.constrained import (
     constrained_acceleration,
@@ -47,8 +46,10 @@ class CartesianModel(DynamicsModel):
         """Mp⁻¹, in closed form (``PointMasses.inverse``)."""
         return self.masses.inverse()
 
-    def _grad_potential(self, x: Tensor) -> Tensor:
-        return batched_grad(self.potential, x)
+    def potential_gradient(self, x: Tensor) -> Tensor:
+        """∇V(x) through the network in closed form (``MLPTape``: one forward, one explicit backward)."""
+        tape = MLPTape(self.potential_net.net, x)
+        return tape.pullback(torch.ones_like(tape.out))
 
 
 class CLNN(CartesianModel):
@@ -57,7 +58,7 @@ class CLNN(CartesianModel):
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         x, v = split_state(s)
         minv = full_mass_matrix(self.point_masses_inverse(), self.dim)
-        return torch.cat([v, constrained_acceleration(x, v, minv, self._grad_potential(x), self.constraints)], -1)
+        return torch.cat([v, constrained_acceleration(x, v, minv, self.potential_gradient(x), self.constraints)], -1)
 
 
 class CHNN(CartesianModel):
@@ -76,5 +77,5 @@ class CHNN(CartesianModel):
         minv = full_mass_matrix(self.point_masses_inverse(), self.dim)
         velocity = p @ minv
         jac, d_rate = jacobians(self.constraints, x, velocity)
-        grad_h = torch.cat([self._grad_potential(x), velocity], -1)
+        grad_h = torch.cat([self.potential_gradient(x), velocity], -1)
         return constrained_hamiltonian_field(grad_h, jac, d_rate, minv)

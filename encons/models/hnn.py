@@ -13,7 +13,7 @@ from torch import Tensor
 
 from encons.batching import batched_grad
 from encons.models.base import DynamicsModel
-from encons.models.networks import CholeskyMass, embed_angles, mlp
+from encons.models.networks import CholeskyMass, MLPTape, embed_angles, embedding_vjp, mlp
 from encons.models.structured import MassPotentialModel
 from encons.systems.base import System, split_state
 
@@ -35,9 +35,12 @@ class HamiltonianModel(DynamicsModel):
         q, p = split_state(z)
         return torch.cat([q, self.mass.solve(q, p)], -1)
 
+    def hamiltonian_gradient(self, z: Tensor) -> Tensor:
+        """∇H (..., 2n) by autodiff of ``hamiltonian`` (any H); the models below write it in closed form."""
+        return batched_grad(self.hamiltonian, z)
+
     def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
-        dh = batched_grad(self.hamiltonian, z)
-        dq, dp = split_state(dh)
+        dq, dp = split_state(self.hamiltonian_gradient(z))
         return torch.cat([dp, -dq], -1)
 
 
@@ -55,15 +58,45 @@ class HNN(HamiltonianModel):
         q, p = split_state(z)
         return self.hamiltonian_net(torch.cat([embed_angles(q, self.angular), p], -1)).squeeze(-1)
 
+    def hamiltonian_gradient(self, z: Tensor) -> Tensor:
+        """∇H through the network in closed form (``MLPTape``: one forward, one explicit backward)."""
+        q, p = split_state(z)
+        tape = MLPTape(self.hamiltonian_net, torch.cat([embed_angles(q, self.angular), p], -1))
+        g = tape.pullback(torch.ones_like(tape.out))
+        return torch.cat([embedding_vjp(q, self.angular, g[..., :-self.n]), g[..., -self.n:]], -1)
+
 
 class HNNStructure(HamiltonianModel, MassPotentialModel):
     """H = ½ pᵀ M(q)⁻¹ p + V(q) with learned M and V (SymODEN, Zhong et al. 2020a; eqs. (8)–(9)).
 
     ½ pᵀ M⁻¹ p = ½ |L⁻¹ p|² by one triangular solve with the Cholesky factor L of M.
+    ∇H in closed form: ∇_p H = M⁻¹ p = L⁻ᵀ w (w = L⁻¹ p), and ∇_q H pulls the cotangent of (L, V),
+    ∂H/∂L = −M⁻¹p wᵀ and ∂H/∂V = 1, back through the head and the network(s) (``MLPTape``).
     """
 
     def hamiltonian(self, z: Tensor) -> Tensor:
         q, p = split_state(z)
         factor, potential = self.factor_potential(q)
-        w = torch.linalg.solve_triangular(factor, p.unsqueeze(-1), upper=False).squeeze(-1)
-        return 0.5 * w.square().sum(-1) + potential
+        return _kinetic(factor, p) + potential
+
+    def hamiltonian_gradient(self, z: Tensor) -> Tensor:
+        q, p = split_state(z)
+        x = embed_angles(q, self.angular)
+        tape = MLPTape(self.mass.net, x)
+        factor = self.mass.head(tape.out)[0]
+        w = torch.linalg.solve_triangular(factor, p.unsqueeze(-1), upper=False)
+        g_p = torch.linalg.solve_triangular(factor.transpose(-1, -2), w, upper=True)  # M⁻¹ p
+        g_out = self.mass.head_slopes(tape.out) * self.mass.lower_adjoint(-g_p @ w.transpose(-1, -2))  # ∂H/∂L = −M⁻¹p wᵀ
+        g_p = g_p.squeeze(-1)
+        if self.shared_trunk:
+            g_x = tape.pullback(torch.cat([g_out, torch.ones_like(g_out[..., :1])], -1))  # ∂H/∂V = 1
+        else:
+            potential = MLPTape(self.potential_net.net, x)
+            g_x = tape.pullback(g_out) + potential.pullback(torch.ones_like(potential.out))
+        return torch.cat([embedding_vjp(q, self.angular, g_x), g_p], -1)
+
+
+def _kinetic(factor: Tensor, p: Tensor) -> Tensor:
+    """½ pᵀ (L Lᵀ)⁻¹ p = ½ |L⁻¹ p|² (one triangular solve)."""
+    w = torch.linalg.solve_triangular(factor, p.unsqueeze(-1), upper=False).squeeze(-1)
+    return 0.5 * w.square().sum(-1)

@@ -16,27 +16,18 @@ from torch.func import grad, jvp, vjp, vmap
 from encons.batching import batched_grad
 from encons.errors import ConfigError
 from encons.models.base import DynamicsModel
-from encons.models.networks import cranmer_init_, embed_angles, mlp
+from encons.models.networks import MLPTape, cranmer_init_, embed_angles, embedding_jvp, embedding_vjp, mlp
 from encons.models.structured import MassPotentialModel
 from encons.systems.base import System, split_state
 
 
-def euler_lagrange_acceleration(lagrangian: Callable[[Tensor], Tensor], s: Tensor, damping: float,
-                                force: Tensor | None = None) -> Tensor:
-    """q̈ of Zhong et al. eq. (3) at states s = (q, q̇) (..., 2n) of a batch-aware scalar L(s); with a
-    non-conservative generalised ``force`` F (..., n), of the generalised Lagrange equation (Xiao et al. eq. (11)).
+def lagrangian_derivatives(lagrangian: Callable[[Tensor], Tensor], s: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """∇_q L (..., n), H = ∇_q̇ ∇_q̇ᵀ L (..., n, n) and (∇_q ∇_q̇ᵀ L) q̇ (..., n) at states s = (q, q̇)
+    (..., 2n) of a batch-aware scalar L(s), by autodiff (any L).
 
     ∇L comes from one batched grad; the Hessian rows from n + 1 vector products with it,
     vmapped over the vectors only (reverse over reverse, ~25% faster here than forward over
-    reverse): (q̇, 0) gives (∇_q ∇_q̇ᵀ L) q̇ and (0, e_i) the rows of H = ∇_q̇ ∇_q̇ᵀ L.
-
-    Guarded solve: a learned L has no reason to make H invertible (the true one is M(q) ≻ 0),
-    and a plain solve turns a near-singular H into q̈ ~ 1e3 that RK4 blows up at step 0. So
-    q̈ = argmin ‖H q̈ − r‖² + λ²‖q̈‖² = (HᵀH + λ²I)⁻¹ Hᵀ r (Tikhonov / damped least squares),
-    λ = ``damping`` (units of L / q̇², i.e. mass): smooth in the parameters, |q̈| ≤ |r| / (2λ)
-    whatever H, and equal to H⁻¹ r up to a relative O(λ² / σ_min(H)²). The bias is absolute,
-    so training can scale L up past it; a floor relative to |H| could not be learned away.
-    ``damping=0`` is the plain solve (inf/nan where H is singular).
+    reverse): (q̇, 0) gives (∇_q ∇_q̇ᵀ L) q̇ and (0, e_i) the rows of H.
     """
     n = s.shape[-1] // 2
     qd = s[..., n:]
@@ -44,18 +35,39 @@ def euler_lagrange_acceleration(lagrangian: Callable[[Tensor], Tensor], s: Tenso
     vectors = torch.cat([torch.cat([qd, torch.zeros_like(qd)], -1)[None], units.expand(n, *s.shape)])
     dl, pullback = vjp(lambda u: batched_grad(lagrangian, u), s)
     (rows,) = vmap(pullback)(vectors)
-    hessian_vv = rows[1:, ..., n:].movedim(0, -2)
-    rhs = dl[..., :n] - rows[0, ..., n:]
-    if force is not None:
-        rhs = rhs + force
-    ht = hessian_vv.transpose(-1, -2)
-    normal = ht @ hessian_vv + damping**2 * torch.eye(n, dtype=s.dtype, device=s.device)
+    return dl[..., :n], rows[1:, ..., n:].movedim(0, -2), rows[0, ..., n:]
+
+
+def damped_solve(hessian: Tensor, rhs: Tensor, damping: float) -> Tensor:
+    """q̈ from H q̈ = r (..., n, n), (..., n), guarded.
+
+    A learned L has no reason to make H invertible (the true one is M(q) ≻ 0),
+    and a plain solve turns a near-singular H into q̈ ~ 1e3 that RK4 blows up at step 0. So
+    q̈ = argmin ‖H q̈ − r‖² + λ²‖q̈‖² = (HᵀH + λ²I)⁻¹ Hᵀ r (Tikhonov / damped least squares),
+    λ = ``damping`` (units of L / q̇², i.e. mass): smooth in the parameters, |q̈| ≤ |r| / (2λ)
+    whatever H, and equal to H⁻¹ r up to a relative O(λ² / σ_min(H)²). The bias is absolute,
+    so training can scale L up past it; a floor relative to |H| could not be learned away.
+    ``damping=0`` is the plain solve (inf/nan where H is singular).
+    """
+    ht = hessian.transpose(-1, -2)
+    normal = ht @ hessian + damping**2 * torch.eye(hessian.shape[-1], dtype=rhs.dtype, device=rhs.device)
     return torch.linalg.solve(normal, (ht @ rhs.unsqueeze(-1))).squeeze(-1)
 
 
 #: Objectives of models whose field is (q̇, q̈) by construction: q̈ alone is a complete target
 #: (``acceleration``, Xiao et al. §3), beside the rollout and full-derivative ones.
 SECOND_ORDER_OBJECTIVES = ("rollout", "acceleration", "derivative")
+
+
+def euler_lagrange_acceleration(lagrangian: Callable[[Tensor], Tensor], s: Tensor, damping: float,
+                                force: Tensor | None = None) -> Tensor:
+    """q̈ of Zhong et al. eq. (3) at states s = (q, q̇) (..., 2n) of a batch-aware scalar L(s); with a
+    non-conservative generalised ``force`` F (..., n), of the generalised Lagrange equation (Xiao et al.
+    eq. (11)): H q̈ = ∇_q L − (∇_q ∇_q̇ᵀ L) q̇ + F by ``lagrangian_derivatives`` and ``damped_solve``.
+    """
+    dl_dq, hessian, mixed = lagrangian_derivatives(lagrangian, s)
+    rhs = dl_dq - mixed
+    return damped_solve(hessian, rhs if force is None else rhs + force, damping)
 
 
 class LNN(DynamicsModel):
@@ -82,33 +94,72 @@ class LNN(DynamicsModel):
         q, qd = split_state(s)
         return self.lagrangian_net(torch.cat([embed_angles(q, self.angular), qd], -1)).squeeze(-1)
 
+    def lagrangian_derivatives(self, s: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """``lagrangian_derivatives`` of the network in closed form (``MLPTape``): ∇L from one explicit
+        backward; H and (∇_q ∇_q̇ᵀ L) q̇ as the curvature between the directions (0, e_i) and
+        (0, e_j), (q̇, 0), i.e. n + 1 forward tangents instead of n + 1 Hessian-vector products."""
+        q, qd = split_state(s)
+        tape = MLPTape(self.lagrangian_net, torch.cat([embed_angles(q, self.angular), qd], -1))
+        g = tape.pullback(torch.ones_like(tape.out))
+        width = g.shape[-1]
+        units = torch.eye(width, dtype=s.dtype, device=s.device)[width - self.n:]
+        along = torch.cat([embedding_jvp(q, self.angular, qd), torch.zeros_like(qd)], -1)
+        _, tangents = tape.push(torch.cat([units.expand(*along.shape[:-1], *units.shape), along.unsqueeze(-2)], -2))
+        curvature = tape.curvature([t[..., :self.n, :] for t in tangents], tangents)
+        return embedding_vjp(q, self.angular, g[..., :width - self.n]), curvature[..., :self.n], curvature[..., self.n]
+
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
-        return torch.cat([split_state(s)[1], euler_lagrange_acceleration(self.lagrangian, s, self.damping)], -1)
+        dl_dq, hessian, mixed = self.lagrangian_derivatives(s)
+        return torch.cat([split_state(s)[1], damped_solve(hessian, dl_dq - mixed, self.damping)], -1)
+
+
+def euler_lagrange_terms(factor_potential: Callable[[Tensor], tuple[Tensor, Tensor]], q: Tensor,
+                         qd: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """L_M(q), ∇_q(½ q̇ᵀ M q̇ − V) at fixed q̇ and Ṁ q̇ (each (..., n) but L_M (..., n, n)) for any
+    ``factor_potential`` q ↦ (L_M, V), by autodiff: one batched grad of q ↦ ½ |L_Mᵀ q̇|² − V with
+    L_M and L̇_M along q̇ from one jvp inside it; Ṁ q̇ = L̇_M L_Mᵀ q̇ + L_M L̇_Mᵀ q̇."""
+
+    def lagrangian(qi: Tensor) -> tuple[Tensor, tuple[Tensor, Tensor]]:
+        (factor, potential), (factor_dot, _) = jvp(factor_potential, (qi,), (qd,))
+        w = (factor.transpose(-1, -2) @ qd.unsqueeze(-1)).squeeze(-1)
+        mass_dot_qd = factor_dot @ w.unsqueeze(-1) + factor @ (factor_dot.transpose(-1, -2) @ qd.unsqueeze(-1))
+        return (0.5 * w.square().sum(-1) - potential).sum(), (factor, mass_dot_qd.squeeze(-1))
+
+    dl_dq, (factor, mass_dot_qd) = grad(lagrangian, has_aux=True)(q)
+    return factor, dl_dq, mass_dot_qd
 
 
 class LNNStructure(MassPotentialModel):
     """L = ½ q̇ᵀ M(q) q̇ − V(q) with learned M = L_M L_Mᵀ and V, eq. (5) (DeLaN, Lutter et al. 2019).
 
-    q̈ = M⁻¹ [−Ṁ q̇ + ½ ∇_q(q̇ᵀ M q̇) − ∇V]: one batched grad of q ↦ ½ q̇ᵀ M(q) q̇ − V(q) at
-    fixed q̇; L_M and L̇_M along q̇ come from one jvp of the network inside it (one forward of
-    the shared trunk gives V too), Ṁ = L̇_M L_Mᵀ + L_M L̇_Mᵀ, and M⁻¹ by the Cholesky factor.
+    q̈ = M⁻¹ [−Ṁ q̇ + ½ ∇_q(q̇ᵀ M q̇) − ∇V], M⁻¹ by the Cholesky factor. The terms in closed form
+    through the network(s) (``MLPTape``): one forward (L_M and V from the shared trunk), one
+    forward tangent along q̇ for L̇_M (Ṁ = L̇_M L_Mᵀ + L_M L̇_Mᵀ) and one explicit backward of the
+    cotangent of ½ |L_Mᵀ q̇|² − V on the outputs for ∇_q, the small head (outputs → L_M) by hand
+    (``CholeskyMass.head_slopes``: torch.func on it cost ~10% of a step in decomposed ops);
+    ``euler_lagrange_terms`` is the same by autodiff.
     """
 
     objectives = SECOND_ORDER_OBJECTIVES
 
+    def euler_lagrange_terms(self, q: Tensor, qd: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """``euler_lagrange_terms`` of the model's network(s), in closed form."""
+        x = embed_angles(q, self.angular)
+        tape = MLPTape(self.mass.net, x)
+        out_dot = tape.push(embedding_jvp(q, self.angular, qd).unsqueeze(-2))[0].squeeze(-2)
+        factor, slopes = self.mass.head(tape.out)[0], self.mass.head_slopes(tape.out)
+        factor_dot = self.mass.lower(slopes * out_dot[..., :self.mass.entries])
+        w = (factor.transpose(-1, -2) @ qd.unsqueeze(-1)).squeeze(-1)
+        g_out = slopes * self.mass.lower_adjoint(qd.unsqueeze(-1) * w.unsqueeze(-2))  # ∂(½ |L_Mᵀ q̇|²)/∂L_M = q̇ wᵀ
+        if self.shared_trunk:
+            g_x = tape.pullback(torch.cat([g_out, -torch.ones_like(g_out[..., :1])], -1))  # ∂(−V)/∂V = −1
+        else:
+            potential = MLPTape(self.potential_net.net, x)
+            g_x = tape.pullback(g_out) - potential.pullback(torch.ones_like(potential.out))
+        mass_dot_qd = factor_dot @ w.unsqueeze(-1) + factor @ (factor_dot.transpose(-1, -2) @ qd.unsqueeze(-1))
+        return factor, embedding_vjp(q, self.angular, g_x), mass_dot_qd.squeeze(-1)
+
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         q, qd = split_state(s)
-
-        def lagrangian(qi: Tensor) -> tuple[Tensor, tuple[Tensor, Tensor]]:
-            if self.shared_trunk:
-                (factor, potential), (factor_dot, _) = jvp(self.factor_potential, (qi,), (qd,))
-            else:
-                (factor, factor_dot), potential = jvp(self.mass.cholesky, (qi,), (qd,)), self.potential_net(qi)
-            mass = factor @ factor.transpose(-1, -2)
-            mass_dot = factor_dot @ factor.transpose(-1, -2) + factor @ factor_dot.transpose(-1, -2)
-            kinetic = 0.5 * (qd * (mass @ qd.unsqueeze(-1)).squeeze(-1)).sum(-1)
-            return (kinetic - potential).sum(), (factor, mass_dot)
-
-        dl_dq, (factor, mass_dot) = grad(lagrangian, has_aux=True)(q)
-        rhs = dl_dq - (mass_dot @ qd.unsqueeze(-1)).squeeze(-1)
-        return torch.cat([qd, torch.cholesky_solve(rhs.unsqueeze(-1), factor).squeeze(-1)], -1)
+        factor, dl_dq, mass_dot_qd = self.euler_lagrange_terms(q, qd)
+        return torch.cat([qd, torch.cholesky_solve((dl_dq - mass_dot_qd).unsqueeze(-1), factor).squeeze(-1)], -1)

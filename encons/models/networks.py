@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Callable
+
 import torch
 from torch import Tensor, nn
 
@@ -40,6 +42,81 @@ def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None) 
     return net
 
 
+def _sigmoid_slopes(z: Tensor) -> tuple[Tensor, Callable[[], Tensor]]:
+    s = torch.sigmoid(z)
+    return s, lambda: s * (1 - s)
+
+
+def _tanh_slopes(z: Tensor) -> tuple[Tensor, Callable[[], Tensor]]:
+    slope = 1 - torch.tanh(z).square()
+    return slope, lambda: -2 * torch.tanh(z) * slope
+
+
+def _relu_slopes(z: Tensor) -> tuple[Tensor, Callable[[], Tensor]]:
+    return (z > 0).to(z), lambda: torch.zeros_like(z)
+
+
+def _silu_slopes(z: Tensor) -> tuple[Tensor, Callable[[], Tensor]]:
+    s = torch.sigmoid(z)
+    return s * (1 + z * (1 - s)), lambda: s * (1 - s) * (2 + z * (1 - 2 * s))
+
+
+# σ'(z) and, on demand, σ''(z) of each activation in ACTIVATIONS (softplus: σ' is the logistic sigmoid)
+SLOPES: dict[type, Callable[[Tensor], tuple[Tensor, Callable[[], Tensor]]]] = {
+    nn.Softplus: _sigmoid_slopes, nn.Tanh: _tanh_slopes, nn.ReLU: _relu_slopes, nn.SiLU: _silu_slopes}
+
+
+class MLPTape:
+    """One forward pass of an ``mlp`` at inputs x (..., d) that keeps what its input derivatives need,
+    so that they follow in closed form: the chain rule written out through the Linear layers and the
+    elementwise activations (z_k = W_k a_{k−1} + b_k, a_k = σ(z_k)), as plain tensor operations.
+
+    Against ``torch.func``/``autograd.grad`` on the same network this builds no derivative graph of
+    the activation's own backward (a training step differentiates σ' = sigmoid, not softplus'
+    backward) and, for second derivatives, uses that Linear layers have none: for a scalar output,
+    uᵀ ∇²f v = Σ_k Σ_j ḡ_kj σ''(z_kj) ż_kj(u) ż_kj(v) with ḡ_k = ∂f/∂a_k from ``pullback`` and ż_k
+    the forward tangents from ``push``, so a Hessian block costs one forward tangent per direction
+    instead of a Hessian-vector product (reverse over reverse). Values equal autodiff's to rounding.
+    """
+
+    def __init__(self, net: nn.Sequential, x: Tensor):
+        self.linears = [layer for layer in net if isinstance(layer, nn.Linear)]
+        self.slopes: list[tuple[Tensor, Callable[[], Tensor]]] = []
+        self.adjoints: list[Tensor] = []
+        a = x
+        for linear, activation in zip(self.linears, (layer for layer in net if not isinstance(layer, nn.Linear))):
+            z = linear(a)
+            a = activation(z)
+            self.slopes.append(SLOPES[type(activation)](z))
+        self.out = self.linears[-1](a)
+
+    def pullback(self, cotangent: Tensor) -> Tensor:
+        """cᵀ ∂out/∂x (..., d) for output cotangents c (..., out); keeps ḡ_k = cᵀ ∂out/∂a_k."""
+        g = cotangent @ self.linears[-1].weight
+        self.adjoints = []
+        for linear, (slope, _) in zip(reversed(self.linears[:-1]), reversed(self.slopes)):
+            self.adjoints.insert(0, g)
+            g = (g * slope) @ linear.weight
+        return g
+
+    def push(self, tangent: Tensor) -> tuple[Tensor, list[Tensor]]:
+        """∂out/∂x · t (..., k, out) and the pre-activation tangents ż_k (..., k, ·), for k input
+        tangents t (..., k, d) per sample (directions second to last: every product stays one matmul)."""
+        tangents, a = [], tangent
+        for linear, (slope, _) in zip(self.linears, self.slopes):
+            tangents.append(a @ linear.weight.T)
+            a = slope.unsqueeze(-2) * tangents[-1]
+        return a @ self.linears[-1].weight.T, tangents
+
+    def curvature(self, rows: list[Tensor], columns: list[Tensor]) -> Tensor:
+        """uᵢᵀ ∇²(cᵀ out) v_j (..., I, J) for the tangents ż_k of directions u (..., I, ·) and v
+        (..., J, ·) from ``push``, c the cotangent of the last ``pullback``."""
+        total = 0
+        for row, column, adjoint, (_, second) in zip(rows, columns, self.adjoints, self.slopes):
+            total = total + (row * (adjoint * second()).unsqueeze(-2)) @ column.transpose(-1, -2)
+        return total
+
+
 Angular = bool | tuple[bool, ...]
 
 
@@ -53,6 +130,19 @@ def embed_angles(q: Tensor, angular: Angular) -> Tensor:
         return torch.cat([torch.cos(q), torch.sin(q)], -1) if angular else q
     angles = q[..., [i for i, a in enumerate(angular) if a]]
     return torch.cat([q[..., [i for i, a in enumerate(angular) if not a]], torch.cos(angles), torch.sin(angles)], -1)
+
+
+def embedding_jvp(q: Tensor, angular: bool, tangent: Tensor) -> Tensor:
+    """∂embed_angles(q)/∂q · t for tangents t (..., n)."""
+    return torch.cat([-torch.sin(q) * tangent, torch.cos(q) * tangent], -1) if angular else tangent
+
+
+def embedding_vjp(q: Tensor, angular: bool, cotangent: Tensor) -> Tensor:
+    """gᵀ ∂embed_angles(q)/∂q for cotangents g on the embedding."""
+    if not angular:
+        return cotangent
+    cos, sin = cotangent.chunk(2, -1)
+    return torch.cos(q) * sin - torch.sin(q) * cos
 
 
 def embedded_width(n: int, angular: Angular) -> int:
@@ -79,10 +169,26 @@ class CholeskyMass(nn.Module):
 
     def factor(self, q: Tensor) -> tuple[Tensor, Tensor]:
         """L(q) (..., n, n) and the ``extra`` outputs (..., extra) of one network forward."""
-        out = self.net(embed_angles(q, self.angular))
+        return self.head(self.net(embed_angles(q, self.angular)))
+
+    def head(self, out: Tensor) -> tuple[Tensor, Tensor]:
+        """L and the ``extra`` outputs from the network's outputs ``out`` (..., entries + extra)."""
         entries = out[..., :self.entries]
         entries = torch.where(self.diag, nn.functional.softplus(entries) + self.eps, entries)
-        return (entries @ self.scatter.to(entries)).unflatten(-1, (self.n, self.n)), out[..., self.entries:]
+        return self.lower(entries), out[..., self.entries:]
+
+    def head_slopes(self, out: Tensor) -> Tensor:
+        """∂(entry of L)/∂(its output) (..., entries): softplus' σ' (sigmoid) on the diagonal, 1 below."""
+        entries = out[..., :self.entries]
+        return torch.where(self.diag, torch.sigmoid(entries), torch.ones_like(entries))
+
+    def lower(self, entries: Tensor) -> Tensor:
+        """The lower-triangular (..., n, n) matrix with ``entries`` (..., entries) row by row."""
+        return (entries @ self.scatter.to(entries)).unflatten(-1, (self.n, self.n))
+
+    def lower_adjoint(self, matrix: Tensor) -> Tensor:
+        """Adjoint of ``lower``: the cotangent of the entries for a cotangent ``matrix`` (..., n, n)."""
+        return matrix.flatten(-2) @ self.scatter.to(matrix).T
 
     def cholesky(self, q: Tensor) -> Tensor:
         """L(q), shape (..., n, n)."""

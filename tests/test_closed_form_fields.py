@@ -1,0 +1,105 @@
+"""The closed-form derivatives of the models' networks (``MLPTape``; issue 11) equal autodiff's.
+
+Float64, small random networks of every activation, with and without the angle embedding: the
+tape's gradient, forward tangents and curvature against ``torch.func``; each model's closed-form
+field terms against the autodiff versions of the same learned pieces (which the true-physics
+tests in tests/test_models_true_physics.py check against the systems' own fields).
+"""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from torch.func import grad, hessian, jvp, vmap
+
+from encons.batching import batched_grad
+from encons.models.constrained import CHNN, CLNN
+from encons.models.hnn import HNN, HNNStructure
+from encons.models.lnn import LNN, LNNStructure, euler_lagrange_terms, lagrangian_derivatives
+from encons.models.networks import ACTIVATIONS, MLPTape, mlp
+from encons.systems.base import split_state
+from encons.systems.gyroscope import Gyroscope
+from encons.systems.pendulum import NPendulum
+
+SYSTEMS = {"pendulum2": lambda: NPendulum(2), "gyroscope": Gyroscope}
+
+
+def gap(a, b):
+    return ((a - b).abs().max() / b.abs().max()).item()
+
+
+@pytest.mark.parametrize("activation", sorted(ACTIVATIONS))
+def test_tape_derivatives_are_autodiff_ones(activation):
+    torch.manual_seed(0)
+    net = mlp(5, 1, 16, 3, activation).double()
+    x = torch.randn(7, 5, dtype=torch.float64)
+    directions = torch.randn(7, 3, 5, dtype=torch.float64)
+    f = lambda xi: net(xi).squeeze(-1)  # noqa: E731
+    tape = MLPTape(net, x)
+    assert torch.equal(tape.out, net(x))
+    assert gap(tape.pullback(torch.ones_like(tape.out)), batched_grad(f, x)) < 1e-13
+    out_dot, tangents = tape.push(directions)
+    assert gap(out_dot, vmap(lambda d: jvp(net, (x,), (d,))[1], 1, 1)(directions)) < 1e-13
+    exact = torch.einsum("bik,bkl,bjl->bij", directions, vmap(hessian(f))(x), directions)
+    if activation != "relu":  # piecewise linear: zero curvature on both sides
+        assert gap(tape.curvature(tangents, tangents), exact) < 1e-12
+    else:
+        assert tape.curvature(tangents, tangents).abs().max() == 0 and exact.abs().max() == 0
+
+
+def states(system, n=24):
+    s = system.sample_initial(4 * n, torch.Generator().manual_seed(3))
+    return s[torch.sin(s[:, 1]).abs() > 0.3][:n] if isinstance(system, Gyroscope) else s[:n]
+
+
+@pytest.mark.parametrize("angular", [False, True])
+@pytest.mark.parametrize("system_name", SYSTEMS)
+def test_hnn_and_lnn_closed_forms_are_autodiff_ones(system_name, angular):
+    system, s = SYSTEMS[system_name](), states(SYSTEMS[system_name]())
+    torch.manual_seed(1)
+    hnn = HNN(system, hidden=16, depth=3, angular=angular).double()
+    z = hnn.encode(s)
+    assert gap(hnn.hamiltonian_gradient(z), batched_grad(hnn.hamiltonian, z)) < 1e-12
+    lnn = LNN(system, hidden=16, depth=3, angular=angular).double()
+    for fast, slow in zip(lnn.lagrangian_derivatives(s), lagrangian_derivatives(lnn.lagrangian, s)):
+        assert gap(fast, slow) < 1e-12
+
+
+@pytest.mark.parametrize("shared_trunk", [True, False])
+@pytest.mark.parametrize("angular", [False, True])
+@pytest.mark.parametrize("system_name", SYSTEMS)
+def test_structured_closed_forms_are_autodiff_ones(system_name, angular, shared_trunk):
+    system, s = SYSTEMS[system_name](), states(SYSTEMS[system_name]())
+    torch.manual_seed(2)
+    hnn = HNNStructure(system, hidden=16, depth=3, angular=angular, shared_trunk=shared_trunk).double()
+    z = hnn.encode(s)
+    assert gap(hnn.hamiltonian_gradient(z), batched_grad(hnn.hamiltonian, z)) < 1e-12
+    lnn = LNNStructure(system, hidden=16, depth=3, angular=angular, shared_trunk=shared_trunk).double()
+    q, qd = split_state(s)
+    for fast, slow in zip(lnn.euler_lagrange_terms(q, qd), euler_lagrange_terms(lnn.factor_potential, q, qd)):
+        assert gap(fast, slow) < 1e-12
+
+
+@pytest.mark.parametrize("cls", [CHNN, CLNN], ids=lambda c: c.__name__)
+@pytest.mark.parametrize("system_name", SYSTEMS)
+def test_cartesian_potential_gradient_is_autodiff_one(cls, system_name):
+    system = SYSTEMS[system_name]()
+    torch.manual_seed(3)
+    model = cls(system, hidden=16, depth=3).double()
+    x = split_state(system.to_chart(states(system), "angle", "cartesian"))[0]
+    assert gap(model.potential_gradient(x), batched_grad(model.potential, x)) < 1e-12
+
+
+def test_closed_forms_differentiate_like_autodiff():
+    """A training step differentiates the closed forms: parameter gradients of an LNN field (third
+    derivatives of the network) equal those of the autodiff field."""
+    system = NPendulum(2)
+    torch.manual_seed(4)
+    lnn = LNN(system, hidden=16, depth=2).double()
+    s = states(system)
+    params = list(lnn.parameters())
+    fast = torch.autograd.grad(lnn(torch.zeros(()), s).square().sum(), params[:-1])  # not the output bias
+    lnn.lagrangian_derivatives = lambda si: lagrangian_derivatives(lnn.lagrangian, si)
+    slow = torch.autograd.grad(lnn(torch.zeros(()), s).square().sum(), params[:-1])
+    for a, b in zip(fast, slow):
+        assert gap(a, b) < 1e-10
