@@ -245,8 +245,9 @@ def build_system(cfg: DictConfig) -> System:
 
 
 def build_observation(cfg: DictConfig, system: System) -> Observation:
-    """The observation model of ``cfg.observation`` (the identity when none)."""
-    if not cfg.get("observation"):
+    """The observation model of ``cfg.observation``: the identity for ``observation=none``, whose node has
+    no ``_target_`` (keys a pixel system sets for its autoencoder, e.g. ``latent``, then do not apply)."""
+    if not cfg.get("observation") or "_target_" not in cfg.observation:
         return Observation()
     return instantiate_node(cfg, "observation", system=system)
 
