@@ -97,9 +97,9 @@ class DynamicsModule(pl.LightningModule):
     def to_common(self, states: Tensor) -> Tensor:
         return self.system.to_chart(states, self.model.chart, self.system.common_chart)
 
-    def loss(self, batch: Batch, encoded: tuple[Tensor, Tensor] | None = None) -> Tensor:
-        """The objective on a batch of windows (see the module docstring); ``encoded``: ``encode(batch)``."""
-        x, states = encoded or self.encode(batch)
+    def loss(self, batch: Batch) -> Tensor:
+        """The objective on a batch of windows (see the module docstring)."""
+        x, states = self.encode(batch)
         u = batch.get("u")
         if self.objective == "rollout":
             return self.rollout_loss(x, states, self.predict(batch, states))
@@ -114,15 +114,15 @@ class DynamicsModule(pl.LightningModule):
         return (error**2).sum(-1).mean()
 
     def training_step(self, batch: Batch, batch_idx: int) -> Tensor:
-        u = batch.get("u")
-        x, states = encoded = self.encode(batch)
-        loss = self.loss(batch, encoded)
-        self.log("train/loss", loss, prog_bar=True, batch_size=states.shape[0])
+        u, size = batch.get("u"), len(batch["states"])
+        loss = self.loss(batch)
+        self.log("train/loss", loss, prog_bar=True, batch_size=size)
         if self.regulariser is not None:  # at the (encoded) states, detached: it shapes the field, not the encoder
-            points = states.detach()
+            with torch.no_grad():
+                points = self.encode(batch)[1]
             u = None if u is None else u[:, : points.shape[1]]
             penalty = self.regulariser(self.model, points.flatten(0, 1), None if u is None else u.flatten(0, 1))
-            self.log("train/regulariser", penalty, batch_size=states.shape[0])
+            self.log("train/regulariser", penalty, batch_size=size)
             loss = loss + penalty
         if not torch.isfinite(loss):
             raise DivergenceError(
@@ -157,7 +157,8 @@ class DynamicsModule(pl.LightningModule):
     def test_step(self, batch: Batch, batch_idx: int) -> None:
         x, states = self.encode(batch)
         pred = self.predict(batch, states)
-        self._test_batches.append((x, states, pred) if not self.observation.identity else (x, pred))
+        kept = (x, pred) if self.observation.identity else (x, states, pred)
+        self._test_batches.append(tuple(p.detach() for p in kept))
 
     def _gathered(self) -> list[Tensor]:
         """The test batches concatenated; under DDP, every process's share."""
