@@ -70,25 +70,25 @@ def test_frames_are_cached_beside_the_states(tmp_path):
 
 
 def test_autoencoder_alone_reconstructs_frames():
-    """A short fit (200 Adam steps, 12 videos × 21 frames) brings the per-pixel MSE below 2e-3, ten
-    times below the error of predicting every frame by the mean frame (2.1e-2 here)."""
+    """A short fit (300 Adam steps at lr 3e-3 on 8 videos × 11 frames, both frames of each stacked pair
+    reconstructed) brings the per-pixel MSE below 3e-3, seven times below the error of predicting every
+    frame by the mean frame (2.1e-2 here); measured 1.9e-3."""
     torch.manual_seed(0)
     system = NPendulum(1, g=1.0, init_scale=0.5, frame_size=SIZE)
-    _, x = frames_of(system)
+    _, x = frames_of(system, n=8, steps=10)
     ae = Autoencoder(system, latent=2)
-    opt = torch.optim.Adam(ae.parameters(), 1e-3)
+    opt = torch.optim.Adam(ae.parameters(), 3e-3)
     baseline = (x - x.mean((0, 1))).square().mean().item()
-    for _ in range(200):
-        s = ae.encode(x)
-        loss = (ae.decode(s) - x[:, : s.shape[1]]).square().mean()
+    for _ in range(300):
+        loss = (ae.decode_stack(ae.encode(x)) - ae.stacks(x)).square().mean()
         opt.zero_grad()
         loss.backward()
         opt.step()
     with torch.no_grad():
         s = ae.encode(x)
-        error = (ae.decode(s) - x[:, : s.shape[1]]).square().mean().item()
-    assert s.shape == (12, 20, 2)
-    assert error < 2e-3 < baseline / 10
+        error = (ae.decode_stack(s) - ae.stacks(x)).square().mean().item()
+    assert s.shape == (8, 10, 2) and torch.equal(ae.decode(s), ae.decode_stack(s)[:, :, 0])
+    assert error < 3e-3 < baseline / 7
 
 
 def _write(path, obs_train, obs_test=None, n_train=4, steps=6):

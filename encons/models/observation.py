@@ -59,21 +59,23 @@ class Autoencoder(Observation):
     """MLP autoencoder of grey-scale frames around a latent dynamics model (Greydanus et al. 2019, §3
     "pixel pendulum"; Lim & Kasim 2023, §6).
 
-    Encoder: ``stack`` consecutive frames (Greydanus et al. stack two, so that one code can hold the
-    velocity), flattened, through ``depth`` hidden layers of ``hidden`` units (ReLU: Lim & Kasim §6
-    found it better for the autoencoder) to ``latent`` numbers, the state at the first frame's time.
-    Decoder: the mirror MLP from a state to that frame. Loss beside the module's rollout objective on
-    the latent states (L1 of ẑ_t − z_t summed over the window, Zhong et al. §4.1; the latent dynamics
-    term of Greydanus et al.), per window:
+    Encoder: ``stack`` consecutive frames X_t = (x_t, …, x_{t+stack−1}) (Greydanus et al. stack two),
+    flattened, through ``depth`` hidden layers of ``hidden`` units (ReLU: Lim & Kasim §6 found it
+    better for the autoencoder) to ``latent`` numbers z_t, the state at time t. Decoder: the mirror
+    MLP from z_t back to all ``stack`` frames, as Greydanus et al.'s autoencoder reconstructs its whole
+    input — so z_t must hold the motion between the frames, not only the pose (decoding the first
+    frame alone lets the latent collapse onto a curve of poses, measured); ``decode`` gives the first,
+    the frame at time t. Loss beside the module's rollout objective on the latent states (L1 of
+    ẑ_t − z_t summed over the window, Zhong et al. §4.1; the latent dynamics term of Greydanus et al.),
+    per window of T frames:
 
-        weight_reconstruction × mean_t Σ_pixels (dec(z_t) − x_t)²     (autoencoder, Greydanus' L_AE)
-      + weight_prediction     × mean_t Σ_pixels (dec(ẑ_t) − x_t)²     (predicted frames)
+        weight_reconstruction × mean_t Σ_{stack, pixels} (dec(z_t) − X_t)²   (autoencoder, Greydanus' L_AE)
+      + weight_prediction     × mean_t Σ_pixels (decode(ẑ_t) − x_t)²       (predicted frames, t < T)
 
-    with z_t = enc(x_t, …, x_{t+stack−1}) and ẑ the latent rollout from z_0 over all T frames of the
-    window. Greydanus et al. add an auxiliary term tying p to the frame difference; it is left out
-    (the rollout terms constrain the latent velocity). Only the rollout objective applies: there are
-    no true latent derivatives. Limits: an MLP, so it neither knows nor needs image structure
-    (fine at 28 × 28; no convolutional variant).
+    with ẑ the latent rollout from z_0 over the window. Greydanus et al. add an auxiliary term tying p
+    to the frame difference; it is left out. Only the rollout objective applies: there are no true
+    latent derivatives. Limits: an MLP, so it neither knows nor needs image structure (fine at
+    28 × 28; no convolutional variant).
     """
 
     key = "obs"
@@ -104,7 +106,7 @@ class Autoencoder(Observation):
         self.weights = (float(weight_reconstruction), float(weight_prediction))
         pixels = shape[0] * shape[1]
         self.encoder = mlp(stack * pixels, latent, hidden, depth, activation)
-        self.decoder = mlp(latent, pixels, hidden, depth, activation)
+        self.decoder = mlp(latent, stack * pixels, hidden, depth, activation)
 
     def latent_system(self, system: System) -> System:
         return self.system
@@ -112,16 +114,23 @@ class Autoencoder(Observation):
     def data_chart(self, system: System, model_chart: str) -> str:
         return system.base_chart  # the states only score; the model sees frames
 
+    def stacks(self, x: Tensor) -> Tensor:
+        """Encoder inputs X_t of frames x (B, T, H, W): (B, T - stack + 1, stack, H, W)."""
+        return x.unfold(1, self.stack, 1).movedim(-1, -3)
+
     def encode(self, x: Tensor) -> Tensor:
-        windows = x.unfold(1, self.stack, 1)                    # (B, T - stack + 1, H, W, stack)
-        return self.encoder(windows.movedim(-1, -3).flatten(-3))
+        return self.encoder(self.stacks(x).flatten(-3))
+
+    def decode_stack(self, s: Tensor) -> Tensor:
+        """The ``stack`` frames (..., stack, H, W) from time t on of states z_t (..., latent)."""
+        return self.decoder(s).unflatten(-1, (self.stack, *self.frame_shape))
 
     def decode(self, s: Tensor) -> Tensor:
-        return self.decoder(s).unflatten(-1, self.frame_shape)
+        return self.decode_stack(s)[..., 0, :, :]
 
     def loss(self, x: Tensor, s: Tensor, pred: Tensor) -> Tensor:
         w_rec, w_pred = self.weights
-        rec = (self.decode(s) - x[:, : s.shape[1]]).square().sum((-1, -2)).mean(-1)
+        rec = (self.decode_stack(s) - self.stacks(x)).square().sum((-1, -2, -3)).mean(-1)
         predicted = (self.decode(pred) - x).square().sum((-1, -2)).mean(-1)
         return (w_rec * rec + w_pred * predicted).mean()
 
