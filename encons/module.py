@@ -220,6 +220,7 @@ class DynamicsModule(pl.LightningModule):
         self.output_dir.mkdir(parents=True, exist_ok=True)
         (self.output_dir / "test_metrics.json").write_text(json.dumps(self.test_metrics, indent=2))
         np.savez(self.output_dir / "test_curves.npz", t=t.numpy(), pixel_mse=mse.cpu().numpy(),
+                 rel_err=metrics.relative_error(frames.flatten(2), x.flatten(2)).cpu().numpy(),
                  latent_pred=pred.cpu().numpy(), latent_encoded=states.cpu().numpy())
         out, title = self.output_dir / "figures", self.run_title()
         figures = plots.pixel_mse_figure(t, mse.cpu(), out, title)

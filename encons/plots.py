@@ -76,9 +76,9 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
     """The papers' comparison plots over a benchmark grid, one panel per system.
 
     Trajectory relative error per model (Zhong et al. Fig. 2: mean and std of its log over test
-    trajectories; diverged trajectories left out), and relative error and absolute
-    energy error vs time averaged over test trajectories and seeds (Figs. 3–4), read from each
-    run's ``test_curves.npz``.
+    trajectories; diverged trajectories left out), and relative error, absolute energy error and
+    pixel MSE (runs on frames) vs time averaged over test trajectories and seeds (Figs. 3–4), read
+    from each run's ``test_curves.npz``; a curve no run has is left out.
     """
     import numpy as np
 
@@ -107,7 +107,10 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
     paths.append(_save(fig, out_dir / "traj_rel_err.png"))
 
     for key, label, name in (("rel_err", REL_ERR, "rel_err_vs_time.png"),
-                             ("energy_err", ENERGY_ERR, "energy_err_vs_time.png")):
+                             ("energy_err", ENERGY_ERR, "energy_err_vs_time.png"),
+                             ("pixel_mse", PIXEL_MSE, "pixel_mse_vs_time.png")):
+        if not any(key in _curve_keys(row) for row in rows):
+            continue
         fig, axes = plt.subplots(1, len(systems), figsize=(4.5 * len(systems) + 2, 4), squeeze=False)
         styles = {}  # one colour and line style per model, the same in every panel (11+ models)
         for ax, system in zip(axes[0], systems):
@@ -132,6 +135,17 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
         fig.tight_layout(rect=(0, 0, 1 - 2.2 / fig.get_figwidth(), 1))
         paths.append(_save(fig, out_dir / name, layout=False))
     return paths
+
+
+def _curve_keys(row: dict) -> list[str]:
+    """The curves a benchmark run saved in its ``test_curves.npz`` (none without the file)."""
+    import numpy as np
+
+    path = Path(row["run_dir"]) / "test_curves.npz"
+    if not path.is_file():
+        return []
+    with np.load(path) as f:
+        return list(f.files)
 
 
 def _save(fig, path: Path, layout: bool = True) -> Path:
