@@ -209,8 +209,8 @@ def build(cfg: DictConfig) -> tuple[TrajectoryDataModule, DynamicsModule]:
                               f"allowed: 1..{test_steps}")
         regulariser = instantiate_node(cfg, "regulariser") if cfg.get("regulariser") else None
         module = DynamicsModule(model, system, data.dt, instantiate_node(cfg, "integrator"), objective=objective,
-                                regulariser=regulariser, observation=observation, horizon=cfg.horizon, output_dir=cfg.paths.output_dir,
-                                **cfg.optim)
+                                regulariser=regulariser, observation=observation, horizon=cfg.horizon,
+                                output_dir=cfg.paths.output_dir, **cfg.optim)
     return data, module
 
 

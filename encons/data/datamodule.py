@@ -8,10 +8,11 @@ trajectories (for a loaded file, with what the file holds), so the validation er
 pruners and the best checkpoint steer by sees the model, not the noise floor.
 Batches are dicts: ``states`` (B, T, 2n); ``u`` (B, T, m), the inputs of each step, when the
 system takes inputs; ``obs`` (B, T, H, W), frames of the same times, when the system renders frames
-(``System.frame_shape``; rendered once and cached beside the states) or the file holds them; and for ``objective="derivative"`` (Lim & Kasim eq. (2)) or ``"acceleration"``
-(Xiao et al. §3) ``rates``: ds/dt, the true field at the clean simulated states (the authors'
-protocol), or central differences of the observed states for loaded data (second order, one-sided
-at trajectory ends; so q̈ comes from the recorded q̇).
+(``System.frame_shape``; rendered once and cached beside the states) or the file holds them; and for
+``objective="derivative"`` (Lim & Kasim eq. (2)) or ``"acceleration"`` (Xiao et al. §3) ``rates``:
+ds/dt, the true field at the clean simulated states (the authors' protocol), or central differences
+of the observed states for loaded data (second order, one-sided at trajectory ends; so q̈ comes from
+the recorded q̇).
 A loaded file holding one long recording is cut by time as ``encons.data.recording`` says
 (options ``recording``: ``test_fraction``, ``val_fraction``, ``angles``, ``gap``).
 """
