@@ -45,7 +45,8 @@ BOUNDS: dict[str, tuple[Any, str]] = {
     "model.hidden": _COUNT, "model.depth": _COUNT, "trainer.gradient_clip_val": _at_least(0),
     "observation.latent": _at_least(2), "observation.stack": _COUNT, "observation.hidden": _COUNT,
     "observation.depth": _COUNT, "observation.weight_reconstruction": _at_least(0),
-    "observation.weight_prediction": _at_least(0), "system.frame_size": _at_least(4),
+    "observation.weight_prediction": _at_least(0), "observation.weight_velocity": _at_least(0),
+    "system.frame_size": _at_least(4), "system.rate_scale": _at_least(0),
 }
 
 

@@ -71,11 +71,15 @@ class Autoencoder(Observation):
 
         weight_reconstruction × mean_t Σ_{stack, pixels} (dec(z_t) − X_t)²   (autoencoder, Greydanus' L_AE)
       + weight_prediction     × mean_t Σ_pixels (decode(ẑ_t) − x_t)²       (predicted frames, t < T)
+      + weight_velocity       × mean_t Σ_i (p_{t,i} − (q_{t+1,i} − q_{t,i}))²  (Greydanus' auxiliary loss)
 
-    with ẑ the latent rollout from z_0 over the window. Greydanus et al. add an auxiliary term tying p
-    to the frame difference; it is left out. Only the rollout objective applies: there are no true
-    latent derivatives. Limits: an MLP, so it neither knows nor needs image structure (fine at
-    28 × 28; no convolutional variant).
+    with ẑ the latent rollout from z_0 over the window and z = (q, p) split in halves. The last term
+    is Greydanus et al.'s: it makes the second half of the latent the per-frame change of the first,
+    so that the latent holds the motion; without it the encoder keeps the pose only (the velocity
+    changes a frame little) and the latent collapses onto a curve of poses (measured: NODE then
+    learns a sink). Only the rollout objective applies: there are no true latent derivatives.
+    Limits: an MLP, so it neither knows nor needs image structure (fine at 28 × 28; no
+    convolutional variant).
     """
 
     key = "obs"
@@ -84,7 +88,7 @@ class Autoencoder(Observation):
 
     def __init__(self, system: System, latent: int = 2, stack: int = 2, hidden: int = 200, depth: int = 2,
                  activation: str = "relu", frame_shape: list[int] | None = None,
-                 weight_reconstruction: float = 1.0, weight_prediction: float = 1.0):
+                 weight_reconstruction: float = 1.0, weight_prediction: float = 1.0, weight_velocity: float = 1.0):
         super().__init__()
         shape = tuple(frame_shape) if frame_shape is not None else system.frame_shape
         if shape is None:
@@ -98,12 +102,13 @@ class Autoencoder(Observation):
                 raise ConfigError(f"observation.{key}={value}; allowed: an integer >= 1")
         if activation not in ACTIVATIONS:
             raise ConfigError(f"observation.activation={activation!r} is unknown; allowed: {', '.join(sorted(ACTIVATIONS))}")
-        for key, value in (("weight_reconstruction", weight_reconstruction), ("weight_prediction", weight_prediction)):
+        for key, value in (("weight_reconstruction", weight_reconstruction), ("weight_prediction", weight_prediction),
+                           ("weight_velocity", weight_velocity)):
             if value < 0:
                 raise ConfigError(f"observation.{key}={value}; allowed: >= 0")
         self.system = LatentSystem(latent, system)
         self.frame_shape, self.stack = shape, stack
-        self.weights = (float(weight_reconstruction), float(weight_prediction))
+        self.weights = (float(weight_reconstruction), float(weight_prediction), float(weight_velocity))
         pixels = shape[0] * shape[1]
         self.encoder = mlp(stack * pixels, latent, hidden, depth, activation)
         self.decoder = mlp(latent, stack * pixels, hidden, depth, activation)
@@ -129,10 +134,12 @@ class Autoencoder(Observation):
         return self.decode_stack(s)[..., 0, :, :]
 
     def loss(self, x: Tensor, s: Tensor, pred: Tensor) -> Tensor:
-        w_rec, w_pred = self.weights
+        w_rec, w_pred, w_vel = self.weights
         rec = (self.decode_stack(s) - self.stacks(x)).square().sum((-1, -2, -3)).mean(-1)
         predicted = (self.decode(pred) - x).square().sum((-1, -2)).mean(-1)
-        return (w_rec * rec + w_pred * predicted).mean()
+        q, p = s.chunk(2, -1)
+        velocity = (p[:, :-1] - q.diff(dim=1)).square().sum(-1).mean(-1) if s.shape[1] > 1 else 0.0
+        return (w_rec * rec + w_pred * predicted + w_vel * velocity).mean()
 
     def check_data(self, arrays: dict[str, Tensor], source: str, window: int) -> None:
         frames = arrays.get(self.key)

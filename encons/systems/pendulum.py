@@ -38,7 +38,7 @@ class NPendulum(System):
 
     def __init__(self, n_links: int = 2, masses: float | Sequence[float] = 1.0,
                  lengths: float | Sequence[float] = 1.0, g: float = 9.81, init_scale: float = 1.0,
-                 frame_size: int | None = None):
+                 frame_size: int | None = None, rate_scale: float | None = None):
         if n_links < 1:
             raise ConfigError(f"system.n_links={n_links} is not a number of links; allowed: an integer >= 1")
         if frame_size is not None and frame_size < 4:
@@ -50,6 +50,7 @@ class NPendulum(System):
         self.l = _per_link(lengths, n_links, "lengths")
         self.g = float(g)
         self.init_scale = float(init_scale)
+        self.rate_scale = self.init_scale if rate_scale is None else float(rate_scale)
         self.mu = self.m.flip(0).cumsum(0).flip(0)  # μ_k = Σ_{j≥k} m_j
         idx = torch.arange(n_links)
         self.coeff = self.mu[torch.maximum(idx[:, None], idx[None, :])] * self.l[:, None] * self.l[None, :]
@@ -106,7 +107,8 @@ class NPendulum(System):
         return kinetic + self.potential(q)
 
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
-        return self.init_scale * torch.randn(n, 2 * self.n, generator=generator, dtype=torch.float64)
+        scale = torch.tensor([self.init_scale] * self.n + [self.rate_scale] * self.n, dtype=torch.float64)
+        return scale * torch.randn(n, 2 * self.n, generator=generator, dtype=torch.float64)
 
     def render(self, s: Tensor, chart: str) -> Tensor:
         """Frames (..., H, W) float32 in [0, 1]: every rod drawn from its bob positions (pivot in the
