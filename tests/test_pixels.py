@@ -91,6 +91,24 @@ def test_autoencoder_alone_reconstructs_frames():
     assert error < 3e-3 < baseline / 7
 
 
+def test_autoencoder_loss_terms_are_the_documented_ones():
+    system = NPendulum(1, g=1.0, frame_size=8)
+    torch.manual_seed(0)
+    x = torch.rand(3, 5, 8, 8)
+    only = lambda **w: Autoencoder(system, latent=4, **{"weight_reconstruction": 0.0, "weight_prediction": 0.0,  # noqa: E731
+                                                        "weight_velocity": 0.0, **w})
+    ae = only(weight_velocity=2.0)
+    s, pred = ae.encode(x), torch.randn(3, 5, 4)
+    q, p = s[..., :2], s[..., 2:]
+    assert torch.allclose(ae.loss(x, s, pred), 2 * (p[:, :-1] - (q[:, 1:] - q[:, :-1])).square().sum(-1).mean())
+    ae = only(weight_prediction=1.0)
+    assert torch.allclose(ae.loss(x, ae.encode(x), pred), (ae.decode(pred) - x).square().sum((-1, -2)).mean())
+    ae = only(weight_reconstruction=1.0)
+    s = ae.encode(x)
+    windows = torch.stack([x[:, :-1], x[:, 1:]], 2)                                   # (x_t, x_{t+1})
+    assert torch.allclose(ae.loss(x, s, pred), (ae.decode_stack(s) - windows).square().sum((-1, -2, -3)).mean())
+
+
 def _write(path, obs_train, obs_test=None, n_train=4, steps=6):
     t = np.arange(steps) * 0.1
     states = np.zeros((n_train, steps, 2))
