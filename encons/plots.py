@@ -228,7 +228,8 @@ def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], out_dir: Path, t
     return [_save(fig, out_dir / "mse_vs_time.png")]
 
 
-PIXEL_MSE = "pixel MSE of predicted frames [(intensity)², intensity ∈ [0, 1]]"
+PIXEL_MSE = "pixel MSE [intensity², intensity in 0–1]"
+DATA_TIME = "time t [the data's time unit]"
 
 
 def pixel_mse_figure(t: Tensor, mse: Tensor, out_dir: Path, title: str) -> list[Path]:
@@ -238,6 +239,7 @@ def pixel_mse_figure(t: Tensor, mse: Tensor, out_dir: Path, title: str) -> list[
     fig, ax = plt.subplots(figsize=(6.5, 4))
     _band(ax, t, mse.clamp_min(1e-12), PIXEL_MSE)
     ax.plot(t, mse.mean(0), "k--", lw=1, label="mean over test videos")
+    ax.set_xlabel(DATA_TIME)
     ax.legend(fontsize=8)
     ax.set_title(f"{title}\npredicted frames from the first encoded state", fontsize=9)
     return [_save(fig, out_dir / "pixel_mse.png")]
@@ -286,6 +288,6 @@ def frames_figure(t: Tensor, pred: Tensor, true: Tensor, out_dir: Path, title: s
             if col == 0:
                 ax.set_ylabel(name)
             if row == 1:
-                ax.set_xlabel(f"t = {t[k]:.0f} s")
+                ax.set_xlabel(f"t = {t[k]:.0f}")
     fig.suptitle(f"{title}\ntest video 0: true vs predicted frames (grey level = pixel intensity, 0–1)", fontsize=9)
     return [_save(fig, out_dir / "frames.png")]
