@@ -183,7 +183,7 @@ def build(cfg: DictConfig) -> tuple[TrajectoryDataModule, DynamicsModule]:
     from hydra.utils import execution_whitelist
 
     _route_lightning_logs()
-    from encons.config import build_model, build_system, check_config, instantiate_node, objective_of
+    from encons.config import build_model, build_observation, build_system, check_config, instantiate_node, objective_of
     from encons.data.datamodule import TrajectoryDataModule
     from encons.module import DynamicsModule
 
@@ -192,21 +192,25 @@ def build(cfg: DictConfig) -> tuple[TrajectoryDataModule, DynamicsModule]:
     pl.seed_everything(cfg.seed, workers=True, verbose=False)
     with execution_whitelist(trusted_targets()):
         system = build_system(cfg)
-        model = build_model(cfg, system)
+        observation = build_observation(cfg, system)
+        model = build_model(cfg, system, observation)
         objective = objective_of(cfg)
         data_cfg = {**OmegaConf.to_container(cfg.data, resolve=True), "objective": objective}
-        data = TrajectoryDataModule(system, model.chart, OmegaConf.to_container(cfg.system, resolve=True),
+        data = TrajectoryDataModule(system, observation.data_chart(system, model.chart),
+                                    OmegaConf.to_container(cfg.system, resolve=True),
                                     cache_dir=cfg.paths.cache_dir, **data_cfg)
         data.prepare_data()
         data.setup()
+        observation.check_data(data.arrays["train"], f"the data of system '{system.name}'"
+                               + (f" ({data.path})" if data.path else ""), data.chunk_len)
         test_steps = data.states["test"].shape[1] - 1
         if cfg.horizon > test_steps:
             raise ConfigError(f"horizon={cfg.horizon} exceeds the {test_steps} steps of a test trajectory; "
                               f"allowed: 1..{test_steps}")
         regulariser = instantiate_node(cfg, "regulariser") if cfg.get("regulariser") else None
         module = DynamicsModule(model, system, data.dt, instantiate_node(cfg, "integrator"), objective=objective,
-                                regulariser=regulariser, horizon=cfg.horizon, output_dir=cfg.paths.output_dir,
-                                **cfg.optim)
+                                regulariser=regulariser, observation=observation, horizon=cfg.horizon,
+                                output_dir=cfg.paths.output_dir, **cfg.optim)
     return data, module
 
 

@@ -21,6 +21,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from encons.errors import ConfigError, EnconsError
 from encons.models.base import DynamicsModel
+from encons.models.observation import Observation
 from encons.paths import config_dir
 from encons.systems.base import System
 
@@ -42,6 +43,10 @@ BOUNDS: dict[str, tuple[Any, str]] = {
     "optim.factor": ((lambda v: 0 < v < 1), "in (0, 1)"),
     "regulariser.weight": _at_least(0), "integrator.rtol": _POSITIVE, "integrator.atol": _POSITIVE,
     "model.hidden": _COUNT, "model.depth": _COUNT, "trainer.gradient_clip_val": _at_least(0),
+    "observation.latent": _at_least(2), "observation.stack": _COUNT, "observation.hidden": _COUNT,
+    "observation.depth": _COUNT, "observation.weight_reconstruction": _at_least(0),
+    "observation.weight_prediction": _at_least(0), "observation.weight_velocity": _at_least(0),
+    "system.frame_size": _at_least(4), "system.rate_scale": _at_least(0),
 }
 
 
@@ -218,7 +223,7 @@ def check_config(cfg: DictConfig) -> None:
     check_types({k: cfg.get(k) for k in ("seed", "horizon", "test")}, _top_level_keys, "")
     check_types(OmegaConf.to_container(cfg.data, resolve=True), TrajectoryDataModule, "data")
     check_types(OmegaConf.to_container(cfg.optim, resolve=True), DynamicsModule, "optim")
-    for key in ("system", "model", "regulariser"):
+    for key in ("system", "model", "regulariser", "observation"):
         if cfg.get(key):
             check_node_types(cfg, key)
     check_types(OmegaConf.to_container(cfg.integrator, resolve=True), Integrator, "integrator")
@@ -240,8 +245,23 @@ def build_system(cfg: DictConfig) -> System:
     return instantiate_node(cfg, "system")
 
 
-def build_model(cfg: DictConfig, system: System) -> DynamicsModel:
-    """Instantiate ``cfg.model`` for ``system`` after checking that the system offers what it needs."""
+def build_observation(cfg: DictConfig, system: System) -> Observation:
+    """The observation model of ``cfg.observation``: the identity for ``observation=none``, whose node has
+    no ``_target_`` (keys a pixel system sets for its autoencoder, e.g. ``latent``, then do not apply)."""
+    if not cfg.get("observation") or "_target_" not in cfg.observation:
+        return Observation()
+    return instantiate_node(cfg, "observation", system=system)
+
+
+def build_model(cfg: DictConfig, system: System, observation: Observation | None = None) -> DynamicsModel:
+    """Instantiate ``cfg.model`` for ``system`` seen through ``observation`` (default: built from
+    ``cfg.observation``) after checking that the (latent) system offers what it needs."""
+    observation = observation if observation is not None else build_observation(cfg, system)
+    if observation.objectives is not None and objective_of(cfg) not in observation.objectives:
+        raise ConfigError(f"objective={objective_of(cfg)} does not apply to observation="
+                          f"{type(observation).__name__.lower()} (no true latent derivatives); allowed: "
+                          f"{', '.join(observation.objectives)}")
+    system = observation.latent_system(system)
     cls = get_class(cfg.model._target_)
     chart = cfg.model.get("chart") or getattr(cls, "default_chart", None) or system.base_chart
     model_name = cfg.model._target_.rsplit(".", 1)[-1]

@@ -7,7 +7,11 @@ error of the field against the state derivatives the data module pairs with the 
 ``residual`` (the squared norm of a discrete model's own residual, e.g. SyMo's DEL equations).
 A model lists the objectives it supports in ``objectives``. An optional regulariser adds a
 weighted penalty. Batches are dicts (see ``encons.data.datamodule``): ``states`` and, where
-present, inputs ``u`` and ``rates``.
+present, inputs ``u``, ``rates`` and frames ``obs``.
+The ``observation`` (``encons.models.observation``) maps the batch entry it reads to the states the
+model rolls out, and adds its own loss terms: the identity by default; with an autoencoder the
+rollout objective acts on encoded latent states, the regulariser on the latent field at them, and
+validation and test compare decoded frames with the true ones (pixel MSE, frames, latent portraits).
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from encons import metrics, plots
 from encons.errors import ConfigError, DivergenceError
 from encons.integrators import Integrator, rollout, state_derivative
 from encons.models.base import DynamicsModel
+from encons.models.observation import Observation
 from encons.systems.base import System
 
 log = logging.getLogger(__name__)
@@ -43,9 +48,13 @@ class DynamicsModule(pl.LightningModule):
                  lr: float = 1e-3, weight_decay: float = 1e-2, scheduler: str | None = None, warmup: float = 0.0,
                  patience: int = 50, factor: float = 0.7,
                  objective: str | None = None, regulariser: Regulariser | None = None,
-                 horizon: int = 4, output_dir: str | None = None):
+                 horizon: int = 4, output_dir: str | None = None, observation: Observation | None = None):
         super().__init__()
         objective = objective or model.objectives[0]
+        self.observation = observation if observation is not None else Observation()
+        if self.observation.objectives is not None and objective not in self.observation.objectives:
+            raise ConfigError(f"objective={objective} does not apply to observation={type(self.observation).__name__}; "
+                              f"allowed: {', '.join(self.observation.objectives)}")
         if objective not in model.objectives:
             raise ConfigError(f"objective={objective} does not apply to {type(model).__name__}; "
                               f"allowed: {', '.join(model.objectives)}")
@@ -63,25 +72,37 @@ class DynamicsModule(pl.LightningModule):
         self.objective, self.regulariser, self.horizon = objective, regulariser, horizon
         self.output_dir = Path(output_dir) if output_dir else None
         self.test_metrics: dict[str, float] = {}
-        self._test_batches: list[Tensor] = []
+        self._test_batches: list[tuple[Tensor, ...]] = []
 
     def times(self, length: int, like: Tensor) -> Tensor:
         return torch.arange(length, dtype=like.dtype, device=like.device) * self.dt
 
-    def predict(self, batch: Batch) -> Tensor:
-        """Roll out from the first state (``history`` states) of each window (N, T, 2n) over its length."""
-        states, history = batch["states"], self.model.history
+    def encode(self, batch: Batch) -> tuple[Tensor, Tensor]:
+        """The observations of a batch (its ``observation.key`` entry) and the states they encode to."""
+        x = batch[self.observation.key]
+        return x, self.observation.encode(x)
+
+    def predict(self, batch: Batch, states: Tensor | None = None) -> Tensor:
+        """Roll out from the first state (``history`` states) of each window's (encoded) states over the
+        window's length T: (N, T, 2n)."""
+        x, states = (batch[self.observation.key], states) if states is not None else self.encode(batch)
+        history = self.model.history
         start = states[:, 0] if history == 1 else states[:, :history]
-        return rollout(self.model, start, self.times(states.shape[1], states), self.integrator, batch.get("u"))
+        return rollout(self.model, start, self.times(x.shape[1], states), self.integrator, batch.get("u"))
+
+    def rollout_loss(self, x: Tensor, states: Tensor, pred: Tensor) -> Tensor:
+        """L1 of the rollout against the (encoded) states, summed over the window, plus the observation's terms."""
+        return (pred[:, : states.shape[1]] - states).abs().sum((-1, -2)).mean() + self.observation.loss(x, states, pred)
 
     def to_common(self, states: Tensor) -> Tensor:
         return self.system.to_chart(states, self.model.chart, self.system.common_chart)
 
     def loss(self, batch: Batch) -> Tensor:
         """The objective on a batch of windows (see the module docstring)."""
-        states, u = batch["states"], batch.get("u")
+        x, states = self.encode(batch)
+        u = batch.get("u")
         if self.objective == "rollout":
-            return (self.predict(batch) - states).abs().sum((-1, -2)).mean()
+            return self.rollout_loss(x, states, self.predict(batch, states))
         if self.objective == "residual":
             return (self.model.residual(states, self.times(states.shape[1], states), u) ** 2).sum(-1).mean()
         if "rates" not in batch:
@@ -93,12 +114,15 @@ class DynamicsModule(pl.LightningModule):
         return (error**2).sum(-1).mean()
 
     def training_step(self, batch: Batch, batch_idx: int) -> Tensor:
-        states, u = batch["states"], batch.get("u")
+        u, size = batch.get("u"), len(batch["states"])
         loss = self.loss(batch)
-        self.log("train/loss", loss, prog_bar=True, batch_size=states.shape[0])
-        if self.regulariser is not None:
-            penalty = self.regulariser(self.model, states.flatten(0, 1), None if u is None else u.flatten(0, 1))
-            self.log("train/regulariser", penalty, batch_size=states.shape[0])
+        self.log("train/loss", loss, prog_bar=True, batch_size=size)
+        if self.regulariser is not None:  # at the (encoded) states, detached: it shapes the field, not the encoder
+            with torch.no_grad():
+                points = self.encode(batch)[1]
+            u = None if u is None else u[:, : points.shape[1]]
+            penalty = self.regulariser(self.model, points.flatten(0, 1), None if u is None else u.flatten(0, 1))
+            self.log("train/regulariser", penalty, batch_size=size)
             loss = loss + penalty
         if not torch.isfinite(loss):
             raise DivergenceError(
@@ -115,22 +139,39 @@ class DynamicsModule(pl.LightningModule):
         epoch = torch.load(kept[0], map_location="cpu", weights_only=False, mmap=True).get("epoch")
         return f"{kept[0]} holds the last good weights (epoch {epoch}); resume with ckpt_path=last"
 
+    def compared(self, x: Tensor, pred: Tensor) -> tuple[Tensor, Tensor]:
+        """Prediction and truth where metrics compare them: states in the system's common chart, or
+        decoded against true observations (frames flattened to vectors)."""
+        if self.observation.identity:
+            return self.to_common(pred), self.to_common(x)
+        return self.observation.decode(pred).flatten(2), x.flatten(2)
+
     def validation_step(self, batch: Batch, batch_idx: int) -> None:
-        states, pred = batch["states"], self.predict(batch)
-        tre = metrics.trajectory_relative_error(self.to_common(pred), self.to_common(states), self.horizon)
+        x, states = self.encode(batch)
+        pred = self.predict(batch, states)
+        tre = metrics.trajectory_relative_error(*self.compared(x, pred), self.horizon)
         size = states.shape[0]
-        self.log("val/loss", (pred - states).abs().sum((-1, -2)).mean(), batch_size=size, sync_dist=True)
+        self.log("val/loss", self.rollout_loss(x, states, pred), batch_size=size, sync_dist=True)
         self.log("val/traj_rel_err", tre.mean(), prog_bar=True, batch_size=size, sync_dist=True)
 
     def test_step(self, batch: Batch, batch_idx: int) -> None:
-        self._test_batches.append(torch.stack([batch["states"], self.predict(batch)]))
+        x, states = self.encode(batch)
+        pred = self.predict(batch, states)
+        kept = (x, pred) if self.observation.identity else (x, states, pred)
+        self._test_batches.append(tuple(p.detach() for p in kept))
 
-    def on_test_epoch_end(self) -> None:
-        batches = torch.cat(self._test_batches, 1)
+    def _gathered(self) -> list[Tensor]:
+        """The test batches concatenated; under DDP, every process's share."""
+        parts = [torch.cat(p) for p in zip(*self._test_batches)]
         self._test_batches.clear()
         if self.trainer.world_size > 1:  # DDP: each process rolled out its share of the test set
-            batches = self.all_gather(batches).transpose(0, 1).flatten(1, 2)
-        true, pred = batches.double()
+            parts = [self.all_gather(p).flatten(0, 1) for p in parts]
+        return parts
+
+    def on_test_epoch_end(self) -> None:
+        if not self.observation.identity:
+            return self._test_observations(*self._gathered())
+        true, pred = (p.double() for p in self._gathered())
         energy = (lambda x: self.system.energy(x, self.model.chart)) if self.system.known_physics else None
         if energy is None:
             log.info("energy metrics skipped: system '%s' has no known energy", self.system.name)
@@ -158,7 +199,39 @@ class DynamicsModule(pl.LightningModule):
                                          self.output_dir / "figures", title=self.run_title())
             plots.log_figures(self.logger, figures)
 
+    def _test_observations(self, x: Tensor, states: Tensor, pred: Tensor) -> None:
+        """Test metrics and figures of a run seen through an observation model: pixel MSE of decoded
+        predictions against the true frames over time, the latent phase portrait, predicted vs true frames."""
+        frames = self.observation.decode(pred).double()
+        x = x.double()
+        mse = (frames - x).square().mean((-1, -2))                                       # (N, T)
+        t = self.times(x.shape[1], x).cpu()
+        tre = metrics.trajectory_relative_error(frames.flatten(2), x.flatten(2), self.horizon)
+        finite = torch.isfinite(mse).all(-1)
+        self.test_metrics = {"traj_rel_err": tre.mean().item(), "traj_rel_err_std": tre.std().item(),
+                             "pixel_mse": mse.mean().item(), "pixel_mse_final": mse[:, -1].mean().item(),
+                             "pixel_mse_final_median": mse[:, -1].median().item(),
+                             "diverged": 1.0 - finite.double().mean().item()}
+        log.info("pixel MSE of predicted frames: %s", ", ".join(
+            f"t={t[k]:.0f}: {mse[:, k].mean().item():.4g}" for k in sorted({0, len(t) // 4, len(t) // 2, len(t) - 1})))
+        self.log_dict({f"test/{k}": v for k, v in self.test_metrics.items()}, sync_dist=True)
+        if self.output_dir is None or not self.trainer.is_global_zero:
+            return
+        self.output_dir.mkdir(parents=True, exist_ok=True)
+        (self.output_dir / "test_metrics.json").write_text(json.dumps(self.test_metrics, indent=2))
+        np.savez(self.output_dir / "test_curves.npz", t=t.numpy(), pixel_mse=mse.cpu().numpy(),
+                 rel_err=metrics.relative_error(frames.flatten(2), x.flatten(2)).cpu().numpy(),
+                 latent_pred=pred.cpu().numpy(), latent_encoded=states.cpu().numpy())
+        out, title = self.output_dir / "figures", self.run_title()
+        figures = plots.pixel_mse_figure(t, mse.cpu(), out, title)
+        figures += plots.latent_phase_figure(pred.detach().cpu(), states.detach().cpu(), out, title)
+        figures += plots.frames_figure(t, frames.cpu(), x.cpu(), out, title)
+        plots.log_figures(self.logger, figures)
+
     def run_title(self) -> str:
+        if not self.observation.identity:
+            return (f"{type(self.model).__name__} on {self.system.name} ({type(self.observation).__name__}, "
+                    f"latent size {2 * self.model.n})")
         return f"{type(self.model).__name__} on {self.system.name} ({self.model.chart} chart)"
 
     def configure_optimizers(self):

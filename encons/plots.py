@@ -76,9 +76,9 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
     """The papers' comparison plots over a benchmark grid, one panel per system.
 
     Trajectory relative error per model (Zhong et al. Fig. 2: mean and std of its log over test
-    trajectories; diverged trajectories left out), and relative error and absolute
-    energy error vs time averaged over test trajectories and seeds (Figs. 3–4), read from each
-    run's ``test_curves.npz``.
+    trajectories; diverged trajectories left out), and relative error, absolute energy error and
+    pixel MSE (runs on frames) vs time averaged over test trajectories and seeds (Figs. 3–4), read
+    from each run's ``test_curves.npz``; a curve no run has is left out.
     """
     import numpy as np
 
@@ -107,7 +107,10 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
     paths.append(_save(fig, out_dir / "traj_rel_err.png"))
 
     for key, label, name in (("rel_err", REL_ERR, "rel_err_vs_time.png"),
-                             ("energy_err", ENERGY_ERR, "energy_err_vs_time.png")):
+                             ("energy_err", ENERGY_ERR, "energy_err_vs_time.png"),
+                             ("pixel_mse", PIXEL_MSE, "pixel_mse_vs_time.png")):
+        if not any(key in _curve_keys(row) for row in rows):
+            continue
         fig, axes = plt.subplots(1, len(systems), figsize=(4.5 * len(systems) + 2, 4), squeeze=False)
         styles = {}  # one colour and line style per model, the same in every panel (11+ models)
         for ax, system in zip(axes[0], systems):
@@ -132,6 +135,17 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
         fig.tight_layout(rect=(0, 0, 1 - 2.2 / fig.get_figwidth(), 1))
         paths.append(_save(fig, out_dir / name, layout=False))
     return paths
+
+
+def _curve_keys(row: dict) -> list[str]:
+    """The curves a benchmark run saved in its ``test_curves.npz`` (none without the file)."""
+    import numpy as np
+
+    path = Path(row["run_dir"]) / "test_curves.npz"
+    if not path.is_file():
+        return []
+    with np.load(path) as f:
+        return list(f.files)
 
 
 def _save(fig, path: Path, layout: bool = True) -> Path:
@@ -212,3 +226,68 @@ def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], out_dir: Path, t
         ax.legend(title="mean over test windows", fontsize=8)
     fig.suptitle(f"{title}\nlong-rollout error against time, model vs trivial baselines", fontsize=9)
     return [_save(fig, out_dir / "mse_vs_time.png")]
+
+
+PIXEL_MSE = "pixel MSE [intensity², intensity in 0–1]"
+DATA_TIME = "time t [the data's time unit]"
+
+
+def pixel_mse_figure(t: Tensor, mse: Tensor, out_dir: Path, title: str) -> list[Path]:
+    """Pixel MSE (N, T) of decoded predictions against the true frames over time, median and 2.5–97.5 %
+    band over test videos, with the mean (``pixel_mse.png``)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    _band(ax, t, mse.clamp_min(1e-12), PIXEL_MSE)
+    ax.plot(t, mse.mean(0), "k--", lw=1, label="mean over test videos")
+    ax.set_xlabel(DATA_TIME)
+    ax.legend(fontsize=8)
+    ax.set_title(f"{title}\npredicted frames from the first encoded state", fontsize=9)
+    return [_save(fig, out_dir / "pixel_mse.png")]
+
+
+def latent_phase_figure(pred: Tensor, encoded: Tensor, out_dir: Path, title: str, n_show: int = 5) -> list[Path]:
+    """Lim & Kasim Fig. 4: latent rollouts (N, T, d) of a few test videos in their phase plane — for
+    d = 2 the latent (z₁, z₂) itself, else its first two principal components over the encoded test
+    states — with the encoder's states of the true frames (``latent_phase.png``)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    d = pred.shape[-1]
+    if d == 2:
+        project, names = (lambda z: z), ("latent z₁ (q-like) [–]", "latent z₂ (q̇-like) [–]")
+    else:
+        flat = encoded.reshape(-1, d).double()
+        mean = flat.mean(0)
+        axes_ = torch.linalg.svd(flat - mean, full_matrices=False).Vh[:2].T
+        project = lambda z: (z.double() - mean) @ axes_  # noqa: E731
+        names = (f"1st principal component of the {d}-d latent [–]", f"2nd principal component [–]")
+    shown = min(n_show, pred.shape[0])
+    fig, ax = plt.subplots(figsize=(5.5, 5))
+    for k in range(shown):
+        p, e = project(pred[k]), project(encoded[k])
+        line, = ax.plot(p[:, 0], p[:, 1], lw=1.2, label=f"video {k}: model rollout" if k == 0 else None)
+        ax.plot(e[:, 0], e[:, 1], ".", ms=2.5, color=line.get_color(), label="encoded true frames" if k == 0 else None)
+        ax.plot(p[:1, 0], p[:1, 1], "o", color=line.get_color(), ms=5)
+    ax.set_xlabel(names[0])
+    ax.set_ylabel(names[1])
+    ax.legend(fontsize=8, title=f"{shown} test videos (○ start)", title_fontsize=8)
+    ax.set_title(f"{title}\nlatent phase portrait (Lim & Kasim Fig. 4)", fontsize=9)
+    return [_save(fig, out_dir / "latent_phase.png")]
+
+
+def frames_figure(t: Tensor, pred: Tensor, true: Tensor, out_dir: Path, title: str, n_times: int = 6) -> list[Path]:
+    """Lim & Kasim Figs. 5–6: true (top) and predicted (bottom) frames of the first test video at
+    ``n_times`` times from 0 to the end (``frames.png``)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    picks = torch.linspace(0, len(t) - 1, n_times).round().long().tolist()
+    fig, axes = plt.subplots(2, n_times, figsize=(1.6 * n_times, 3.8), squeeze=False)
+    for col, k in enumerate(picks):
+        for row, (frames, name) in enumerate(((true, "true"), (pred, "predicted"))):
+            ax = axes[row, col]
+            ax.imshow(frames[0, k].clamp(0, 1), cmap="gray", vmin=0, vmax=1)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if col == 0:
+                ax.set_ylabel(name)
+            if row == 1:
+                ax.set_xlabel(f"t = {t[k]:.0f}")
+    fig.suptitle(f"{title}\ntest video 0: true vs predicted frames (grey level = pixel intensity, 0–1)", fontsize=9)
+    return [_save(fig, out_dir / "frames.png")]

@@ -143,7 +143,7 @@ def write_csv(path: Path, rows: list[dict]) -> None:
 
 HEADLINE = ("wall_time_s", "test/diverged", "test/traj_rel_err", "test/geom_rel_err", "test/energy_rmse_median",
             "test/state_mse_final", "test/energy_mse_final", "test/baseline_constant/state_mse_final",
-            "test/baseline_linear_ode/state_mse_final")
+            "test/baseline_linear_ode/state_mse_final", "test/pixel_mse_final", "test/pixel_mse_final_median")
 
 
 def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", headline: bool = False) -> str:

@@ -7,10 +7,12 @@ added to training states only: validation and test compare rollouts with the cle
 trajectories (for a loaded file, with what the file holds), so the validation error that sweeps,
 pruners and the best checkpoint steer by sees the model, not the noise floor.
 Batches are dicts: ``states`` (B, T, 2n); ``u`` (B, T, m), the inputs of each step, when the
-system takes inputs; and for ``objective="derivative"`` (Lim & Kasim eq. (2)) or ``"acceleration"``
-(Xiao et al. §3) ``rates``: ds/dt, the true field at the clean simulated states (the authors'
-protocol), or central differences of the observed states for loaded data (second order, one-sided
-at trajectory ends; so q̈ comes from the recorded q̇).
+system takes inputs; ``obs`` (B, T, H, W), frames of the same times, when the system renders frames
+(``System.frame_shape``; rendered once and cached beside the states) or the file holds them; and for
+``objective="derivative"`` (Lim & Kasim eq. (2)) or ``"acceleration"`` (Xiao et al. §3) ``rates``:
+ds/dt, the true field at the clean simulated states (the authors' protocol), or central differences
+of the observed states for loaded data (second order, one-sided at trajectory ends; so q̈ comes from
+the recorded q̇).
 A loaded file holding one long recording is cut by time as ``encons.data.recording`` says
 (options ``recording``: ``test_fraction``, ``val_fraction``, ``angles``, ``gap``).
 """
@@ -128,7 +130,9 @@ class TrajectoryDataModule(pl.LightningDataModule):
                     if rejected:
                         log.info("%s: redrew %d of %d %s trajectories (%s)", self.system.name, rejected, n, name,
                                  getattr(self.system, "rejection_reason", "invalid"))
-            store.save(self.cache_file, t[: self.n_steps + 1], splits, self.system.base_chart, inputs)
+            frames = ({name: self.system.render(traj, self.system.base_chart) for name, traj in splits.items()}
+                      if self.system.frame_shape else None)
+            store.save(self.cache_file, t[: self.n_steps + 1], splits, self.system.base_chart, inputs, frames)
             progress.done()
             log.info("simulated %s into %s", self.system.name, self.cache_file)
 
@@ -159,11 +163,13 @@ class TrajectoryDataModule(pl.LightningDataModule):
             if arr.shape[-1] != width:
                 raise DataError(f"data file {str(source)!r}: '{name}' has {arr.shape[-1]} state entries; "
                                 f"allowed: {width}, the {chart} chart of '{self.system.name}'")
+        frames = {}
         if inputs is None:
             inputs = store.load_inputs(source, splits, self.system.n_controls)
+            frames = store.load_observations(source, splits)
         if "val" not in splits:
             n_val = max(1, splits["train"].shape[0] // 10)
-            for arrays in (splits, inputs):
+            for arrays in (splits, inputs, frames):
                 if "train" in arrays:
                     arrays["val"], arrays["train"] = arrays["train"][:n_val], arrays["train"][n_val:]
         self.t = t
@@ -175,6 +181,8 @@ class TrajectoryDataModule(pl.LightningDataModule):
         self.arrays = {k: {"states": v.float()} for k, v in served.items()}
         for name, u in inputs.items():
             self.arrays[name]["u"] = u.float()
+        for name, obs in frames.items():
+            self.arrays[name]["obs"] = obs
         if self.objective in ("derivative", "acceleration"):
             self.arrays["train"]["rates"] = self._rates(splits["train"], chart, served["train"],
                                                         inputs.get("train")).float()

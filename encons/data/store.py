@@ -5,6 +5,9 @@ shape (N, T, 2n) holding states ``(q, q̇)`` sampled at ``t`` (``test`` may run 
 same spacing); ``chart`` a string naming their chart. Controlled systems add ``u_train``,
 ``u_val``, ``u_test``: the inputs of each trajectory, (N, m) constant over the trajectory or
 (N, T, m) per step (``u[:, k]`` acts from ``t_k`` to ``t_{k+1}``; the last entry is unused).
+Systems observed by pixels add ``obs_train``, ``obs_val``, ``obs_test``: grey-scale frames (N, T, H, W)
+of the same trajectories at the same times (any real dtype, e.g. float in [0, 1]; uint8 is read as
+/255), the states beside them holding the truth the metrics compare with.
 Files are written to a temporary name and renamed, so a half-written file is never read.
 """
 
@@ -33,11 +36,12 @@ def config_hash(config: dict) -> str:
 
 
 def save(path: Path, t: Tensor, splits: dict[str, Tensor], chart: str,
-         inputs: dict[str, Tensor] | None = None) -> None:
-    """Write trajectories (and their inputs per split, if any) atomically: a temporary file in
-    the same folder, then rename."""
+         inputs: dict[str, Tensor] | None = None, observations: dict[str, Tensor] | None = None) -> None:
+    """Write trajectories (and their inputs and frames per split, if any) atomically: a temporary
+    file in the same folder, then rename."""
     arrays = {k: v.numpy() for k, v in splits.items()}
     arrays.update({f"u_{k}": v.numpy() for k, v in (inputs or {}).items()})
+    arrays.update({f"obs_{k}": v.numpy() for k, v in (observations or {}).items()})
     path.parent.mkdir(parents=True, exist_ok=True)
     clean_orphans(path.parent)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f"{path.stem}.{_host()}.{os.getpid()}.",
@@ -137,3 +141,34 @@ def load_inputs(path: str | Path, splits: dict[str, Tensor], n_controls: int) ->
             raise DataError(f"data file {str(path)!r}: '{key}' contains NaN or inf; allowed: finite inputs")
         inputs[name] = u
     return inputs
+
+
+def load_observations(path: str | Path, splits: dict[str, Tensor]) -> dict[str, Tensor]:
+    """The frames ``obs_<split>`` of a file whose states ``splits`` were read by ``load``, float32
+    (N, T, H, W), one (H, W) for all splits; empty when the file holds none. A file with frames for
+    some splits must hold them for every split it has."""
+    with np.load(path, allow_pickle=False) as f:
+        arrays = {k: f[k] for k in f.files if k.startswith("obs_")}
+    if not arrays:
+        return {}
+    frames, shape = {}, None
+    for name, states in splits.items():
+        key, (n, steps) = f"obs_{name}", states.shape[:2]
+        arr = arrays.get(key)
+        if arr is None:
+            raise DataError(f"data file {str(path)!r} lacks '{key}' beside {sorted(arrays)}; allowed: frames "
+                            f"(N, T, H, W) for every split it holds")
+        if arr.ndim != 4 or arr.shape[:2] != (n, steps) or (shape is not None and arr.shape[2:] != shape):
+            raise DataError(f"data file {str(path)!r}: '{key}' has shape {arr.shape}; allowed: ({n}, {steps}, H, W) "
+                            f"frames of the {n} '{name}' trajectories × {steps} times"
+                            + (f", H × W = {shape[0]} × {shape[1]} as the other splits" if shape else ""))
+        shape = arr.shape[2:]
+        if not np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.complexfloating):
+            raise DataError(f"data file {str(path)!r}: '{key}' has dtype {arr.dtype}; allowed: real numbers")
+        values = torch.from_numpy(np.asarray(arr, dtype=np.float32))
+        if arr.dtype == np.uint8:
+            values = values / 255
+        if not bool(torch.isfinite(values).all()):
+            raise DataError(f"data file {str(path)!r}: '{key}' contains NaN or inf; allowed: finite frames")
+        frames[name] = values
+    return frames

@@ -76,6 +76,7 @@ class System(abc.ABC):
     layout: CartesianLayout | None = None
     known_physics: bool = True
     n_controls: int = 0            # width m of the exogenous inputs u the dynamics take
+    frame_shape: tuple[int, int] | None = None  # (H, W) of the frames it is also observed by (``render``)
 
     @property
     def base_chart(self) -> str:
@@ -125,6 +126,11 @@ class System(abc.ABC):
     def constraints(self, x: Tensor) -> Tensor:
         """Holonomic constraints Φ(x) of the Cartesian chart, shape (..., K)."""
         raise ChartError(f"system '{self.name}' declares no holonomic constraints")
+
+    def render(self, s: Tensor, chart: str) -> Tensor:
+        """Grey-scale frames (..., H, W) in [0, 1] of states ``s`` (..., 2n) in ``chart``, for systems
+        observed by pixels (``frame_shape`` not None)."""
+        raise ChartError(f"system '{self.name}' renders no frames")
 
     # The true physical quantities, for tests that feed them to structured models.
     def mass_matrix(self, q: Tensor) -> Tensor:

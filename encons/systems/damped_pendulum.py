@@ -4,7 +4,8 @@
 x = l sin θ, y = −l cos θ. The chain of ``NPendulum`` with every angle's acceleration
 damped by −α q̇; as ẋ = (∂x/∂q) q̇, the Cartesian acceleration is damped by −α ẋ on the
 constraint manifold. The Cartesian chart comes first: it is the one observed, simulated and
-served to models that work in any chart.
+served to models that work in any chart. With ``frame_size`` it is observed by frames as well
+(``system=pixel_damped_pendulum``, Lim & Kasim §6.2).
 """
 
 from __future__ import annotations
@@ -26,11 +27,11 @@ class DampedPendulum(NPendulum):
 
     def __init__(self, n_links: int = 1, masses: float | Sequence[float] = 1.0,
                  lengths: float | Sequence[float] = 1.0, g: float = 1.0, damping: float = 0.05,
-                 init_scale: float = 1.0):
-        super().__init__(n_links, masses, lengths, g, init_scale)
+                 init_scale: float = 1.0, frame_size: int | None = None, rate_scale: float | None = None):
+        super().__init__(n_links, masses, lengths, g, init_scale, frame_size, rate_scale)
         if damping < 0:
             raise ConfigError(f"system.damping={damping}; allowed: >= 0")
-        self.name = "damped_pendulum" if n_links == 1 else f"damped_pendulum{n_links}"
+        self.name = ("pixel_" if frame_size else "") + "damped_pendulum" + ("" if n_links == 1 else str(n_links))
         self.damping = float(damping)
 
     def vector_field(self, s: Tensor, chart: str) -> Tensor:
@@ -38,5 +39,6 @@ class DampedPendulum(NPendulum):
         return super().vector_field(s, chart) - self.damping * torch.cat([torch.zeros_like(qd), qd], -1)
 
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
-        """Angles and rates ~ N(0, init_scale²) (as in the paper), mapped to the Cartesian chart."""
+        """Angles ~ N(0, init_scale²) and rates ~ N(0, rate_scale²) (both init_scale by default, as in the
+        paper), mapped to the Cartesian chart."""
         return self.to_chart(super().sample_initial(n, generator), "angle", "cartesian")

@@ -3,6 +3,8 @@
 Angle chart: absolute angle of each link from the downward vertical and its rate.
 Cartesian chart: the N bobs in 2D (D = 2N) with constraints |x_1|² = l_1² (tether to the
 pivot) and |x_i − x_{i−1}|² = l_i². Gravity points along −y.
+With ``frame_size`` set the chain is also observed by square grey-scale frames (Gym's pendulum
+picture, ``encons.systems.render``): ``system=pixel_pendulum`` (Lim & Kasim 2023, §6.1).
 """
 
 from __future__ import annotations
@@ -15,6 +17,9 @@ from torch import Tensor
 from encons.errors import ConfigError
 from encons.systems.base import CartesianLayout, System, point_mass_matrix, split_state
 from encons.systems.constrained import DistanceConstraints, constrained_acceleration, full_mass_matrix
+from encons.systems.render import render_rods
+
+RENDER_BLOCK = 4096  # frames drawn per batched expression (bounds the renderer's memory)
 
 
 def _per_link(value: float | Sequence[float], n: int, what: str) -> Tensor:
@@ -32,15 +37,20 @@ class NPendulum(System):
     common_chart = "cartesian"
 
     def __init__(self, n_links: int = 2, masses: float | Sequence[float] = 1.0,
-                 lengths: float | Sequence[float] = 1.0, g: float = 9.81, init_scale: float = 1.0):
+                 lengths: float | Sequence[float] = 1.0, g: float = 9.81, init_scale: float = 1.0,
+                 frame_size: int | None = None, rate_scale: float | None = None):
         if n_links < 1:
             raise ConfigError(f"system.n_links={n_links} is not a number of links; allowed: an integer >= 1")
-        self.name = f"pendulum{n_links}"
+        if frame_size is not None and frame_size < 4:
+            raise ConfigError(f"system.frame_size={frame_size}; allowed: null (no frames) or an integer >= 4 pixels")
+        self.frame_shape = None if frame_size is None else (frame_size, frame_size)
+        self.name = f"pendulum{n_links}" if frame_size is None else f"pixel_pendulum{'' if n_links == 1 else n_links}"
         self.n = n_links
         self.m = _per_link(masses, n_links, "masses")
         self.l = _per_link(lengths, n_links, "lengths")
         self.g = float(g)
         self.init_scale = float(init_scale)
+        self.rate_scale = self.init_scale if rate_scale is None else float(rate_scale)
         self.mu = self.m.flip(0).cumsum(0).flip(0)  # μ_k = Σ_{j≥k} m_j
         idx = torch.arange(n_links)
         self.coeff = self.mu[torch.maximum(idx[:, None], idx[None, :])] * self.l[:, None] * self.l[None, :]
@@ -97,7 +107,18 @@ class NPendulum(System):
         return kinetic + self.potential(q)
 
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
-        return self.init_scale * torch.randn(n, 2 * self.n, generator=generator, dtype=torch.float64)
+        scale = torch.tensor([self.init_scale] * self.n + [self.rate_scale] * self.n, dtype=torch.float64)
+        return scale * torch.randn(n, 2 * self.n, generator=generator, dtype=torch.float64)
+
+    def render(self, s: Tensor, chart: str) -> Tensor:
+        """Frames (..., H, W) float32 in [0, 1]: every rod drawn from its bob positions (pivot in the
+        centre, y up), in blocks of ``RENDER_BLOCK`` frames."""
+        if self.frame_shape is None:
+            return super().render(s, chart)
+        bobs = self.to_chart(s, chart, "cartesian")[..., : 2 * self.n].unflatten(-1, (self.n, 2)).float()
+        flat = bobs.reshape(-1, self.n, 2)
+        frames = [render_rods(block, self.l, self.frame_shape[0]) for block in flat.split(RENDER_BLOCK)]
+        return torch.cat(frames).reshape(*bobs.shape[:-2], *self.frame_shape)
 
     def map_chart(self, s: Tensor, src: str, dst: str) -> Tensor:
         q, qd = split_state(s)
