@@ -1,6 +1,6 @@
 """Benchmark runner: the runs of a profile (conf/profile/*.yaml), trained one by one, then the report.
 
-    python -m encons.benchmark [profile=smoke|quick|zhong|finzi|lim_kasim] [seeds=[0,1]] [out=DIR]
+    python -m encons.benchmark [profile=smoke|quick|zhong|finzi|lim_kasim|pixels] [seeds=[0,1]] [out=DIR]
         ['train=["trainer.max_epochs=50"]']   (quoted: Hydra's grammar wants '=' inside a list quoted)
 
 A profile lists its runs as a grid (``systems`` × ``models``), as explicit ``runs`` (a label and
@@ -158,6 +158,13 @@ def run_profile(cfg: DictConfig) -> Path:
     return out
 
 
+def usage() -> str:
+    """``--help``: this module's usage, the profiles found in ``conf/profile`` and the keys of ``conf/benchmark.yaml``."""
+    profiles = sorted(p.stem for p in (Path(config_dir()) / "profile").glob("*.yaml"))
+    keys = (Path(config_dir()) / "benchmark.yaml").read_text()
+    return f"{__doc__}\nprofiles: {', '.join(profiles)}\n\nconf/benchmark.yaml:\n{keys}"
+
+
 def main(argv: list[str] | None = None) -> None:
     import logging
     import os
@@ -171,8 +178,12 @@ def main(argv: list[str] | None = None) -> None:
 
     for name in ("lightning.pytorch", "lightning.fabric"):  # devices, stop reason, checkpoint restored: per run, not news
         logging.getLogger(name).setLevel(logging.WARNING)
+    args = list(sys.argv[1:] if argv is None else argv)
+    if {"-h", "--help"} & set(args):
+        print(usage())
+        return
     with one_line_errors():
-        run_profile(compose_benchmark(list(sys.argv[1:] if argv is None else argv)))
+        run_profile(compose_benchmark(args))
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ import torch
 from torch import Tensor
 
 from encons.models.base import DynamicsModel
-from encons.models.lnn import LNN, SECOND_ORDER_OBJECTIVES, euler_lagrange_acceleration
+from encons.models.lnn import LNN, SECOND_ORDER_OBJECTIVES, damped_solve
 from encons.models.networks import embed_angles, embedded_width, mlp
 from encons.systems.base import System, split_state
 
@@ -25,8 +25,9 @@ class GLNN(LNN):
 
     q̈ = (∇_q̇∇_q̇ᵀ L)⁻¹ [∇_q L − (∇_q∇_q̇ᵀ L) q̇ + F],
 
-    through ``euler_lagrange_acceleration`` (torch.func Hessian-vector products, batched; the
-    guarded solve of LNN with λ = ``damping``, 0 for the plain inverse of eq. (11)). L starts from
+    LNN's closed-form ``lagrangian_derivatives`` of the L network (``MLPTape``; tests check them against
+    ``encons.models.lnn.lagrangian_derivatives``, torch.func of any L) with F added to the right-hand
+    side, and LNN's guarded solve with λ = ``damping`` (0: the plain inverse of eq. (11)). L starts from
     Cranmer et al.'s initialisation as in LNN; F from PyTorch's default. Limits: L and F are not
     identifiable apart (any F can absorb a change of L), so only q̈ is learned, not the energy split.
     """
@@ -40,9 +41,9 @@ class GLNN(LNN):
         """F(q, q̇) of states (..., 2n), shape (..., n)."""
         return self.force_net(_inputs(s, self.angular))
 
-    def forward(self, t: Tensor, s: Tensor) -> Tensor:
-        qd = split_state(s)[1]
-        return torch.cat([qd, euler_lagrange_acceleration(self.lagrangian, s, self.damping, self.force(s))], -1)
+    def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
+        dl_dq, hessian, mixed = self.lagrangian_derivatives(s)
+        return torch.cat([split_state(s)[1], damped_solve(hessian, dl_dq - mixed + self.force(s), self.damping)], -1)
 
 
 class SecondOrder(DynamicsModel):

@@ -59,23 +59,12 @@ def damped_solve(hessian: Tensor, rhs: Tensor, damping: float) -> Tensor:
 SECOND_ORDER_OBJECTIVES = ("rollout", "acceleration", "derivative")
 
 
-def euler_lagrange_acceleration(lagrangian: Callable[[Tensor], Tensor], s: Tensor, damping: float,
-                                force: Tensor | None = None) -> Tensor:
-    """q̈ of Zhong et al. eq. (3) at states s = (q, q̇) (..., 2n) of a batch-aware scalar L(s); with a
-    non-conservative generalised ``force`` F (..., n), of the generalised Lagrange equation (Xiao et al.
-    eq. (11)): H q̈ = ∇_q L − (∇_q ∇_q̇ᵀ L) q̇ + F by ``lagrangian_derivatives`` and ``damped_solve``.
-    """
-    dl_dq, hessian, mixed = lagrangian_derivatives(lagrangian, s)
-    rhs = dl_dq - mixed
-    return damped_solve(hessian, rhs if force is None else rhs + force, damping)
-
-
 class LNN(DynamicsModel):
     """Unstructured L(q, q̇) network, eq. (3) (Cranmer et al. 2020).
 
     The network starts from Cranmer et al.'s initialisation for LNN MLPs (``cranmer_init_``),
-    which keeps ∇²_q̇ L O(1) at the paper's widths; q̈ takes the guarded solve of
-    ``euler_lagrange_acceleration`` (that, not the init, is what keeps tiny runs finite).
+    which keeps ∇²_q̇ L O(1) at the paper's widths; q̈ takes the guarded solve
+    ``damped_solve`` (that, not the init, is what keeps tiny runs finite).
     """
 
     default_chart = "angle"
