@@ -12,11 +12,11 @@ install:  ## fresh virtual environment: CPU torch first (pinned), then encons wi
 	$(BIN)/pip install -q torch==2.13.0
 	$(BIN)/pip install -q -e ".[dev]"
 
-test:  ## every test: the fast tier, then end-to-end, DDP, PostgreSQL and wheel tests (marked slow); what CI runs
-	$(BIN)/python -m pytest
+test:  ## every test, fast tier and the end-to-end, DDP, PostgreSQL and wheel tests (marked slow), on all cores; what CI runs
+	$(BIN)/python -m pytest -n auto
 
-test-fast:  ## unit and physics tests only (< 2 min on 2 cores)
-	$(BIN)/python -m pytest -m "not slow"
+test-fast:  ## unit and physics tests only, on all cores
+	$(BIN)/python -m pytest -n auto -m "not slow"
 
 train:  ## e.g. make train ARGS="model=chnn system=gyroscope"
 	$(BIN)/python -m encons.train $(ARGS)

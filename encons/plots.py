@@ -263,8 +263,8 @@ def latent_phase_figure(pred: Tensor, encoded: Tensor, out_dir: Path, title: str
     fig, ax = plt.subplots(figsize=(5.5, 5))
     for k in range(shown):
         p, e = project(pred[k]), project(encoded[k])
-        line, = ax.plot(p[:, 0], p[:, 1], lw=1.2, label=f"video {k}: model rollout" if k == 0 else None)
-        ax.plot(e[:, 0], e[:, 1], ".", ms=2.5, color=line.get_color(), label="encoded true frames" if k == 0 else None)
+        line, = ax.plot(p[:, 0], p[:, 1], lw=1.2, label="model rollout (one colour per video)" if k == 0 else None)
+        ax.plot(e[:, 0], e[:, 1], ".", ms=2.5, color=line.get_color(), label="encoded true frames (same colour)" if k == 0 else None)
         ax.plot(p[:1, 0], p[:1, 1], "o", color=line.get_color(), ms=5)
     ax.set_xlabel(names[0])
     ax.set_ylabel(names[1])

@@ -38,6 +38,34 @@ def isolated_env(tmp_path_factory, monkeypatch):
 
 
 @pytest.fixture
+def cli(monkeypatch, capsys):
+    """``encons.train``'s CLI in this process: ``cli(*args, cwd=...)`` -> (exit code, stdout, stderr).
+
+    The same ``main()`` as ``python -m encons.train`` (Hydra, the one-line errors, exit 2) without a
+    new interpreter importing Lightning for each case; ``tests.helpers.run_cli`` runs a real process."""
+    import importlib
+    import sys
+    from types import SimpleNamespace
+
+    def run(*args: str, cwd=None):
+        if cwd is not None:
+            monkeypatch.chdir(cwd)
+        monkeypatch.setattr(sys, "argv", ["encons.train", *args])
+        capsys.readouterr()
+        code = 0
+        try:
+            importlib.import_module("encons.train").main()
+        except SystemExit as stop:
+            code = stop.code
+        finally:
+            GlobalHydra.instance().clear()
+        out = capsys.readouterr()
+        return SimpleNamespace(returncode=code, stdout=out.out, stderr=out.err)
+
+    return run
+
+
+@pytest.fixture
 def train_run(tmp_path):
     """Run ``encons.api.train`` on a tiny config: ``train_run(["model=hnn", ...])`` -> metrics."""
     from encons import api

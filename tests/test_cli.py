@@ -7,8 +7,6 @@ import pytest
 
 from tests.helpers import run_cli
 
-pytestmark = pytest.mark.slow  # each case starts the CLI in a subprocess
-
 FAST = ["debug=fast", "logger=none"]
 
 
@@ -27,21 +25,22 @@ FAST = ["debug=fast", "logger=none"]
     (["system=from_file", "system.path=/nonexistent/data.npz"], "does not exist"),
     (["ckpt_path=last"], "no earlier run"),
 ])
-def test_bad_input_gives_one_clear_error(tmp_path, args, needle):
-    proc = run_cli(*FAST, *args, cwd=tmp_path)
-    assert proc.returncode != 0
+def test_bad_input_gives_one_clear_error(cli, tmp_path, args, needle):
+    proc = cli(*FAST, *args, cwd=tmp_path)
+    assert proc.returncode == 2
     assert needle in proc.stderr, proc.stderr[-2000:]
     assert "Traceback" not in proc.stderr
 
 
-def test_malformed_user_file(tmp_path):
+def test_malformed_user_file(cli, tmp_path):
     path = tmp_path / "bad.npz"
     np.savez(path, t=np.arange(4.0), train=np.zeros((3, 4, 3)), test=np.zeros((3, 4, 3)))
-    proc = run_cli(*FAST, "system=from_file", f"system.path={path}", cwd=tmp_path)
+    proc = cli(*FAST, "system=from_file", f"system.path={path}", cwd=tmp_path)
     assert proc.returncode == 2 and "allowed: (N, 4, 2n)" in proc.stderr, proc.stderr[-500:]
     assert "Traceback" not in proc.stderr
 
 
+@pytest.mark.slow
 def test_cli_trains_quietly_and_writes_outputs(tmp_path):
     proc = run_cli("debug=fast", "model=hnn", "system=pendulum1", cwd=tmp_path, env={"ENCONS_ROOT": str(tmp_path)})
     assert proc.returncode == 0, proc.stderr[-2000:]

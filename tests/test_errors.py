@@ -164,8 +164,7 @@ def test_cache_files_are_group_readable_and_orphans_of_dead_writers_go(tmp_path)
     assert os.stat(tmp_path / "x.npz").st_mode & stat.S_IRGRP
 
 
-# classes 6–7 and the whole CLI path: exit 2, no traceback, the one line last
-@pytest.mark.slow
+# classes 6–7 through the CLI's main: exit 2, the one line last (in this process; one real process below)
 @pytest.mark.parametrize("args, key", [
     (["model=nope"], "model=nope is unknown; allowed: chnn"),
     (["system=pendulum1", "system.n_links=2.5"], "system.n_links=2.5"),
@@ -179,7 +178,21 @@ def test_cache_files_are_group_readable_and_orphans_of_dead_writers_go(tmp_path)
     (["trainer.accelerator=tpu"], "trainer.accelerator=tpu"),
     (["seed=["], "seed=["),
 ])
-def test_cli_ends_with_the_one_line(tmp_path, args, key):
+def test_cli_ends_with_the_one_line(cli, tmp_path, args, key):
+    proc = cli("debug=fast", *args, f"hydra.run.dir={tmp_path / 'run'}", f"hydra.sweep.dir={tmp_path / 'multi'}",
+               cwd=tmp_path)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("encons: error: ") and key in last and "allowed" in last, last
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("args, key", [
+    (["optim.lr=-1"], "optim.lr=-1"),
+    (["-m", "sweeps=optuna", "hydra.sweeper.n_trials=2", "data.n_train=-1", "optim.lr=tag(log,interval(1e-4,1e-2))"],
+     "first: ConfigError: data.n_train=-1"),
+])
+def test_a_real_cli_process_exits_2_with_the_one_line_last(tmp_path, args, key):
     proc = run_cli("debug=fast", *args, f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path,
                    env={"ENCONS_ROOT": str(tmp_path)})
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
