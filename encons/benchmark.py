@@ -16,6 +16,7 @@ to ``out`` at the end and can be rebuilt alone with ``python -m encons.report OU
 from __future__ import annotations
 
 import json
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -105,6 +106,7 @@ def run_one(run: Run, out: Path, cache_dir: str | None) -> dict:
     run_dir = done.parent
     # first, so a profile or the command line may turn the model table back on
     cfg = api.compose("trainer.enable_model_summary=false", *run.overrides, output_dir=run_dir, cache_dir=cache_dir)
+    resume_or_clear(cfg, run_dir / "checkpoints")
     started = time.perf_counter()
     try:
         results, error = api.train(cfg, summary=False).metrics, ""
@@ -119,6 +121,24 @@ def run_one(run: Run, out: Path, cache_dir: str | None) -> dict:
     tmp.write_text(json.dumps(row, indent=1))
     tmp.replace(done)  # atomic: a run killed before this line is rerun
     return row
+
+
+def resume_or_clear(cfg: DictConfig, checkpoints: Path) -> None:
+    """An interrupted run (its ``last.ckpt``, no result) resumes where it stopped, as ``ckpt_path`` does
+    for one run; checkpoints of another config (the profile changed since) are removed: a fresh start."""
+    from encons.config import checkpoint_difference
+
+    last = checkpoints / "last.ckpt"
+    try:
+        diff = checkpoint_difference(cfg, last) if last.is_file() else "no last.ckpt"
+    except Exception as err:  # noqa: BLE001 - any unreadable checkpoint is a fresh start
+        diff = f"last.ckpt unreadable: {type(err).__name__}"
+    if diff is None:
+        cfg.ckpt_path = str(last)
+        print(f"  resuming from {last}", file=sys.stderr)
+    elif checkpoints.is_dir():
+        shutil.rmtree(checkpoints)
+        print(f"  earlier checkpoints removed ({diff}): training afresh", file=sys.stderr)
 
 
 def result_line(row: dict) -> str:

@@ -319,16 +319,25 @@ def resolve_checkpoint(cfg: DictConfig) -> str | None:
     if not found:
         raise ConfigError(f"ckpt_path=last: no earlier run of '{cfg.name}' has a checkpoint under {runs}; "
                           f"allowed: a .ckpt file, or null to start afresh")
-    mine = OmegaConf.to_container(OmegaConf.masked_copy(cfg, [k for k in RESUME_KEYS if k in cfg]), resolve=True)
     differences = []
     for path in found:
-        saved = torch.load(path, map_location="cpu", weights_only=False, mmap=True).get("encons_config") or {}
-        diff = _first_difference({k: saved.get(k) for k in mine}, mine)
+        diff = checkpoint_difference(cfg, path)
         if diff is None:
             return str(path)
-        differences.append(f"{path.parent.parent.name} has {diff[0]}={diff[1]!r} where this run has {diff[2]!r}")
+        differences.append(f"{path.parent.parent.name} has {diff}")
     raise ConfigError(f"ckpt_path=last: no earlier run under {runs} has this run's config (newest: {differences[0]}); "
                       f"allowed: the same system/model/data/optim config, ckpt_path=PATH, or null")
+
+
+def checkpoint_difference(cfg: DictConfig, path: Path) -> str | None:
+    """None when the checkpoint at ``path`` was trained with ``cfg``'s ``RESUME_KEYS``, else the first
+    difference as ``key=saved where this run has value``."""
+    import torch
+
+    mine = OmegaConf.to_container(OmegaConf.masked_copy(cfg, [k for k in RESUME_KEYS if k in cfg]), resolve=True)
+    saved = torch.load(path, map_location="cpu", weights_only=False, mmap=True).get("encons_config") or {}
+    diff = _first_difference({k: saved.get(k) for k in mine}, mine)
+    return None if diff is None else f"{diff[0]}={diff[1]!r} where this run has {diff[2]!r}"
 
 
 def _first_difference(a: Any, b: Any, key: str = "") -> tuple[str, Any, Any] | None:

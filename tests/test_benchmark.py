@@ -37,6 +37,15 @@ def test_smoke_profile_writes_report_and_resumes(tmp_path, capsys):
     (out / "summary.md").unlink()
     write_report(out)  # the report alone, from the finished runs
     assert (out / "summary.md").read_text() == md
+    # a run killed after its last checkpoint but before its result resumes there and scores the same
+    killed = next(iter(stamps))
+    before = json.loads(killed.read_text())
+    killed.unlink()
+    main(["profile=smoke", f"out={out}", f"cache_dir={cache}"])
+    assert f"resuming from {killed.parent / 'checkpoints' / 'last.ckpt'}" in capsys.readouterr().err
+    after = json.loads(killed.read_text())
+    assert {k: v for k, v in after.items() if k.startswith("test/")} == {
+        k: v for k, v in before.items() if k.startswith("test/")}
 
 
 def test_profiles_expand_and_carry_published_numbers():
