@@ -312,8 +312,6 @@ def resolve_checkpoint(cfg: DictConfig) -> str | None:
         if cfg.ckpt_path is not None and not Path(cfg.ckpt_path).is_file():
             raise ConfigError(f"ckpt_path={cfg.ckpt_path!r} does not exist; allowed: a .ckpt file, last or null")
         return cfg.ckpt_path
-    import torch
-
     runs = Path(cfg.paths.output_dir).parent
     found = sorted(runs.glob("*/checkpoints/last.ckpt"), key=lambda p: p.stat().st_mtime, reverse=True)
     if not found:
