@@ -229,10 +229,14 @@ class DynamicsModule(pl.LightningModule):
         plots.log_figures(self.logger, figures)
 
     def run_title(self) -> str:
+        """Figure title: model (+ regulariser, e.g. ``NODE + C_H``) on system (chart or observation)."""
+        model = type(self.model).__name__
+        if self.regulariser is not None:
+            model += f" + {getattr(self.regulariser, 'label', type(self.regulariser).__name__)}"
         if not self.observation.identity:
-            return (f"{type(self.model).__name__} on {self.system.name} ({type(self.observation).__name__}, "
+            return (f"{model} on {self.system.name} ({type(self.observation).__name__}, "
                     f"latent size {2 * self.model.n})")
-        return f"{type(self.model).__name__} on {self.system.name} ({self.model.chart} chart)"
+        return f"{model} on {self.system.name} ({self.model.chart} chart)"
 
     def configure_optimizers(self):
         """AdamW at ``lr``, optionally scheduled per optimiser step over the whole run.

@@ -252,7 +252,7 @@ def latent_phase_figure(pred: Tensor, encoded: Tensor, out_dir: Path, title: str
     out_dir.mkdir(parents=True, exist_ok=True)
     d = pred.shape[-1]
     if d == 2:
-        project, names = (lambda z: z), ("latent z₁ (q-like) [–]", "latent z₂ (q̇-like) [–]")
+        project, names = (lambda z: z), ("latent z₁ (position-like) [–]", "latent z₂ (velocity-like) [–]")
     else:
         flat = encoded.reshape(-1, d).double()
         mean = flat.mean(0)

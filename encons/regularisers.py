@@ -80,6 +80,8 @@ class JacobianPenalty:
 class Hamiltonian(JacobianPenalty):
     """C_H of Lim & Kasim eq. (4) (eq. (7) when the field lives in learned latent coordinates)."""
 
+    label = "C_H"
+
     def violation(self, jac: Tensor) -> Tensor:
         if jac.shape[-1] % 2:
             raise ConfigError(f"regulariser=hamiltonian needs an even field dimension, got {jac.shape[-1]}")
@@ -88,6 +90,8 @@ class Hamiltonian(JacobianPenalty):
 
 class Dissipative(JacobianPenalty):
     """C_D of Lim & Kasim eq. (8); ``bound`` is one a for all eigenvalues or a list of a_i."""
+
+    label = "C_D"
 
     def __init__(self, weight: float = 1.0, bound: float | Sequence[float] = 0.0, jacobian: str = "reverse"):
         super().__init__(weight, jacobian)
