@@ -2,12 +2,18 @@
 benchmark's report rebuilt from its finished runs.
 
     python -m encons.report DIR     # DIR: a benchmark's output folder (it holds runs/*/result.json)
+    python -m encons.report SWEEP   # SWEEP: a Hydra multirun folder (it holds multirun.yaml)
 
 Writes ``results.csv`` (one row per run), ``summary.csv`` and ``summary.md`` (every test metric per
 model × system, mean ± std over seeds, beside the paper's published value where the profile gives
 one) and the papers' figures: trajectory relative error per model (Zhong et al. Fig. 2), relative
 and energy error vs time (Figs. 3–4), data efficiency (Fig. 5, when the profile has ``n_train``
 runs) and the energy-deviation RMSE median with 2.5–97.5 % bars (Lim & Kasim Table 1). No training.
+
+For a multirun folder: ``sweep.csv`` and ``sweep.md``, one row per job (the keys the sweep varied,
+then every test metric of its ``test_metrics.json``; unfinished jobs are listed as such), and with
+two varied keys one key × key table per headline metric (e.g. Xiao et al. Tables 3–4 from
+``sweeps=glnn_size``).
 """
 
 from __future__ import annotations
@@ -199,12 +205,74 @@ def write_report(out: str | Path) -> list[Path]:
     return files
 
 
+def _number(text: str) -> float | str:
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def sweep_rows(out: Path) -> tuple[list[str], list[dict]]:
+    """The keys a multirun varied and one row per job under ``out``: those keys' values (as given on
+    the command line), ``job`` (its folder) and its ``test/...`` metrics (none if it did not finish)."""
+    import yaml
+
+    jobs = sorted(p.parent.parent for p in out.glob("**/.hydra/overrides.yaml") if p.parent.parent != out)
+    if not jobs:
+        raise ConfigError(f"{str(out)!r} holds no jobs of a multirun (no */.hydra/overrides.yaml)")
+    given = [dict(o.split("=", 1) for o in yaml.safe_load((j / ".hydra" / "overrides.yaml").read_text()) or []
+                  if "=" in o) for j in jobs]
+    keys = [k for k in dict.fromkeys(k for g in given for k in g) if len({g.get(k) for g in given}) > 1]
+    rows = []
+    for job, values in zip(jobs, given):
+        metrics = job / "test_metrics.json"
+        tested = json.loads(metrics.read_text()) if metrics.is_file() else {}
+        rows.append({**{k: values.get(k, "") for k in keys}, "job": str(job.relative_to(out)),
+                     **{f"test/{k}": v for k, v in tested.items()}})
+    return keys, rows
+
+
+def sweep_markdown(keys: list[str], rows: list[dict]) -> str:
+    """Every job as a row, then, for two varied keys, a keys[0] × keys[1] table per headline metric."""
+    metrics = [m for m in dict.fromkeys(k for r in rows for k in r if k.startswith("test/"))]
+    head = [*keys, *[m.removeprefix("test/") for m in metrics]]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        lines.append("| " + " | ".join([str(r[k]) for k in keys] + [
+            f"{r[m]:.3g}" if m in r else "not finished" for m in metrics]) + " |")
+    text = "\n".join(lines) + "\n"
+    if len(keys) != 2:
+        return text
+    by = {(r[keys[0]], r[keys[1]]): r for r in rows}
+    first, second = (sorted({r[k] for r in rows}, key=lambda v: (isinstance(_number(v), str), _number(v)))
+                     for k in keys)
+    for metric in [m for m in HEADLINE if m in metrics]:
+        text += f"\n{metric.removeprefix('test/')}: {keys[0]} (rows) × {keys[1]} (columns)\n\n"
+        text += "| " + " | ".join([f"{keys[0]} \\ {keys[1]}", *second]) + " |\n" + "|" + "---|" * (len(second) + 1) + "\n"
+        for a in first:
+            cells = [f"{by[a, b][metric]:.3g}" if metric in by.get((a, b), {}) else "–" for b in second]
+            text += "| " + " | ".join([a, *cells]) + " |\n"
+    return text
+
+
+def write_sweep_report(out: str | Path) -> list[Path]:
+    """``sweep.csv`` and ``sweep.md`` of the multirun folder ``out``; returns the files written."""
+    out = Path(out)
+    keys, rows = sweep_rows(out)
+    write_csv(out / "sweep.csv", rows)
+    text = sweep_markdown(keys, rows)
+    (out / "sweep.md").write_text(f"# {out.name}\n\n" + text)
+    Console(width=200).print(text, markup=False)
+    return [out / "sweep.csv", out / "sweep.md"]
+
+
 def main() -> None:
     if len(sys.argv) != 2 or sys.argv[1] in ("-h", "--help"):
         print(__doc__)
         sys.exit(0 if len(sys.argv) == 2 else 2)
     try:
-        for path in write_report(sys.argv[1]):
+        folder = Path(sys.argv[1])
+        for path in (write_sweep_report if (folder / "multirun.yaml").is_file() else write_report)(folder):
             print(path)
     except EnconsError as err:
         print(f"encons: error: {err}", file=sys.stderr)
