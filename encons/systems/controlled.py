@@ -20,7 +20,7 @@ import torch
 from torch import Tensor
 
 from encons.errors import ConfigError
-from encons.systems.base import System, split_state
+from encons.systems.mechanical import Mechanical
 
 
 def _positive(**values: float) -> None:
@@ -29,15 +29,13 @@ def _positive(**values: float) -> None:
             raise ConfigError(f"system.{key}={value}; allowed: > 0")
 
 
-class ControlledMechanical(System):
+class ControlledMechanical(Mechanical):
     """Base of the controlled systems: M(q), V(q), b(q, q̇) and B in closed form, u ~ U(−u_max, u_max).
 
     Initial states are uniform in ``[−init_range, init_range]`` per state entry; one constant control
     is drawn per trajectory (Santos et al. §7).
     """
 
-    charts = ("angle",)
-    common_chart = "angle"
     n_controls = 1
     angles: tuple[bool, ...]
 
@@ -50,37 +48,17 @@ class ControlledMechanical(System):
         self.init_range = torch.tensor([float(r) for r in init_range], dtype=torch.float64)
         self.u_max = float(u_max)
 
-    def coord_dim(self, chart: str) -> int:
-        self.check_chart(chart)
+    @property
+    def n(self) -> int:
         return len(self.angles)
-
-    @abc.abstractmethod
-    def mass_matrix(self, q: Tensor) -> Tensor: ...
-
-    @abc.abstractmethod
-    def potential(self, q: Tensor) -> Tensor: ...
-
-    @abc.abstractmethod
-    def bias(self, q: Tensor, qd: Tensor) -> Tensor:
-        """b(q, q̇) = C(q, q̇) + ∇V(q): M q̈ = B u − b."""
 
     @abc.abstractmethod
     def input_matrix(self) -> Tensor:
         """B (n, m): the generalised force of input u is B u."""
 
-    def vector_field(self, s: Tensor, chart: str, u: Tensor | None = None) -> Tensor:
-        """(q̇, q̈) of the forced Euler–Lagrange equations, Santos et al. eq. (4); u None means u = 0."""
-        self.check_chart(chart)
-        q, qd = split_state(s)
-        rhs = -self.bias(q, qd)
-        if u is not None:
-            rhs = rhs + u.to(s) @ self.input_matrix().to(s).T
-        return torch.cat([qd, torch.linalg.solve(self.mass_matrix(q), rhs)], -1)
-
-    def energy(self, s: Tensor, chart: str) -> Tensor:
-        self.check_chart(chart)
-        q, qd = split_state(s)
-        return 0.5 * (qd[..., None, :] @ self.mass_matrix(q) @ qd[..., :, None])[..., 0, 0] + self.potential(q)
+    def generalised_force(self, s: Tensor, u: Tensor | None) -> Tensor | None:
+        """B u (Santos et al. eq. (4)); None for u = None (unforced)."""
+        return None if u is None else u.to(s) @ self.input_matrix().to(s).T
 
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
         unit = torch.rand(n, self.init_range.numel(), generator=generator, dtype=torch.float64)

@@ -18,7 +18,8 @@ import torch
 from torch import Tensor
 
 from encons.errors import ConfigError
-from encons.systems.base import System, split_state
+from encons.systems.base import split_state
+from encons.systems.mechanical import Mechanical
 
 
 def _check(**values: tuple[float, bool]) -> None:
@@ -28,53 +29,19 @@ def _check(**values: tuple[float, bool]) -> None:
             raise ConfigError(f"system.{key}={value}; allowed: {'> 0' if strict else '>= 0'}")
 
 
-class DissipativeMechanical(System):
+class DissipativeMechanical(Mechanical):
     """Base: M(q), V(q), b(q, q̇) and the non-conservative force F(q, q̇) in closed form."""
-
-    charts = ("angle",)
-    common_chart = "angle"
-    n: int
 
     def __init__(self, init_range: float):
         _check(init_range=(init_range, True))
         self.init_range = float(init_range)
 
-    def coord_dim(self, chart: str) -> int:
-        self.check_chart(chart)
-        return self.n
-
-    @abc.abstractmethod
-    def mass_matrix(self, q: Tensor) -> Tensor: ...
-
-    @abc.abstractmethod
-    def potential(self, q: Tensor) -> Tensor: ...
-
-    @abc.abstractmethod
-    def bias(self, q: Tensor, qd: Tensor) -> Tensor:
-        """b(q, q̇) = C(q, q̇) + ∇V(q), so that M q̈ = F − b."""
-
     @abc.abstractmethod
     def force(self, s: Tensor) -> Tensor:
         """The non-conservative generalised force F(q, q̇) (..., n) of Xiao et al. eq. (2)."""
 
-    def lagrangian(self, s: Tensor) -> Tensor:
-        """L = ½ q̇ᵀ M(q) q̇ − V(q) (Xiao et al. Lemma 1: L = T − U)."""
-        q, qd = split_state(s)
-        return self.kinetic(q, qd) - self.potential(q)
-
-    def kinetic(self, q: Tensor, qd: Tensor) -> Tensor:
-        return 0.5 * (qd[..., None, :] @ self.mass_matrix(q) @ qd[..., :, None])[..., 0, 0]
-
-    def vector_field(self, s: Tensor, chart: str) -> Tensor:
-        self.check_chart(chart)
-        q, qd = split_state(s)
-        rhs = (self.force(s) - self.bias(q, qd)).unsqueeze(-1)
-        return torch.cat([qd, torch.linalg.solve(self.mass_matrix(q), rhs).squeeze(-1)], -1)
-
-    def energy(self, s: Tensor, chart: str) -> Tensor:
-        self.check_chart(chart)
-        q, qd = split_state(s)
-        return self.kinetic(q, qd) + self.potential(q)
+    def generalised_force(self, s: Tensor, u: Tensor | None = None) -> Tensor:
+        return self.force(s)
 
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
         unit = torch.rand(n, 2 * self.n, generator=generator, dtype=torch.float64)
