@@ -46,7 +46,6 @@ from encons.models.networks import mlp
 from encons.module import DynamicsModule
 from encons.systems.base import System, point_mass_matrix, split_state
 
-ORDER = {"lnn": 2, "lnn_angle": 2}  # derivative order of the networks in the field; 1 for the rest
 FIELDS = ["system", "model", "order", "wall_ms", "cpu_ms", "steps_per_s", "peak_mb", "ratio_floor",
           "naive_cpu_ms", "speedup_vs_naive"]
 
@@ -268,7 +267,7 @@ def main() -> None:
             batch = windows(system, model.chart, dt, args.batch, args.chunk)
             step = stepper(model, list(model.parameters()), system, batch, dt)
             wall, cpu = time_step(step, args.steps)
-            order = ORDER.get(model_name, 1)
+            order = 2 if isinstance(model, LNN) else 1  # LNN, GLNN: Hessians of the network; the rest gradients
             row = dict(system=system_name, model=model_name, order=order, wall_ms=wall, cpu_ms=cpu,
                        steps_per_s=1e3 / wall, peak_mb=peak_memory(step), ratio_floor=cpu / floors[order])
             naive = naive_of(model, system) if args.naive_steps else None
