@@ -246,7 +246,7 @@ def sweep_markdown(keys: list[str], rows: list[dict]) -> str:
     by = {(r[keys[0]], r[keys[1]]): r for r in rows}
     first, second = (sorted({r[k] for r in rows}, key=lambda v: (isinstance(_number(v), str), _number(v)))
                      for k in keys)
-    for metric in [m for m in HEADLINE if m in metrics]:
+    for metric in [m for m in HEADLINE if m in metrics and "baseline" not in m]:  # baselines: the same in every cell
         text += f"\n{metric.removeprefix('test/')}: {keys[0]} (rows) × {keys[1]} (columns)\n\n"
         text += "| " + " | ".join([f"{keys[0]} \\ {keys[1]}", *second]) + " |\n" + "|" + "---|" * (len(second) + 1) + "\n"
         for a in first:
