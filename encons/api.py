@@ -278,9 +278,10 @@ def train(cfg: DictConfig, summary: bool = True) -> Run:
 
     Returns a :class:`Run` whose module holds the tested weights, whose ``metrics`` are every
     logged value as floats (``test/...`` of the tested checkpoint, ``best_epoch``, ``wall_time_s``)
-    and whose ``run_dir`` holds ``config.yaml``, ``checkpoints/``, ``figures/`` and ``train.log``.
+    and whose ``run_dir`` holds ``config.yaml``, ``checkpoints/``, ``figures/``, ``test_metrics.json``
+    and, under the CLI (Hydra's job logging), ``train.log``.
     With no monitored checkpoint (``callbacks=null``) the last-epoch weights are tested.
-    ``summary=False`` leaves the metrics table out of the console (it still goes to ``train.log``).
+    ``summary=False`` leaves the metrics table out of the console (it still goes to the log files).
     """
     from encons.errors import EnconsError
     from encons.report import to_log_files

@@ -142,7 +142,7 @@ def resume_or_clear(cfg: DictConfig, checkpoints: Path) -> None:
 
 
 def result_line(row: dict) -> str:
-    """The headline of a finished run: its test errors and wall time (the full table is in its train.log)."""
+    """The headline of a finished run: its test errors and wall time (every metric: its result.json)."""
     keys = ("test/traj_rel_err", "test/geom_rel_err", "test/energy_abs_err", "test/diverged")
     shown = [f"{k.removeprefix('test/')} {row[k]:.3g}" for k in keys if k in row]
     return ", ".join(shown + [f"{row['wall_time_s']:.0f} s"])
