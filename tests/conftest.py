@@ -38,12 +38,16 @@ def isolated_env(tmp_path_factory, monkeypatch):
 
 
 @pytest.fixture
-def cli(monkeypatch, capsys):
+def cli(monkeypatch):
     """``encons.train``'s CLI in this process: ``cli(*args, cwd=...)`` -> (exit code, stdout, stderr).
 
     The same ``main()`` as ``python -m encons.train`` (Hydra, the one-line errors, exit 2) without a
-    new interpreter importing Lightning for each case; ``tests.helpers.run_cli`` runs a real process."""
+    new interpreter importing Lightning for each case; ``tests.helpers.run_cli`` runs a real process.
+    Output goes to buffers that stay open: loggers set up during the call (Hydra's, Optuna's) may keep them."""
+    import contextlib
     import importlib
+    import io
+    import logging
     import sys
     from types import SimpleNamespace
 
@@ -51,16 +55,18 @@ def cli(monkeypatch, capsys):
         if cwd is not None:
             monkeypatch.chdir(cwd)
         monkeypatch.setattr(sys, "argv", ["encons.train", *args])
-        capsys.readouterr()
-        code = 0
+        root = logging.getLogger()
+        handlers, level = root.handlers[:], root.level  # Hydra's job logging replaces them
+        out, err, code = io.StringIO(), io.StringIO(), 0
         try:
-            importlib.import_module("encons.train").main()
+            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+                importlib.import_module("encons.train").main()
         except SystemExit as stop:
             code = stop.code
         finally:
             GlobalHydra.instance().clear()
-        out = capsys.readouterr()
-        return SimpleNamespace(returncode=code, stdout=out.out, stderr=out.err)
+            root.handlers[:], root.level = handlers, level
+        return SimpleNamespace(returncode=code, stdout=out.getvalue(), stderr=err.getvalue())
 
     return run
 
