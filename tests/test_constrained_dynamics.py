@@ -11,6 +11,7 @@ from encons.systems.constrained import (
     constrained_acceleration,
     constrained_hamiltonian_field,
     constraint_jacobians,
+    constraint_terms,
     full_mass_matrix,
 )
 from encons.systems.gyroscope import Gyroscope
@@ -67,6 +68,30 @@ def test_block_form_is_the_dense_eq_20(system_name, off_manifold):
     block = constrained_hamiltonian_field(grad_h, jac, d_rate, minv)
     assert torch.allclose(block, dense, atol=1e-9 * dense.abs().max())
     assert not torch.allclose(block, j_grad, atol=1e-3)  # the projection does act
+
+    # the gyroscope's 3 constant pivot rows eliminated: 6 distance rows, M_P⁻¹ and P₂, same ż
+    jac_r, d_rate_r, minv_p, project = constraint_terms(system.constraints, x, p @ minv, minv)
+    assert (project is not None) == (system_name == "gyroscope")
+    assert jac_r.shape[-2] == jac.shape[-2] - (3 if system_name == "gyroscope" else 0)
+    grad_p = grad_h[..., d:] if project is None else grad_h[..., d:] @ project.T
+    reduced = constrained_hamiltonian_field(torch.cat([grad_h[..., :d], grad_p], -1), jac_r, d_rate_r, minv_p, project)
+    assert torch.allclose(reduced, dense, atol=1e-9 * dense.abs().max())
+
+
+@pytest.mark.parametrize("system_name", SYSTEMS)
+def test_eq_15_with_linear_rows_eliminated_is_the_dense_solve_off_the_manifold(system_name):
+    """ẍ = M⁻¹(Aᵀλ − ∇V), (A M⁻¹ Aᵀ) λ = A M⁻¹ ∇V − C v over every row of Φ, as one dense solve."""
+    system = SYSTEMS[system_name]()
+    gen = torch.Generator().manual_seed(4)
+    minv = random_masses(system, gen)
+    x, v = states(system, off_manifold=0.1).chunk(2, -1)
+    grad_v = torch.randn(x.shape, generator=gen, dtype=x.dtype)
+    jac, d_rate = constraint_jacobians(system.constraints, x, v)
+    rhs = (jac @ minv @ grad_v.unsqueeze(-1) - d_rate @ v.unsqueeze(-1)).squeeze(-1)
+    lam = torch.linalg.solve(jac @ minv @ jac.transpose(-1, -2), rhs)
+    dense = (((jac.transpose(-1, -2) @ lam.unsqueeze(-1)).squeeze(-1) - grad_v) @ minv)
+    assert torch.allclose(constrained_acceleration(x, v, minv, grad_v, system.constraints), dense,
+                          atol=1e-9 * dense.abs().max())
 
 
 @pytest.mark.parametrize("system_name", SYSTEMS)

@@ -16,8 +16,8 @@ from encons.systems.base import System, split_state
 from encons.systems.constrained import (
     constrained_acceleration,
     constrained_hamiltonian_field,
+    constraint_terms,
     full_mass_matrix,
-    jacobians,
 )
 
 
@@ -75,7 +75,6 @@ class CHNN(CartesianModel):
     def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
         x, p = split_state(z)
         minv = full_mass_matrix(self.point_masses_inverse(), self.dim)
-        velocity = p @ minv
-        jac, d_rate = jacobians(self.constraints, x, velocity)
-        grad_h = torch.cat([self.potential_gradient(x), velocity], -1)
-        return constrained_hamiltonian_field(grad_h, jac, d_rate, minv)
+        jac, d_rate, minv_p, project = constraint_terms(self.constraints, x, p @ minv, minv)
+        grad_h = torch.cat([self.potential_gradient(x), p @ minv_p], -1)  # ∇_pH = M⁻¹p, projected (M_P⁻¹ p)
+        return constrained_hamiltonian_field(grad_h, jac, d_rate, minv_p, project)

@@ -3,8 +3,12 @@
 Shared by the true Cartesian fields of the systems and by the models that learn V and the
 masses (CLNN, CHNN), so the equations are written once. Jacobians of Φ through ``torch.func``;
 Φ takes any leading batch shape, as every ``System`` function does. Distance and linear
-constraints declared as structure (``DistanceConstraints``) get DΦ, D_xΦ̇ in closed form.
+constraints declared as structure (``DistanceConstraints``) get DΦ, D_xΦ̇ in closed form, and
+their constant linear rows are eliminated exactly into a projected M⁻¹ (``constraint_terms``), so
+the batched solves are over the distance rows only (gyroscope: 6 × 6 instead of 9 × 9).
 Lagrangian form on s = (x, ẋ): eq. (15); Hamiltonian form on z = (x, p), p = M ẋ: eq. (20).
+Solves are ``torch.linalg.solve_ex``: a singular system (degenerate constraints) gives inf/nan,
+which training reports as divergence, and the per-call error check (~35 % of a small solve) is skipped.
 """
 
 from __future__ import annotations
@@ -77,22 +81,46 @@ class DistanceConstraints:
         distance = self._differences(x).square().sum(-1) - lengths_sq
         return torch.cat([distance, x @ linear.T], -1)
 
-    def jacobians(self, x: Tensor, v: Tensor) -> tuple[Tensor, Tensor]:
-        """DΦ(x) and D_xΦ̇ at velocities v, each (..., K, D), in closed form."""
+    def jacobians(self, x: Tensor, v: Tensor, linear_rows: bool = True) -> tuple[Tensor, Tensor]:
+        """DΦ(x) and D_xΦ̇ at velocities v, each (..., K, D), in closed form; the distance rows
+        alone (K_d) if not ``linear_rows``."""
         _, _, linear, spread = self._constants(x)  # spread: (K_d, n_points, 1)
         jac = (spread * self._differences(x)[..., :, None, :]).flatten(-2)
         d_rate = (spread * self._differences(v)[..., :, None, :]).flatten(-2)
-        if not len(linear):
+        if not (len(linear) and linear_rows):
             return jac, d_rate
         linear = linear.expand(*x.shape[:-1], *linear.shape)
         return torch.cat([jac, linear], -2), torch.cat([d_rate, torch.zeros_like(linear)], -2)
 
 
-def jacobians(phi: Constraint, x: Tensor, v: Tensor) -> tuple[Tensor, Tensor]:
-    """DΦ(x), D_xΦ̇ (..., K, D): closed form for ``DistanceConstraints``, else autodiff."""
+    def eliminate_linear(self, minv: Tensor) -> tuple[Tensor, Tensor | None]:
+        """M_P⁻¹ = P₂ M⁻¹ and P₂ = I − M⁻¹A₂ᵀ(A₂M⁻¹A₂ᵀ)⁻¹A₂ (D, D) for the linear rows A₂ and the
+        constant ``minv`` (D, D); (``minv``, None) without linear rows.
+
+        P₂ is the M-orthogonal projection onto null(A₂). Eliminating λ₂ of the constant rows (their
+        D_xΦ̇ is 0) by the Schur complement leaves eq. (15) over the distance rows with M_P⁻¹ in
+        place of M⁻¹, exactly, on and off Φ = 0; eq. (20) likewise (``constrained_hamiltonian_field``).
+        """
+        linear = self._constants(minv)[2]
+        if not len(linear):
+            return minv, None
+        scaled = minv @ linear.T  # M⁻¹A₂ᵀ (D, K_l)
+        gain = torch.linalg.solve_ex(linear @ scaled, linear)[0]  # S₂₂⁻¹A₂ (K_l, D); S₂₂ ≻ 0
+        project = torch.eye(minv.shape[-1], dtype=minv.dtype, device=minv.device) - scaled @ gain
+        return project @ minv, project
+
+
+def constraint_terms(phi: Constraint, x: Tensor, v: Tensor, minv: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor | None]:
+    """(DΦ, D_xΦ̇, M⁻¹, P) as eqs. (15) and (20) here take them, at velocities v and constant ``minv``.
+
+    ``DistanceConstraints``: closed-form rows of the distance constraints only, with the linear
+    rows eliminated into M_P⁻¹ and P = P₂ (``DistanceConstraints.eliminate_linear``). Any other
+    Φ: every row by autodiff (``constraint_jacobians``), ``minv`` and P = None.
+    """
     if isinstance(phi, DistanceConstraints):
-        return phi.jacobians(x, v)
-    return constraint_jacobians(phi, x, v)
+        minv_p, project = phi.eliminate_linear(minv)
+        return *phi.jacobians(x, v, linear_rows=project is None), minv_p, project
+    return *constraint_jacobians(phi, x, v), minv, None
 
 
 def full_mass_matrix(mp: Tensor, dim: int) -> Tensor:
@@ -106,17 +134,19 @@ def constrained_acceleration(x: Tensor, v: Tensor, minv: Tensor, grad_v: Tensor,
 
     ``minv`` is the constant inverse mass matrix (D, D) (``full_mass_matrix``); ``grad_v`` is ∇V(x).
     ẍ = M⁻¹ Aᵀ λ − M⁻¹ ∇V with (A M⁻¹ Aᵀ) λ = A M⁻¹ ∇V − C v, A = DΦ, C = D_xΦ̇; the products
-    with M⁻¹ and with A are one matmul each.
+    with M⁻¹ and with A are one matmul each. Constant linear rows of Φ enter through M_P⁻¹
+    (``constraint_terms``), which gives the same ẍ.
     """
-    jac, d_rate = jacobians(phi, x, v)
+    jac, d_rate, minv, _ = constraint_terms(phi, x, v, minv)
     k = jac.shape[-2]
     scaled = torch.cat([jac, grad_v.unsqueeze(-2)], -2) @ minv  # rows of A M⁻¹, then (M⁻¹ ∇V)ᵀ (M symmetric)
     prod = torch.cat([jac, d_rate], -2) @ torch.cat([scaled, v.unsqueeze(-2)], -2).transpose(-1, -2)
-    lam = torch.linalg.solve(prod[..., :k, :k], prod[..., :k, k] - prod[..., k:, k + 1])
+    lam = torch.linalg.solve_ex(prod[..., :k, :k], prod[..., :k, k] - prod[..., k:, k + 1])[0]
     return (lam.unsqueeze(-2) @ scaled[..., :k, :]).squeeze(-2) - scaled[..., k, :]
 
 
-def constrained_hamiltonian_field(grad_h: Tensor, jac: Tensor, d_rate: Tensor, minv: Tensor) -> Tensor:
+def constrained_hamiltonian_field(grad_h: Tensor, jac: Tensor, d_rate: Tensor, minv: Tensor,
+                                  project: Tensor | None = None) -> Tensor:
     """ż of Zhong et al. eq. (20) on z = (x, p): J∇H minus its part that would leave Ψ(z) = 0.
 
     ``grad_h`` is ∇H (..., 2D). Ψ = (Φ(x), DΦ(x) M⁻¹ p) (§2.4) enters through the blocks of
@@ -125,6 +155,10 @@ def constrained_hamiltonian_field(grad_h: Tensor, jac: Tensor, d_rate: Tensor, m
     W = C M⁻¹ Aᵀ − A M⁻¹ Cᵀ, and eq. (20) needs one K × K solve (K + 2 right-hand sides)
     instead of a 2K × 2K one: λ₂ = S⁻¹ A ∇_p H, λ₁ = S⁻¹ (W λ₂ − C ∇_p H + A M⁻¹ ∇_x H),
     ẋ = ∇_p H − M⁻¹ Aᵀ λ₂, ṗ = −∇_x H + Aᵀ λ₁ + Cᵀ λ₂. Every product with [A; C] is one matmul.
+    Constant linear rows A₂ eliminated (``constraint_terms``: ``project`` P₂, ``minv`` M_P⁻¹, A and
+    C of the other rows, C still at v = M⁻¹p): pass ∇_pH projected, P₂ ∇_pH (for H: M_P⁻¹ p), and
+    ṗ comes out as P₂ᵀ(−∇_xH + Aᵀλ₁ + Cᵀλ₂), the same ż as with every row: the symplectic
+    projection onto the constant rows, diag(P₂, P₂ᵀ), factors out of eq. (20) (tested).
     """
     grad_x, grad_p = grad_h.chunk(2, -1)
     k = jac.shape[-2]
@@ -133,9 +167,10 @@ def constrained_hamiltonian_field(grad_h: Tensor, jac: Tensor, d_rate: Tensor, m
     prod = rows @ torch.cat([grad_p.unsqueeze(-2), scaled], -2).transpose(-1, -2)  # [A; C] [∇_pH, M⁻¹Aᵀ, M⁻¹∇_xH]
     cross = prod[..., k:, 1:k + 1]  # C M⁻¹ Aᵀ
     rhs = torch.cat([prod[..., :k, :1], prod[..., k:, :1] - prod[..., :k, k + 1:], cross - cross.transpose(-1, -2)], -1)
-    solved = torch.linalg.solve(prod[..., :k, 1:k + 1], rhs)
+    solved = torch.linalg.solve_ex(prod[..., :k, 1:k + 1], rhs)[0]
     lam_2 = solved[..., :1]
     lam_1 = solved[..., 2:] @ lam_2 - solved[..., 1:2]
     mult = torch.cat([torch.cat([lam_1, lam_2], -1), torch.cat([lam_2, torch.zeros_like(lam_2)], -1)], -2)
     back = (mult.transpose(-1, -2) @ rows).unbind(-2)  # Aᵀ λ₁ + Cᵀ λ₂, Aᵀ λ₂ (this orientation: ~2× faster bmm)
-    return torch.cat([grad_p - back[1] @ minv, back[0] - grad_x], -1)
+    p_dot = back[0] - grad_x
+    return torch.cat([grad_p - back[1] @ minv, p_dot if project is None else p_dot @ project], -1)
