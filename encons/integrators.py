@@ -73,11 +73,12 @@ def rollout(model: DynamicsModel, start: Tensor, t: Tensor, integrator: Integrat
         raise ConfigError(f"{type(model).__name__} is a continuous model: its rollout needs an integrator; "
                           f"allowed: an Integrator (the integrator group)")
     options = integrator.options(t)
-    if u is None:  # models without inputs may define forward(t, z) only
-        z = odeint(model, model.encode(start), t, **options)
-    else:
-        z = odeint_held(model, model.encode(start), t, u.to(start), **options)
-    return model.decode(z).movedim(0, -2)
+    with model.rollout_scope():
+        if u is None:  # models without inputs may define forward(t, z) only
+            z = odeint(model, model.encode(start), t, **options)
+        else:
+            z = odeint_held(model, model.encode(start), t, u.to(start), **options)
+        return model.decode(z).movedim(0, -2)
 
 
 def state_derivative(model: DynamicsModel, s: Tensor, u: Tensor | None = None) -> Tensor:

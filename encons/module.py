@@ -132,8 +132,11 @@ class DynamicsModule(pl.LightningModule):
 
     def _kept_checkpoint(self) -> str:
         """What a diverged run leaves to resume from, said truthfully."""
-        kept = [Path(cb.last_model_path) for cb in self.trainer.checkpoint_callbacks if cb.last_model_path]
-        kept = [p for p in kept if p.is_file()]
+        # the "last" callback (monitor null, filename last) records its file as best_model_path;
+        # last_model_path is set only by save_last=True
+        paths = [path for cb in self.trainer.checkpoint_callbacks
+                 for path in (cb.last_model_path, cb.best_model_path if cb.monitor is None else "")]
+        kept = [Path(p) for p in paths if p and Path(p).is_file()]
         if not kept:
             return "no checkpoint was written before it (none to resume from)"
         epoch = torch.load(kept[0], map_location="cpu", weights_only=False, mmap=True).get("epoch")

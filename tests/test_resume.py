@@ -34,8 +34,10 @@ def test_divergence_raises_and_keeps_last_good_checkpoint(train_run, tmp_path, m
         return value * float("nan") if self.current_epoch == 2 else value
 
     monkeypatch.setattr(DynamicsModule, "loss", poisoned)
-    with pytest.raises(DivergenceError, match="training diverged"):
+    with pytest.raises(DivergenceError, match="training diverged") as err:
         train_run(RUN, name="nan")
+    # the message names the checkpoint that exists (it said "no checkpoint was written" before)
+    assert f"{tmp_path / 'nan' / 'checkpoints' / 'last.ckpt'} holds the last good weights (epoch 1)" in str(err.value)
     ckpt = torch.load(tmp_path / "nan" / "checkpoints" / "last.ckpt", weights_only=False)
     assert ckpt["epoch"] == 1
     assert all(torch.isfinite(v).all() for v in ckpt["state_dict"].values())

@@ -14,7 +14,8 @@ What a model supports is declared by class attributes, checked once when a run i
 
 from __future__ import annotations
 
-from typing import Callable, ClassVar
+from contextlib import contextmanager
+from typing import Callable, ClassVar, Iterator
 
 import torch
 from torch import Tensor, nn
@@ -56,6 +57,13 @@ class DynamicsModel(nn.Module):
     def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:  # noqa: D401 - torchdiffeq
         """dz/dt at internal states ``z`` of any batch shape, under inputs ``u`` (..., m) or None."""
         raise NotImplementedError
+
+    @contextmanager
+    def rollout_scope(self) -> Iterator[None]:
+        """One rollout with fixed parameters (``encons.integrators.rollout`` enters it): a model may
+        compute what depends on its parameters alone once here instead of per field evaluation
+        (CHNN/CLNN: the inverse mass matrix). Default: nothing."""
+        yield
 
     def constrained_field(self, s: Tensor, u: Tensor | None = None) -> tuple[Tensor, Callable[..., Tensor]]:
         """Points, per-point inputs and the per-sample field that soft dynamics constraints act on.

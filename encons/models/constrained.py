@@ -2,10 +2,14 @@
 
 Both learn a potential V(x) and constant positive masses structured by the system's bodies
 (``PointMasses``), and take the system's known holonomic constraints Φ(x) = 0. The mass
-matrix is kron(Mp, I_dim) over the (n_points, n_points) matrix Mp; only Mp is ever inverted.
+matrix is kron(Mp, I_dim) over the (n_points, n_points) matrix Mp; only Mp is ever inverted, in
+closed form, once per rollout (``rollout_scope``), not per field evaluation.
 """
 
 from __future__ import annotations
+
+from contextlib import contextmanager
+from typing import Iterator
 
 import torch
 from torch import Tensor
@@ -16,8 +20,9 @@ from encons.systems.base import System, split_state
 from encons.systems.constrained import (
     constrained_acceleration,
     constrained_hamiltonian_field,
-    constraint_terms,
+    eliminate_linear,
     full_mass_matrix,
+    jacobians,
 )
 
 
@@ -33,6 +38,26 @@ class CartesianModel(DynamicsModel):
         self.constraints = system.constraints
         self.potential_net = Potential(self.n, False, hidden, depth, activation)
         self.masses = PointMasses(system.layout)
+        self._mass_terms: tuple[Tensor, Tensor, Tensor | None] | None = None
+
+    @contextmanager
+    def rollout_scope(self) -> Iterator[None]:
+        """M⁻¹ and the constraint-projected M_P⁻¹, P once for the whole rollout (one autograd node
+        shared by every field evaluation)."""
+        self._mass_terms = self.mass_terms()
+        try:
+            yield
+        finally:
+            self._mass_terms = None
+
+    def mass_terms(self) -> tuple[Tensor, Tensor, Tensor | None]:
+        """(M⁻¹, M_P⁻¹, P) (D, D): M⁻¹ = kron(Mp⁻¹, I) and its projection by the constant linear
+        constraint rows (``eliminate_linear``; M⁻¹ and None without them);
+        the rollout's copy inside ``rollout_scope``."""
+        if self._mass_terms is not None:
+            return self._mass_terms
+        minv = full_mass_matrix(self.point_masses_inverse(), self.dim)
+        return minv, *eliminate_linear(self.constraints, minv)
 
     def potential(self, x: Tensor) -> Tensor:
         """V(x)."""
@@ -57,8 +82,9 @@ class CLNN(CartesianModel):
 
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         x, v = split_state(s)
-        minv = full_mass_matrix(self.point_masses_inverse(), self.dim)
-        return torch.cat([v, constrained_acceleration(x, v, minv, self.potential_gradient(x), self.constraints)], -1)
+        minv, minv_p, project = self.mass_terms()
+        acc = constrained_acceleration(x, v, minv, self.potential_gradient(x), self.constraints, (minv_p, project))
+        return torch.cat([v, acc], -1)
 
 
 class CHNN(CartesianModel):
@@ -70,11 +96,11 @@ class CHNN(CartesianModel):
 
     def decode(self, z: Tensor) -> Tensor:
         x, p = split_state(z)
-        return torch.cat([x, p @ full_mass_matrix(self.point_masses_inverse(), self.dim)], -1)
+        return torch.cat([x, p @ self.mass_terms()[0]], -1)
 
     def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
         x, p = split_state(z)
-        minv = full_mass_matrix(self.point_masses_inverse(), self.dim)
-        jac, d_rate, minv_p, project = constraint_terms(self.constraints, x, p @ minv, minv)
+        minv, minv_p, project = self.mass_terms()
+        jac, d_rate = jacobians(self.constraints, x, p @ minv, linear_rows=project is None)
         grad_h = torch.cat([self.potential_gradient(x), p @ minv_p], -1)  # ∇_pH = M⁻¹p, projected (M_P⁻¹ p)
         return constrained_hamiltonian_field(grad_h, jac, d_rate, minv_p, project)

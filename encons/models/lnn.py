@@ -47,11 +47,12 @@ def damped_solve(hessian: Tensor, rhs: Tensor, damping: float) -> Tensor:
     λ = ``damping`` (units of L / q̇², i.e. mass): smooth in the parameters, |q̈| ≤ |r| / (2λ)
     whatever H, and equal to H⁻¹ r up to a relative O(λ² / σ_min(H)²). The bias is absolute,
     so training can scale L up past it; a floor relative to |H| could not be learned away.
-    ``damping=0`` is the plain solve (inf/nan where H is singular).
+    ``damping=0`` is the plain solve. A singular system (H singular at ``damping=0``, or inf/nan in a
+    diverged network) gives inf/nan, which training reports as divergence, not a solver exception.
     """
     ht = hessian.transpose(-1, -2)
     normal = ht @ hessian + damping**2 * torch.eye(hessian.shape[-1], dtype=rhs.dtype, device=rhs.device)
-    return torch.linalg.solve(normal, (ht @ rhs.unsqueeze(-1))).squeeze(-1)
+    return torch.linalg.solve_ex(normal, (ht @ rhs.unsqueeze(-1)))[0].squeeze(-1)
 
 
 #: Objectives of models whose field is (q̇, q̈) by construction: q̈ alone is a complete target

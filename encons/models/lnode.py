@@ -45,4 +45,4 @@ class LNode(DynamicsModel):
         rhs = dl_dq - (mass_dot @ qd.unsqueeze(-1)).squeeze(-1)
         if u is not None:
             rhs = rhs + u.to(s) @ self.input_matrix.T
-        return torch.cat([qd, torch.linalg.solve(mass, rhs)], -1)
+        return torch.cat([qd, torch.linalg.solve_ex(mass, rhs)[0]], -1)  # singular (diverged): nan, not an exception

@@ -4,7 +4,7 @@ Shared by the true Cartesian fields of the systems and by the models that learn 
 masses (CLNN, CHNN), so the equations are written once. Jacobians of Φ through ``torch.func``;
 Φ takes any leading batch shape, as every ``System`` function does. Distance and linear
 constraints declared as structure (``DistanceConstraints``) get DΦ, D_xΦ̇ in closed form, and
-their constant linear rows are eliminated exactly into a projected M⁻¹ (``constraint_terms``), so
+their constant linear rows are eliminated exactly into a projected M⁻¹ (``eliminate_linear``), so
 the batched solves are over the distance rows only (gyroscope: 6 × 6 instead of 9 × 9).
 Lagrangian form on s = (x, ẋ): eq. (15); Hamiltonian form on z = (x, p), p = M ẋ: eq. (20).
 Solves are ``torch.linalg.solve_ex``: a singular system (degenerate constraints) gives inf/nan,
@@ -110,17 +110,20 @@ class DistanceConstraints:
         return project @ minv, project
 
 
-def constraint_terms(phi: Constraint, x: Tensor, v: Tensor, minv: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor | None]:
-    """(DΦ, D_xΦ̇, M⁻¹, P) as eqs. (15) and (20) here take them, at velocities v and constant ``minv``.
-
-    ``DistanceConstraints``: closed-form rows of the distance constraints only, with the linear
-    rows eliminated into M_P⁻¹ and P = P₂ (``DistanceConstraints.eliminate_linear``). Any other
-    Φ: every row by autodiff (``constraint_jacobians``), ``minv`` and P = None.
-    """
+def eliminate_linear(phi: Constraint, minv: Tensor) -> tuple[Tensor, Tensor | None]:
+    """(M_P⁻¹, P₂) of Φ's constant linear rows (``DistanceConstraints.eliminate_linear``), or
+    (``minv``, None) for a Φ that declares none (any other callable)."""
     if isinstance(phi, DistanceConstraints):
-        minv_p, project = phi.eliminate_linear(minv)
-        return *phi.jacobians(x, v, linear_rows=project is None), minv_p, project
-    return *constraint_jacobians(phi, x, v), minv, None
+        return phi.eliminate_linear(minv)
+    return minv, None
+
+
+def jacobians(phi: Constraint, x: Tensor, v: Tensor, linear_rows: bool = True) -> tuple[Tensor, Tensor]:
+    """DΦ(x), D_xΦ̇ (..., K, D): closed form for ``DistanceConstraints`` (without its linear rows
+    if not ``linear_rows``: they were eliminated), else every row by autodiff."""
+    if isinstance(phi, DistanceConstraints):
+        return phi.jacobians(x, v, linear_rows)
+    return constraint_jacobians(phi, x, v)
 
 
 def full_mass_matrix(mp: Tensor, dim: int) -> Tensor:
@@ -129,15 +132,18 @@ def full_mass_matrix(mp: Tensor, dim: int) -> Tensor:
     return (mp[:, None, :, None] * eye[None, :, None, :]).reshape(mp.shape[0] * dim, mp.shape[1] * dim)
 
 
-def constrained_acceleration(x: Tensor, v: Tensor, minv: Tensor, grad_v: Tensor, phi: Constraint) -> Tensor:
+def constrained_acceleration(x: Tensor, v: Tensor, minv: Tensor, grad_v: Tensor, phi: Constraint,
+                             eliminated: tuple[Tensor, Tensor | None] | None = None) -> Tensor:
     """ẍ of Zhong et al. eq. (15): Lagrangian dynamics with explicit constraints.
 
     ``minv`` is the constant inverse mass matrix (D, D) (``full_mass_matrix``); ``grad_v`` is ∇V(x).
     ẍ = M⁻¹ Aᵀ λ − M⁻¹ ∇V with (A M⁻¹ Aᵀ) λ = A M⁻¹ ∇V − C v, A = DΦ, C = D_xΦ̇; the products
     with M⁻¹ and with A are one matmul each. Constant linear rows of Φ enter through M_P⁻¹
-    (``constraint_terms``), which gives the same ẍ.
+    (``eliminate_linear``; ``eliminated`` passes its result when computed once per rollout), which
+    gives the same ẍ.
     """
-    jac, d_rate, minv, _ = constraint_terms(phi, x, v, minv)
+    minv, project = eliminated or eliminate_linear(phi, minv)
+    jac, d_rate = jacobians(phi, x, v, linear_rows=project is None)
     k = jac.shape[-2]
     scaled = torch.cat([jac, grad_v.unsqueeze(-2)], -2) @ minv  # rows of A M⁻¹, then (M⁻¹ ∇V)ᵀ (M symmetric)
     prod = torch.cat([jac, d_rate], -2) @ torch.cat([scaled, v.unsqueeze(-2)], -2).transpose(-1, -2)
@@ -155,7 +161,7 @@ def constrained_hamiltonian_field(grad_h: Tensor, jac: Tensor, d_rate: Tensor, m
     W = C M⁻¹ Aᵀ − A M⁻¹ Cᵀ, and eq. (20) needs one K × K solve (K + 2 right-hand sides)
     instead of a 2K × 2K one: λ₂ = S⁻¹ A ∇_p H, λ₁ = S⁻¹ (W λ₂ − C ∇_p H + A M⁻¹ ∇_x H),
     ẋ = ∇_p H − M⁻¹ Aᵀ λ₂, ṗ = −∇_x H + Aᵀ λ₁ + Cᵀ λ₂. Every product with [A; C] is one matmul.
-    Constant linear rows A₂ eliminated (``constraint_terms``: ``project`` P₂, ``minv`` M_P⁻¹, A and
+    Constant linear rows A₂ eliminated (``eliminate_linear``: ``project`` P₂, ``minv`` M_P⁻¹, A and
     C of the other rows, C still at v = M⁻¹p): pass ∇_pH projected, P₂ ∇_pH (for H: M_P⁻¹ p), and
     ṗ comes out as P₂ᵀ(−∇_xH + Aᵀλ₁ + Cᵀλ₂), the same ż as with every row: the symplectic
     projection onto the constant rows, diag(P₂, P₂ᵀ), factors out of eq. (20) (tested).
