@@ -91,10 +91,10 @@ class LNN(DynamicsModel):
         q, qd = split_state(s)
         tape = MLPTape(self.lagrangian_net, torch.cat([embed_angles(q, self.angular), qd], -1))
         g = tape.pullback(torch.ones_like(tape.out))
-        width = g.shape[-1]
-        units = torch.eye(width, dtype=s.dtype, device=s.device)[width - self.n:]
-        along = torch.cat([embedding_jvp(q, self.angular, qd), torch.zeros_like(qd)], -1)
-        _, tangents = tape.push(torch.cat([units.expand(*along.shape[:-1], *units.shape), along.unsqueeze(-2)], -2))
+        width, weight = g.shape[-1], tape.linears[0].weight
+        along = embedding_jvp(q, self.angular, qd) @ weight[:, :width - self.n].T  # W_1 (q̇ through the embedding, 0)
+        units = weight[:, width - self.n:].T  # W_1 (0, e_i): columns of W_1, no product
+        _, tangents = tape.push(None, torch.cat([units.expand(*along.shape[:-1], *units.shape), along.unsqueeze(-2)], -2))
         curvature = tape.curvature([t[..., :self.n, :] for t in tangents], tangents)
         return embedding_vjp(q, self.angular, g[..., :width - self.n]), curvature[..., :self.n], curvature[..., self.n]
 
