@@ -1,4 +1,5 @@
-"""LNN trains at defaults (issue 11 item 3): a 20-epoch tiny run stays finite and learns."""
+"""LNN trains at defaults (issue 11 item 3): a 20-epoch run on tiny data, with the default network
+(3 × 256, as every default run has; debug=fast shrinks it to 2 × 16), stays finite and learns."""
 
 from __future__ import annotations
 
@@ -10,7 +11,9 @@ import pytest
 @pytest.mark.slow
 @pytest.mark.parametrize("system", ["pendulum2", "gyroscope"])
 def test_lnn_twenty_epochs_finite_and_val_error_falls(train_run, system):
-    first = train_run(["model=lnn", f"system={system}", "trainer.max_epochs=1"], name="one")
-    last = train_run(["model=lnn", f"system={system}", "trainer.max_epochs=20"], name="twenty")
+    default_net = ["model.hidden=256", "model.depth=3"]
+    first = train_run(["model=lnn", f"system={system}", "trainer.max_epochs=1", *default_net], name="one")
+    last = train_run(["model=lnn", f"system={system}", "trainer.max_epochs=20", *default_net], name="twenty")
     assert all(math.isfinite(v) for v in last.values()), last
-    assert last["best/val/traj_rel_err"] < 0.9 * first["best/val/traj_rel_err"]
+    # measured: pendulum2 1.03 -> 0.61, gyroscope 0.54 -> 0.36 (model.damping=1)
+    assert last["best/val/traj_rel_err"] < 0.75 * first["best/val/traj_rel_err"]
