@@ -15,8 +15,10 @@ samples, each with its full Hessian (``torch.autograd.functional.hessian``), tim
 a few steps, as wall time and as process CPU time; ratios use CPU time, which other people's load on
 a shared machine disturbs least (run with ``--threads 1`` there). Peak memory: the high-water mark
 of the tensors torch allocates during one step (profiler memory events, in order). Also times
-dataset generation (1,000 trajectories × 100 steps; target ≤ 2 s for pendulum2). Writes CSV and
-Markdown (with the machine) to ``benchmarks/results/``.
+dataset generation (1,000 trajectories × 100 steps; target ≤ 2 s for pendulum2) and, for the
+``--compile`` models, the same step with the field through ``torch.compile`` (``compile=true``): its
+compile time (the first step, from an empty inductor cache only on a fresh machine) and speed-up.
+Writes CSV and Markdown (with the machine) to ``benchmarks/results/``.
 Usage: ``python benchmarks/speed.py [--systems ...] [--models ...] [--threads 1] [--out CSV]``.
 """
 
@@ -26,6 +28,7 @@ import argparse
 import csv
 import os
 import platform
+import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -47,7 +50,7 @@ from encons.module import DynamicsModule
 from encons.systems.base import System, point_mass_matrix, split_state
 
 FIELDS = ["system", "model", "order", "wall_ms", "cpu_ms", "steps_per_s", "peak_mb", "ratio_floor",
-          "naive_cpu_ms", "speedup_vs_naive"]
+          "naive_cpu_ms", "speedup_vs_naive", "compile_s", "speedup_compiled"]
 
 
 class BareFloor(DynamicsModel):
@@ -225,6 +228,8 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=5, help="timed steps per model (fastest reported)")
     parser.add_argument("--naive-steps", type=int, default=1, help="timed steps per naive implementation (0: skip)")
     parser.add_argument("--naive-samples", type=int, default=20, help="windows the per-sample loops are timed on")
+    parser.add_argument("--compile", nargs="*", default=["chnn", "clnn", "lnn"], choices=models,
+                        help="models also timed with compile=true (none: skip)")
     parser.add_argument("--batch", type=int, default=200)
     parser.add_argument("--chunk", type=int, default=5)
     parser.add_argument("--hidden", type=int, default=256)
@@ -234,6 +239,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
+    if args.compile:  # an empty inductor cache: the compile time a fresh machine pays
+        os.environ["TORCHINDUCTOR_CACHE_DIR"] = tempfile.mkdtemp(prefix="encons-inductor-")
     warnings.filterwarnings("ignore", message=r"hydra\.utils\.instantiate\(\) resolved")  # Hydra's, on every build
     torch.manual_seed(0)
     rows = []
@@ -277,12 +284,19 @@ def main() -> None:
                                          warm_up=False)  # seconds per step: no warm-up needed
                 naive_cpu *= len(batch) / len(part)
                 row.update(naive_cpu_ms=naive_cpu, speedup_vs_naive=naive_cpu / cpu)
+            if model_name in args.compile:
+                model.compile()  # what compile=true does (encons.config.build_model)
+                step = stepper(model, list(model.parameters()), system, batch, dt)
+                start = time.perf_counter()
+                step()  # compiles
+                row["compile_s"] = time.perf_counter() - start
+                row["speedup_compiled"] = cpu / time_step(step, args.steps)[1]
             add(**row)
-            print(f"{progress}: {wall:.1f} ms" + (f", naive {row['naive_cpu_ms']:.0f} ms" if naive else ""),
-                  flush=True)
+            print(f"{progress}: {wall:.1f} ms" + (f", naive {row['naive_cpu_ms']:.0f} ms" if naive else "")
+                  + (f", compiled ×{row['speedup_compiled']:.2f}" if "compile_s" in row else ""), flush=True)
     header = ["system", "model", "order", "wall ms", "CPU ms", "steps/s", "peak MiB", "× floor", "naive CPU ms",
-              "speed-up vs naive"]
-    specs = ["", "", "", ".1f", ".1f", ".2f", ".0f", ".2f", ".0f", ".1f"]
+              "speed-up vs naive", "compile s", "speed-up compiled"]
+    specs = ["", "", "", ".1f", ".1f", ".2f", ".0f", ".2f", ".0f", ".1f", ".0f", ".2f"]
     lines = [[fmt(r[k], s) if s else str(r[k]) for k, s in zip(FIELDS, specs)] for r in rows]
     widths = [max(len(h), *(len(line[i]) for line in lines)) for i, h in enumerate(header)]
     print()

@@ -183,7 +183,7 @@ def _overridden() -> set[str]:
     return {o.split("=", 1)[0].lstrip("+~") for o in HydraConfig.get().overrides.task}
 
 
-def _top_level_keys(seed: int, horizon: int, test: bool) -> None:
+def _top_level_keys(seed: int, horizon: int, test: bool, compile: bool) -> None:
     """The annotated top-level keys of ``train.yaml`` (for ``check_types``)."""
 
 
@@ -220,7 +220,7 @@ def check_config(cfg: DictConfig) -> None:
 
     from encons.module import DynamicsModule
 
-    check_types({k: cfg.get(k) for k in ("seed", "horizon", "test")}, _top_level_keys, "")
+    check_types({k: cfg.get(k) for k in ("seed", "horizon", "test", "compile") if k in cfg}, _top_level_keys, "")
     check_types(OmegaConf.to_container(cfg.data, resolve=True), TrajectoryDataModule, "data")
     check_types(OmegaConf.to_container(cfg.optim, resolve=True), DynamicsModule, "optim")
     for key in ("system", "model", "regulariser", "observation"):
@@ -272,7 +272,10 @@ def build_model(cfg: DictConfig, system: System, observation: Observation | None
         raise ConfigError(f"model {model_name} needs holonomic constraints, which system '{system.name}' "
                           f"does not declare; allowed: a model in generalised coordinates")
     check_capabilities(cfg, cls, system)
-    return instantiate_node(cfg, "model", system=system)
+    model = instantiate_node(cfg, "model", system=system)
+    if cfg.get("compile"):
+        model.compile()  # torch.compile of the module's call, i.e. the field, in place (nn.Module.compile)
+    return model
 
 
 def objective_of(cfg: DictConfig) -> str:
@@ -288,6 +291,10 @@ def check_capabilities(cfg: DictConfig, cls: type[DynamicsModel], system: System
     objective = objective_of(cfg)
     if objective not in cls.objectives:
         raise ConfigError(f"objective={objective} does not apply to model={name}; allowed: {', '.join(cls.objectives)}")
+    if cfg.get("compile") and (cls.discrete or cfg.get("regulariser")):
+        reason = f"model={name} is discrete (no field)" if cls.discrete else \
+            "the regularisers take Jacobians of the field by torch.func, which is not tested on a compiled one"
+        raise ConfigError(f"compile=true compiles the model's vector field, and {reason}; allowed: compile=false")
     if cfg.get("regulariser") and cls.discrete:
         raise ConfigError(f"regulariser={cfg.regulariser._target_.rsplit('.', 1)[-1].lower()} needs a vector field "
                           f"and model={name} is discrete (it steps itself); allowed: regulariser=none")
