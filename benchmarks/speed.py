@@ -121,7 +121,7 @@ class NaiveCartesian(DynamicsModel):
 
 class NaiveLagrangian(DynamicsModel):
     """Euler–Lagrange q̈ = (∇²_q̇ L)⁻¹ (∇_q L − ∇_q̇∇_qᵀ L q̇), a Python loop over samples, each
-    with its full Hessian of L (same parameters as the model)."""
+    with its full Hessian of L (same parameters as the model; LNN's guarded solve with its λ)."""
 
     def __init__(self, model: LNN | LNNStructure, system: System):
         super().__init__(system, model.chart)
@@ -140,7 +140,10 @@ class NaiveLagrangian(DynamicsModel):
                 si = si if si.requires_grad else si.requires_grad_()
                 dl = torch.autograd.grad(self.lagrangian(si), si, create_graph=True)[0]
                 hess = torch.autograd.functional.hessian(self.lagrangian, si, create_graph=True)
-            out.append(torch.linalg.solve(hess[n:, n:], dl[:n] - hess[n:, :n] @ si[n:]))
+            h, r = hess[n:, n:], dl[:n] - hess[n:, :n] @ si[n:]
+            if isinstance(self.model, LNN):  # the model's guarded solve, written out (lnn.damped_solve)
+                r, h = h.T @ r, h.T @ h + self.model.damping**2 * torch.eye(n, dtype=h.dtype)
+            out.append(torch.linalg.solve(h, r))
         return torch.cat([s[..., n:], torch.stack(out).reshape(s[..., n:].shape)], -1)
 
 

@@ -31,8 +31,6 @@ def test_naive_field_is_the_model_field(cls, system_name):
         with torch.no_grad():
             for p in model.masses.parameters():
                 p.normal_(0.0, 0.3)
-    if isinstance(model, LNN):
-        model.damping = 0.0  # the naive loop is the plain Euler–Lagrange solve
     s0 = system.sample_initial(64, torch.Generator().manual_seed(1))
     s0 = s0[torch.sin(s0[:, 1]).abs() > 0.3][:8] if isinstance(system, Gyroscope) else s0[:8]
     z = model.encode(system.to_chart(s0, system.base_chart, model.chart))
