@@ -12,8 +12,8 @@ solve of eq. (20) with DΨ from one ``autograd.grad`` per constraint row and M�
 inverted per evaluation; CLNN by eq. (15) likewise; LNN and LNN-structure by a Python loop over
 samples, each with its full Hessian (``torch.autograd.functional.hessian``), timed on the first
 ``--naive-samples`` windows and scaled to the batch (the loop is linear in it). Timed: the fastest of
-a few steps, as wall time and as process CPU time (the floors re-timed beside every model, their
-fastest kept); ratios use CPU time, which other people's load on
+a few steps, as wall time and as process CPU time (the floor re-timed just before every
+model: each ratio is of a pair timed under the same load); ratios use CPU time, which other people's load on
 a shared machine disturbs least (run with ``--threads 1`` there). Peak memory: the high-water mark
 of the tensors torch allocates during one step (profiler memory events, in order). Also times
 dataset generation (1,000 trajectories × 100 steps; target ≤ 2 s for pendulum2) and, for the
@@ -259,7 +259,7 @@ def main() -> None:
         wall, cpu = time_generation(system, dt)
         add(system=system_name, model="dataset generation (1000 × 100 steps)", wall_ms=wall, cpu_ms=cpu)
         print(f"{system_name}: dataset generation {wall:.0f} ms", flush=True)
-        floor_steps, floor_rows, first = {}, {}, len(rows)
+        floor_steps, floor_rows = {}, {}
         for order in (1, 2):
             model = BareFloor(system, system.base_chart, order, args.hidden, args.depth)
             floor_steps[order] = stepper(model, list(model.parameters()), system,
@@ -270,13 +270,15 @@ def main() -> None:
             floor_rows[order] = rows[-1]
             print(f"{system_name}: floor order {order}: {wall:.1f} ms", flush=True)
 
-        def floor_again(order: int) -> None:
-            """Re-time the floor beside each model and keep its fastest: a burst of someone else's
-            load while the floor alone was timed would flatter every ratio of the system."""
+        def floor_again(order: int) -> float:
+            """The floor's CPU ms re-timed just before a model, so that the pair shares the machine's
+            load of the moment (a burst while the floor alone was timed would skew every ratio);
+            the floor's row keeps its fastest."""
             wall, cpu = time_step(floor_steps[order], args.steps)
             row = floor_rows[order]
             row.update(wall_ms=min(row["wall_ms"], wall), cpu_ms=min(row["cpu_ms"], cpu))
             row["steps_per_s"] = 1e3 / row["wall_ms"]
+            return cpu
 
         for i_model, model_name in enumerate(args.models):
             progress = f"[{i_system * len(args.models) + i_model + 1}/{total}] {system_name}: {model_name}"
@@ -288,10 +290,10 @@ def main() -> None:
             batch = windows(system, model.chart, dt, args.batch, args.chunk)
             step = stepper(model, list(model.parameters()), system, batch, dt)
             order = 2 if isinstance(model, LNN) else 1  # LNN, GLNN: Hessians of the network; the rest gradients
-            floor_again(order)
+            floor_cpu = floor_again(order)
             wall, cpu = time_step(step, args.steps)
             row = dict(system=system_name, model=model_name, order=order, wall_ms=wall, cpu_ms=cpu,
-                       steps_per_s=1e3 / wall, peak_mb=peak_memory(step))
+                       steps_per_s=1e3 / wall, peak_mb=peak_memory(step), ratio_floor=cpu / floor_cpu)
             naive = naive_of(model, system) if args.naive_steps else None
             if naive is not None:
                 part = batch[: args.naive_samples] if isinstance(naive, NaiveLagrangian) else batch
@@ -309,9 +311,7 @@ def main() -> None:
             add(**row)
             print(f"{progress}: {wall:.1f} ms" + (f", naive {row['naive_cpu_ms']:.0f} ms" if naive else "")
                   + (f", compiled ×{row['speedup_compiled']:.2f}" if "compile_s" in row else ""), flush=True)
-        for row in rows[first:]:  # ratios to the fastest floor of the system's whole sitting
-            if row["order"] != "" and not str(row["model"]).startswith("floor"):
-                row["ratio_floor"] = row["cpu_ms"] / floor_rows[row["order"]]["cpu_ms"]
+
     header = ["system", "model", "order", "wall ms", "CPU ms", "steps/s", "peak MiB", "× floor", "naive CPU ms",
               "speed-up vs naive", "compile s", "speed-up compiled"]
     specs = ["", "", "", ".1f", ".1f", ".2f", ".0f", ".2f", ".0f", ".1f", ".0f", ".2f"]
