@@ -12,8 +12,8 @@ solve of eq. (20) with DΨ from one ``autograd.grad`` per constraint row and M�
 inverted per evaluation; CLNN by eq. (15) likewise; LNN and LNN-structure by a Python loop over
 samples, each with its full Hessian (``torch.autograd.functional.hessian``), timed on the first
 ``--naive-samples`` windows and scaled to the batch (the loop is linear in it). Timed: the fastest of
-a few steps, as wall time and as process CPU time (the floor re-timed just before every
-model: each ratio is of a pair timed under the same load); ratios use CPU time, which other people's load on
+a few steps, as wall time and as process CPU time (the floor and each model timed
+alternately, ``--repeats`` rounds, the fastest of each: the pair sees the same load); ratios use CPU time, which other people's load on
 a shared machine disturbs least (run with ``--threads 1`` there). Peak memory: the high-water mark
 of the tensors torch allocates during one step (profiler memory events, in order). Also times
 dataset generation (1,000 trajectories × 100 steps; target ≤ 2 s for pendulum2) and, for the
@@ -229,7 +229,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--systems", nargs="+", default=["pendulum2", "gyroscope"])
     parser.add_argument("--models", nargs="+", default=models, choices=models)
-    parser.add_argument("--steps", type=int, default=5, help="timed steps per model (fastest reported)")
+    parser.add_argument("--steps", type=int, default=3, help="timed steps per model and round (fastest reported)")
+    parser.add_argument("--repeats", type=int, default=3, help="rounds of (floor, model), alternated; fastest of each")
     parser.add_argument("--naive-steps", type=int, default=1, help="timed steps per naive implementation (0: skip)")
     parser.add_argument("--naive-samples", type=int, default=20, help="windows the per-sample loops are timed on")
     parser.add_argument("--compile", nargs="*", default=["chnn", "clnn", "lnn"], choices=models,
@@ -290,8 +291,8 @@ def main() -> None:
             batch = windows(system, model.chart, dt, args.batch, args.chunk)
             step = stepper(model, list(model.parameters()), system, batch, dt)
             order = 2 if isinstance(model, LNN) else 1  # LNN, GLNN: Hessians of the network; the rest gradients
-            floor_cpu = floor_again(order)
-            wall, cpu = time_step(step, args.steps)
+            pairs = [(floor_again(order), time_step(step, args.steps)) for _ in range(args.repeats)]
+            floor_cpu, (wall, cpu) = min(p[0] for p in pairs), min((p[1] for p in pairs), key=lambda t: t[1])
             row = dict(system=system_name, model=model_name, order=order, wall_ms=wall, cpu_ms=cpu,
                        steps_per_s=1e3 / wall, peak_mb=peak_memory(step), ratio_floor=cpu / floor_cpu)
             naive = naive_of(model, system) if args.naive_steps else None
