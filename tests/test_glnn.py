@@ -52,7 +52,7 @@ def test_glnn_without_force_is_lnn_on_a_conservative_system():
 def test_glnn_networks_with_zero_force_equal_lnn_with_the_same_lagrangian_network():
     system = NPendulum(2)
     glnn = GLNN(system, hidden=16, depth=2).double()
-    lnn = LNN(system, hidden=16, depth=2).double()
+    lnn = LNN(system, hidden=16, depth=2, damping=glnn.damping).double()  # GLNN keeps λ = 0.1, LNN's default is 1
     lnn.lagrangian_net.load_state_dict(glnn.lagrangian_net.state_dict())
     torch.nn.init.zeros_(glnn.force_net[-1].weight)
     torch.nn.init.zeros_(glnn.force_net[-1].bias)
