@@ -99,16 +99,19 @@ class MLPTape:
             g = (g * slope) @ linear.weight
         return g
 
-    def push(self, tangent: Tensor | None, first: Tensor | None = None) -> tuple[Tensor, list[Tensor]]:
+    def push(self, tangent: Tensor) -> tuple[Tensor, list[Tensor]]:
         """∂out/∂x · t (..., k, out) and the pre-activation tangents ż_k (..., k, ·), for k input
-        tangents t (..., k, d) per sample (directions second to last: every product stays one matmul).
-        ``first``: ż_1 = W_1 t when the caller has it cheaper (e.g. columns of W_1 for unit t); then
-        ``tangent`` is not used."""
-        tangents, a = [], tangent
-        for i, (linear, (slope, _)) in enumerate(zip(self.linears, self.slopes)):
-            tangents.append(first if i == 0 and first is not None else a @ linear.weight.T)
-            a = slope.unsqueeze(-2) * tangents[-1]
-        return a @ self.linears[-1].weight.T, tangents
+        tangents t (..., k, d) per sample (directions second to last: every product stays one matmul)."""
+        return self.push_first(tangent @ self.linears[0].weight.T)
+
+    def push_first(self, first: Tensor) -> tuple[Tensor, list[Tensor]]:
+        """``push`` from the first layer's tangents ż_1 = W_1 t (..., k, width), for a caller that has
+        them without the product (e.g. columns of W_1 for unit directions t)."""
+        tangents, z = [], first
+        for linear, (slope, _) in zip(self.linears[1:], self.slopes):
+            tangents.append(z)
+            z = (slope.unsqueeze(-2) * z) @ linear.weight.T
+        return z, tangents
 
     def curvature(self, rows: list[Tensor], columns: list[Tensor]) -> Tensor:
         """uᵢᵀ ∇²(cᵀ out) v_j (..., I, J) for the tangents ż_k of directions u (..., I, ·) and v
