@@ -82,8 +82,8 @@ class CLNN(CartesianModel):
 
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         x, v = split_state(s)
-        minv, minv_p, project = self.mass_terms()
-        acc = constrained_acceleration(x, v, minv, self.potential_gradient(x), self.constraints, (minv_p, project))
+        minv_p = self.mass_terms()[1]
+        acc = constrained_acceleration(x, v, minv_p, self.potential_gradient(x), self.constraints, eliminated=True)
         return torch.cat([v, acc], -1)
 
 
@@ -101,6 +101,6 @@ class CHNN(CartesianModel):
     def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
         x, p = split_state(z)
         minv, minv_p, project = self.mass_terms()
-        jac, d_rate = jacobians(self.constraints, x, p @ minv, linear_rows=project is None)
+        jac, d_rate = jacobians(self.constraints, x, p @ minv, linear_rows=False)  # the linear rows are in M_P⁻¹
         grad_h = torch.cat([self.potential_gradient(x), p @ minv_p], -1)  # ∇_pH = M⁻¹p, projected (M_P⁻¹ p)
         return constrained_hamiltonian_field(grad_h, jac, d_rate, minv_p, project)

@@ -133,17 +133,18 @@ def full_mass_matrix(mp: Tensor, dim: int) -> Tensor:
 
 
 def constrained_acceleration(x: Tensor, v: Tensor, minv: Tensor, grad_v: Tensor, phi: Constraint,
-                             eliminated: tuple[Tensor, Tensor | None] | None = None) -> Tensor:
+                             eliminated: bool = False) -> Tensor:
     """ẍ of Zhong et al. eq. (15): Lagrangian dynamics with explicit constraints.
 
     ``minv`` is the constant inverse mass matrix (D, D) (``full_mass_matrix``); ``grad_v`` is ∇V(x).
     ẍ = M⁻¹ Aᵀ λ − M⁻¹ ∇V with (A M⁻¹ Aᵀ) λ = A M⁻¹ ∇V − C v, A = DΦ, C = D_xΦ̇; the products
     with M⁻¹ and with A are one matmul each. Constant linear rows of Φ enter through M_P⁻¹
-    (``eliminate_linear``; ``eliminated`` passes its result when computed once per rollout), which
-    gives the same ẍ.
+    (``eliminate_linear``), which gives the same ẍ; ``eliminated``: ``minv`` already is M_P⁻¹
+    (computed once per rollout).
     """
-    minv, project = eliminated or eliminate_linear(phi, minv)
-    jac, d_rate = jacobians(phi, x, v, linear_rows=project is None)
+    if not eliminated:
+        minv = eliminate_linear(phi, minv)[0]
+    jac, d_rate = jacobians(phi, x, v, linear_rows=False)  # the linear rows are in M_P⁻¹
     k = jac.shape[-2]
     scaled = torch.cat([jac, grad_v.unsqueeze(-2)], -2) @ minv  # rows of A M⁻¹, then (M⁻¹ ∇V)ᵀ (M symmetric)
     prod = torch.cat([jac, d_rate], -2) @ torch.cat([scaled, v.unsqueeze(-2)], -2).transpose(-1, -2)
