@@ -49,7 +49,7 @@ def fastest_ms(fn: Callable[[], object], repeats: int) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--dims", type=int, nargs="+", default=[2, 4, 8])
     parser.add_argument("--batch", type=int, default=1024)
     parser.add_argument("--hidden", type=int, default=200)

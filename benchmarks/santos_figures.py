@@ -82,7 +82,7 @@ def figure(rows: list[dict], system: str, out: Path) -> Path:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--systems", nargs="+", default=list(SYSTEM_OVERRIDES))
     parser.add_argument("--models", nargs="+", default=list(MODELS), choices=list(MODELS))
     parser.add_argument("--n-train", nargs="+", type=int, default=[8, 32, 128])

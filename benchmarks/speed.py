@@ -226,7 +226,7 @@ def fmt(value, spec: str) -> str:
 
 def main() -> None:
     models = catalogue("model")
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--systems", nargs="+", default=["pendulum2", "gyroscope"])
     parser.add_argument("--models", nargs="+", default=models, choices=models)
     parser.add_argument("--steps", type=int, default=3, help="timed steps per model and round (fastest reported)")

@@ -50,7 +50,7 @@ def time_step(module: DynamicsModule, data: dict, steps: int) -> tuple[float, fl
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--steps", type=int, default=5)
     parser.add_argument("--batch", type=int, default=512)
     parser.add_argument("--threads", type=int, default=None)

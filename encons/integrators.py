@@ -64,7 +64,8 @@ def rollout(model: DynamicsModel, start: Tensor, t: Tensor, integrator: Integrat
 
     ``start`` is the data-chart state (..., 2n) for a continuous model, the first ``history``
     states (..., history, 2n) for a discrete one. Returns data-chart states (..., T, 2n); for a
-    continuous model index 0 along time is ``decode(encode(start))``.
+    continuous model index 0 along time is ``start`` itself (``decode(encode(start))`` in exact
+    arithmetic; not computed, so a learned decoder costs T − 1 evaluations).
     """
     t = t.to(start)
     if model.discrete:
@@ -78,7 +79,7 @@ def rollout(model: DynamicsModel, start: Tensor, t: Tensor, integrator: Integrat
             z = odeint(model, model.encode(start), t, **options)
         else:
             z = odeint_held(model, model.encode(start), t, u.to(start), **options)
-        return model.decode(z).movedim(0, -2)
+        return torch.cat([start.unsqueeze(0), model.decode(z[1:])]).movedim(0, -2)
 
 
 def state_derivative(model: DynamicsModel, s: Tensor, u: Tensor | None = None) -> Tensor:

@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import pytest
 import torch
-from torch.func import grad, hessian, jvp, vmap
+from torch.func import grad, hessian, jacfwd, jacrev, jvp, vmap
 
 from encons.batching import batched_grad
 from encons.models.constrained import CHNN, CLNN
 from encons.models.hnn import HNN, HNNStructure
 from encons.models.lnn import LNN, LNNStructure, euler_lagrange_terms, lagrangian_derivatives
-from encons.models.networks import ACTIVATIONS, MLPTape, mlp
+from encons.models.networks import ACTIVATIONS, MLPTape, mlp, pair_products
 from encons.systems.base import split_state
 from encons.systems.gyroscope import Gyroscope
 from encons.systems.pendulum import NPendulum
@@ -45,6 +45,29 @@ def test_tape_derivatives_are_autodiff_ones(activation):
         assert gap(tape.curvature(tangents, tangents), exact) < 1e-12
     else:
         assert tape.curvature(tangents, tangents).abs().max() == 0 and exact.abs().max() == 0
+
+
+def test_pair_products_are_a_matmul_to_every_order():
+    """``pair_products`` (its own backward, for speed) against ``a @ bᵀ``: values, first and second
+    derivatives (gradcheck/gradgradcheck), forward mode, and jacrev/jacfwd under vmap."""
+    torch.manual_seed(0)
+    a = torch.randn(5, 3, 7, dtype=torch.float64, requires_grad=True)
+    b = torch.randn(5, 4, 7, dtype=torch.float64, requires_grad=True)
+    assert torch.equal(pair_products(a, b), a @ b.transpose(-1, -2))
+    assert torch.autograd.gradcheck(pair_products, (a, b), check_forward_ad=True)
+    assert torch.autograd.gradgradcheck(pair_products, (a, b))
+    for jacobian in (jacrev, jacfwd):
+        got = vmap(jacobian(pair_products, argnums=(0, 1)))(a.detach(), b.detach())
+        want = vmap(jacobian(lambda x, y: x @ y.T, argnums=(0, 1)))(a.detach(), b.detach())
+        assert all(torch.allclose(g, w, atol=1e-14) for g, w in zip(got, want))
+
+
+def test_hidden_tangents_are_the_tangents_push_returns():
+    torch.manual_seed(0)
+    net = mlp(5, 1, 16, 3).double()
+    tape = MLPTape(net, torch.randn(7, 5, dtype=torch.float64))
+    first = torch.randn(7, 2, 16, dtype=torch.float64)
+    assert all(torch.equal(h, t) for h, t in zip(tape.hidden_tangents(first), tape.push_first(first)[1], strict=True))
 
 
 def states(system, n=24):

@@ -51,3 +51,18 @@ def test_hnn_encode_decode_round_trip(system_and_states):
     system, s = system_and_states
     model = HNN(system, hidden=8, depth=1, angular=True).double()
     assert torch.allclose(model.decode(model.encode(s)), s, atol=1e-10)
+
+
+def test_a_rollout_starts_at_its_start_and_decodes_only_the_later_states(system_and_states, monkeypatch):
+    """Index 0 is the given state itself, not decode(encode(start)) recomputed: a learned decoder
+    (HNN's M(q)⁻¹ p) runs on the T − 1 later states only."""
+    system, s = system_and_states
+    model = HNN(system, hidden=8, depth=1).double()
+    decoded = []
+    decode = model.decode
+    monkeypatch.setattr(model, "decode", lambda z: decoded.append(z.shape[0]) or decode(z))
+    t = torch.arange(6, dtype=torch.float64) * 0.03
+    pred = rollout(model, s, t, Integrator("rk4"))
+    assert torch.equal(pred[:, 0], s) and pred.shape == (64, 6, 4)
+    assert decoded == [5]
+    assert not torch.allclose(pred[:, 1], s, atol=1e-3)  # and it moves

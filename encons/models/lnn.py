@@ -99,7 +99,7 @@ class LNN(DynamicsModel):
         width, weight = g.shape[-1], tape.linears[0].weight
         along = embedding_jvp(q, self.angular, qd) @ weight[:, :width - self.n].T  # W_1 (q̇ through the embedding, 0)
         units = weight[:, width - self.n:].T  # W_1 (0, e_i): columns of W_1, no product
-        _, tangents = tape.push_first(torch.cat([units.expand(*along.shape[:-1], *units.shape), along.unsqueeze(-2)], -2))
+        tangents = tape.hidden_tangents(torch.cat([units.expand(*along.shape[:-1], *units.shape), along.unsqueeze(-2)], -2))
         curvature = tape.curvature([t[..., :self.n, :] for t in tangents], tangents)
         return embedding_vjp(q, self.angular, g[..., :width - self.n]), curvature[..., :self.n], curvature[..., self.n]
 

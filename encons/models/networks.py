@@ -107,19 +107,61 @@ class MLPTape:
     def push_first(self, first: Tensor) -> tuple[Tensor, list[Tensor]]:
         """``push`` from the first layer's tangents ż_1 = W_1 t (..., k, width), for a caller that has
         them without the product (e.g. columns of W_1 for unit directions t)."""
-        tangents, z = [], first
-        for linear, (slope, _) in zip(self.linears[1:], self.slopes):
-            tangents.append(z)
-            z = (slope.unsqueeze(-2) * z) @ linear.weight.T
-        return z, tangents
+        tangents = self.hidden_tangents(first)
+        return (self.slopes[-1][0].unsqueeze(-2) * tangents[-1]) @ self.linears[-1].weight.T, tangents
+
+    def hidden_tangents(self, first: Tensor) -> list[Tensor]:
+        """The pre-activation tangents ż_k of ``push_first`` alone (what ``curvature`` needs), without
+        the output's."""
+        tangents = [first]
+        for linear, (slope, _) in zip(self.linears[1:-1], self.slopes):
+            tangents.append((slope.unsqueeze(-2) * tangents[-1]) @ linear.weight.T)
+        return tangents
 
     def curvature(self, rows: list[Tensor], columns: list[Tensor]) -> Tensor:
         """uᵢᵀ ∇²(cᵀ out) v_j (..., I, J) for the tangents ż_k of directions u (..., I, ·) and v
         (..., J, ·) from ``push``, c the cotangent of the last ``pullback``."""
         total = 0
         for row, column, adjoint, (_, second) in zip(rows, columns, self.adjoints, self.slopes):
-            total = total + (row * (adjoint * second()).unsqueeze(-2)) @ column.transpose(-1, -2)
+            total = total + pair_products(row * (adjoint * second()).unsqueeze(-2), column)
         return total
+
+
+class PairProducts(torch.autograd.Function):
+    """a bᵀ (..., I, J) of batched (..., I, C), (..., J, C) with small I, J: the same values and
+    derivatives as ``a @ b.transpose(-1, -2)``, faster to train through.
+
+    Hand-written only for speed: torch's bmm backward forms the gradient of b as (..., C, J) =
+    aᵀ g, and on CPU (MKL, torch 2.13) that product with a contraction of I ≤ 4 runs ~7× slower
+    than the same values as (gᵀ a) (..., J, C) (0.45 vs 0.065 ms at 200 × 3 × 256 × 4), which is
+    what this backward computes. Double backward, ``vmap`` and ``jvp`` follow from torch ops.
+    """
+
+    generate_vmap_rule = True
+
+    @staticmethod
+    def forward(a: Tensor, b: Tensor) -> Tensor:
+        return a @ b.transpose(-1, -2)
+
+    @staticmethod
+    def setup_context(ctx, inputs, output) -> None:
+        ctx.save_for_backward(*inputs)
+        ctx.save_for_forward(*inputs)
+
+    @staticmethod
+    def backward(ctx, grad: Tensor) -> tuple[Tensor, Tensor]:
+        a, b = ctx.saved_tensors
+        return pair_products(grad, b.transpose(-1, -2)), pair_products(grad.transpose(-1, -2), a.transpose(-1, -2))
+
+    @staticmethod
+    def jvp(ctx, a_dot: Tensor | None, b_dot: Tensor | None) -> Tensor:
+        a, b = ctx.saved_tensors
+        return (0 if a_dot is None else pair_products(a_dot, b)) + (0 if b_dot is None else pair_products(a, b_dot))
+
+
+def pair_products(a: Tensor, b: Tensor) -> Tensor:
+    """a bᵀ for batched a (..., I, C), b (..., J, C) (``PairProducts``)."""
+    return PairProducts.apply(a, b)
 
 
 Angular = bool | tuple[bool, ...]
