@@ -15,6 +15,7 @@ from encons.models.lnn import LNN, SECOND_ORDER_OBJECTIVES, damped_solve
 from encons.models.networks import embed_angles, embedded_width, mlp
 from encons.systems.base import System, split_state
 
+
 def _inputs(s: Tensor, angular: bool) -> Tensor:
     q, qd = split_state(s)
     return torch.cat([embed_angles(q, angular), qd], -1)

@@ -160,7 +160,10 @@ class PairProducts(torch.autograd.Function):
 
 
 def pair_products(a: Tensor, b: Tensor) -> Tensor:
-    """a bᵀ for batched a (..., I, C), b (..., J, C) (``PairProducts``)."""
+    """a bᵀ for batched a (..., I, C), b (..., J, C) (``PairProducts``; under ``torch.compile`` the
+    plain product, whose backward inductor generates itself)."""
+    if torch.compiler.is_compiling():
+        return a @ b.transpose(-1, -2)
     return PairProducts.apply(a, b)
 
 
