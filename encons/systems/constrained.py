@@ -47,7 +47,8 @@ class DistanceConstraints:
     (K_l, D), e.g. a rigid body's pivot point, may have no rows. Callable as Φ itself. Closed
     forms (``jacobians``): row k of DΦ is 2 (x_i − x_j) at point i and its negative at point j,
     and D_xΦ̇ (Φ̇ = 2 (x_i − x_j)·(v_i − v_j)) the same on velocities; linear rows are A and 0.
-    Both through one constant incidence matrix E (K_d, n_points): differences are E @ points.
+    Both through one constant incidence matrix E (K_d, n_points): differences are E @ points,
+    computed as one matmul with Eᵀ ⊗ I over the flattened coordinates.
     """
 
     def __init__(self, n_points: int, dim: int, edges: Sequence[tuple[int, int]], lengths: Sequence[float],
@@ -59,21 +60,23 @@ class DistanceConstraints:
             if j >= 0:
                 incidence[k, j] -= 1.0
         self.incidence = incidence
+        self.coords = torch.kron(incidence.T.contiguous(), torch.eye(dim, dtype=torch.float64))  # Eᵀ ⊗ I (D, K_d·dim)
         self.lengths_sq = torch.as_tensor(lengths, dtype=torch.float64) ** 2
         self.linear = torch.zeros(0, n_points * dim, dtype=torch.float64) if linear is None else linear.double()
         self._cache: dict[tuple, tuple[Tensor, Tensor, Tensor, Tensor]] = {}
 
     def _constants(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-        """E, l², A and 2E (K_d, n_points, 1) in ``like``'s dtype and device, converted once."""
+        """Eᵀ ⊗ I (D, K_d·dim), l², A and 2E (K_d, n_points, 1) in ``like``'s dtype and device, converted once."""
         key = (like.dtype, like.device)
         if key not in self._cache:
-            incidence = self.incidence.to(like)
-            self._cache[key] = (incidence, self.lengths_sq.to(like), self.linear.to(like), 2.0 * incidence[:, :, None])
+            self._cache[key] = (self.coords.to(like), self.lengths_sq.to(like), self.linear.to(like),
+                                2.0 * self.incidence.to(like)[:, :, None])
         return self._cache[key]
 
     def _differences(self, y: Tensor) -> Tensor:
-        incidence = self._constants(y)[0]
-        return incidence @ y.unflatten(-1, (incidence.shape[1], self.dim))
+        """The edge vectors E y (..., K_d, dim) of point coordinates y (..., D): one matmul over the
+        flattened batch (not a broadcast one, a batched matmul of tiny matrices)."""
+        return (y @ self._constants(y)[0]).unflatten(-1, (-1, self.dim))
 
     def __call__(self, x: Tensor) -> Tensor:
         """Φ(x), shape (..., K)."""
@@ -149,7 +152,7 @@ def constrained_acceleration(x: Tensor, v: Tensor, minv: Tensor, grad_v: Tensor,
     scaled = torch.cat([jac, grad_v.unsqueeze(-2)], -2) @ minv  # rows of A M⁻¹, then (M⁻¹ ∇V)ᵀ (M symmetric)
     prod = torch.cat([jac, d_rate], -2) @ torch.cat([scaled, v.unsqueeze(-2)], -2).transpose(-1, -2)
     lam = torch.linalg.solve_ex(prod[..., :k, :k], prod[..., :k, k] - prod[..., k:, k + 1])[0]
-    return (lam.unsqueeze(-2) @ scaled[..., :k, :]).squeeze(-2) - scaled[..., k, :]
+    return (lam.unsqueeze(-1) * scaled[..., :k, :]).sum(-2) - scaled[..., k, :]  # a K-term sum: no tiny bmm
 
 
 def constrained_hamiltonian_field(grad_h: Tensor, jac: Tensor, d_rate: Tensor, minv: Tensor,
@@ -161,7 +164,8 @@ def constrained_hamiltonian_field(grad_h: Tensor, jac: Tensor, d_rate: Tensor, m
     ``minv`` the constant M⁻¹ (D, D). Then DΨ J DΨᵀ = [[0, S], [−S, W]] with S = A M⁻¹ Aᵀ and
     W = C M⁻¹ Aᵀ − A M⁻¹ Cᵀ, and eq. (20) needs one K × K solve (K + 2 right-hand sides)
     instead of a 2K × 2K one: λ₂ = S⁻¹ A ∇_p H, λ₁ = S⁻¹ (W λ₂ − C ∇_p H + A M⁻¹ ∇_x H),
-    ẋ = ∇_p H − M⁻¹ Aᵀ λ₂, ṗ = −∇_x H + Aᵀ λ₁ + Cᵀ λ₂. Every product with [A; C] is one matmul.
+    ẋ = ∇_p H − M⁻¹ Aᵀ λ₂, ṗ = −∇_x H + Aᵀ λ₁ + Cᵀ λ₂. The products with [A; C] are one batched
+    matmul; those with the multipliers, K-term sums.
     Constant linear rows A₂ eliminated (``eliminate_linear``: ``project`` P₂, ``minv`` M_P⁻¹, A and
     C of the other rows, C still at v = M⁻¹p): pass ∇_pH projected, P₂ ∇_pH (for H: M_P⁻¹ p), and
     ṗ comes out as P₂ᵀ(−∇_xH + Aᵀλ₁ + Cᵀλ₂), the same ż as with every row: the symplectic
@@ -177,7 +181,7 @@ def constrained_hamiltonian_field(grad_h: Tensor, jac: Tensor, d_rate: Tensor, m
     solved = torch.linalg.solve_ex(prod[..., :k, 1:k + 1], rhs)[0]
     lam_2 = solved[..., :1]
     lam_1 = solved[..., 2:] @ lam_2 - solved[..., 1:2]
-    mult = torch.cat([torch.cat([lam_1, lam_2], -1), torch.cat([lam_2, torch.zeros_like(lam_2)], -1)], -2)
-    back = (mult.transpose(-1, -2) @ rows).unbind(-2)  # Aᵀ λ₁ + Cᵀ λ₂, Aᵀ λ₂ (this orientation: ~2× faster bmm)
-    p_dot = back[0] - grad_x
-    return torch.cat([grad_p - back[1] @ minv, p_dot if project is None else p_dot @ project], -1)
+    # Aᵀλ₁ + Cᵀλ₂ and Aᵀλ₂ as K-term broadcast sums: ~6% less time per field evaluation (forward and
+    # backward) than as one batched matmul of 200 tiny matrices on CPU
+    p_dot = (lam_1 * jac + lam_2 * d_rate).sum(-2) - grad_x
+    return torch.cat([grad_p - (lam_2 * jac).sum(-2) @ minv, p_dot if project is None else p_dot @ project], -1)
