@@ -151,6 +151,8 @@ class PairProducts(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad: Tensor) -> tuple[Tensor, Tensor]:
         a, b = ctx.saved_tensors
+        if not torch.is_grad_enabled():  # a plain backward: no graph of these products to keep
+            return grad @ b, grad.transpose(-1, -2) @ a
         return pair_products(grad, b.transpose(-1, -2)), pair_products(grad.transpose(-1, -2), a.transpose(-1, -2))
 
     @staticmethod
