@@ -13,7 +13,7 @@ from torch import Tensor
 
 from encons.batching import batched_grad
 from encons.models.base import DynamicsModel
-from encons.models.networks import CholeskyMass, MLPTape, embed_angles, embedding_vjp, mlp
+from encons.models.networks import AngleEmbedding, CholeskyMass, MLPTape, embed_angles, mlp
 from encons.models.structured import MassPotentialModel
 from encons.systems.base import System, split_state
 
@@ -61,9 +61,10 @@ class HNN(HamiltonianModel):
     def hamiltonian_gradient(self, z: Tensor) -> Tensor:
         """∇H through the network in closed form (``MLPTape``: one forward, one explicit backward)."""
         q, p = split_state(z)
-        tape = MLPTape(self.hamiltonian_net, torch.cat([embed_angles(q, self.angular), p], -1))
+        embedding = AngleEmbedding(q, self.angular)
+        tape = MLPTape(self.hamiltonian_net, torch.cat([embedding.x, p], -1))
         g = tape.pullback(torch.ones_like(tape.out))
-        return torch.cat([embedding_vjp(q, self.angular, g[..., :-self.n]), g[..., -self.n:]], -1)
+        return torch.cat([embedding.vjp(g[..., :-self.n]), g[..., -self.n:]], -1)
 
 
 class HNNStructure(HamiltonianModel, MassPotentialModel):
@@ -81,7 +82,8 @@ class HNNStructure(HamiltonianModel, MassPotentialModel):
 
     def hamiltonian_gradient(self, z: Tensor) -> Tensor:
         q, p = split_state(z)
-        x = embed_angles(q, self.angular)
+        embedding = AngleEmbedding(q, self.angular)
+        x = embedding.x
         tape = MLPTape(self.mass.net, x)
         factor = self.mass.head(tape.out)[0]
         w = torch.linalg.solve_triangular(factor, p.unsqueeze(-1), upper=False)
@@ -93,7 +95,7 @@ class HNNStructure(HamiltonianModel, MassPotentialModel):
         else:
             potential = MLPTape(self.potential_net.net, x)
             g_x = tape.pullback(g_out) + potential.pullback(torch.ones_like(potential.out))
-        return torch.cat([embedding_vjp(q, self.angular, g_x), g_p], -1)
+        return torch.cat([embedding.vjp(g_x), g_p], -1)
 
 
 def _kinetic(factor: Tensor, p: Tensor) -> Tensor:

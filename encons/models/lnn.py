@@ -16,7 +16,7 @@ from torch.func import grad, jvp, vjp, vmap
 from encons.batching import batched_grad
 from encons.errors import ConfigError
 from encons.models.base import DynamicsModel
-from encons.models.networks import MLPTape, cranmer_init_, embed_angles, embedding_jvp, embedding_vjp, mlp
+from encons.models.networks import AngleEmbedding, MLPTape, cranmer_init_, embed_angles, mlp
 from encons.models.structured import MassPotentialModel
 from encons.systems.base import System, split_state
 
@@ -94,14 +94,15 @@ class LNN(DynamicsModel):
         backward; H and (∇_q ∇_q̇ᵀ L) q̇ as the curvature between the directions (0, e_i) and
         (0, e_j), (q̇, 0), i.e. n + 1 forward tangents instead of n + 1 Hessian-vector products."""
         q, qd = split_state(s)
-        tape = MLPTape(self.lagrangian_net, torch.cat([embed_angles(q, self.angular), qd], -1))
+        embedding = AngleEmbedding(q, self.angular)
+        tape = MLPTape(self.lagrangian_net, torch.cat([embedding.x, qd], -1))
         g = tape.pullback(torch.ones_like(tape.out))
         width, weight = g.shape[-1], tape.linears[0].weight
-        along = embedding_jvp(q, self.angular, qd) @ weight[:, :width - self.n].T  # W_1 (q̇ through the embedding, 0)
+        along = embedding.jvp(qd) @ weight[:, :width - self.n].T  # W_1 (q̇ through the embedding, 0)
         units = weight[:, width - self.n:].T  # W_1 (0, e_i): columns of W_1, no product
         tangents = tape.hidden_tangents(torch.cat([units.expand(*along.shape[:-1], *units.shape), along.unsqueeze(-2)], -2))
         curvature = tape.curvature([t[..., :self.n, :] for t in tangents], tangents)
-        return embedding_vjp(q, self.angular, g[..., :width - self.n]), curvature[..., :self.n], curvature[..., self.n]
+        return embedding.vjp(g[..., :width - self.n]), curvature[..., :self.n], curvature[..., self.n]
 
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         dl_dq, hessian, mixed = self.lagrangian_derivatives(s)
@@ -139,9 +140,10 @@ class LNNStructure(MassPotentialModel):
 
     def euler_lagrange_terms(self, q: Tensor, qd: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """``euler_lagrange_terms`` of the model's network(s), in closed form."""
-        x = embed_angles(q, self.angular)
+        embedding = AngleEmbedding(q, self.angular)
+        x = embedding.x
         tape = MLPTape(self.mass.net, x)
-        out_dot = tape.push(embedding_jvp(q, self.angular, qd).unsqueeze(-2))[0].squeeze(-2)
+        out_dot = tape.push(embedding.jvp(qd).unsqueeze(-2))[0].squeeze(-2)
         factor, slopes = self.mass.head(tape.out)[0], self.mass.head_slopes(tape.out)
         factor_dot = self.mass.lower(slopes * out_dot[..., :self.mass.entries])
         w = (factor.transpose(-1, -2) @ qd.unsqueeze(-1)).squeeze(-1)
@@ -152,7 +154,7 @@ class LNNStructure(MassPotentialModel):
             potential = MLPTape(self.potential_net.net, x)
             g_x = tape.pullback(g_out) - potential.pullback(torch.ones_like(potential.out))
         mass_dot_qd = factor_dot @ w.unsqueeze(-1) + factor @ (factor_dot.transpose(-1, -2) @ qd.unsqueeze(-1))
-        return factor, embedding_vjp(q, self.angular, g_x), mass_dot_qd.squeeze(-1)
+        return factor, embedding.vjp(g_x), mass_dot_qd.squeeze(-1)
 
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         q, qd = split_state(s)

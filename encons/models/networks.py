@@ -184,17 +184,28 @@ def embed_angles(q: Tensor, angular: Angular) -> Tensor:
     return torch.cat([q[..., [i for i, a in enumerate(angular) if not a]], torch.cos(angles), torch.sin(angles)], -1)
 
 
-def embedding_jvp(q: Tensor, angular: bool, tangent: Tensor) -> Tensor:
-    """∂embed_angles(q)/∂q · t for tangents t (..., n)."""
-    return torch.cat([-torch.sin(q) * tangent, torch.cos(q) * tangent], -1) if angular else tangent
+class AngleEmbedding:
+    """``embed_angles(q, angular)`` for a bool ``angular`` (``x``), with cos q and sin q computed once
+    for its forward (``jvp``) and reverse (``vjp``) derivatives."""
 
+    def __init__(self, q: Tensor, angular: bool):
+        self.angular = angular
+        if angular:
+            self.cos, self.sin = torch.cos(q), torch.sin(q)
+            self.x = torch.cat([self.cos, self.sin], -1)
+        else:
+            self.x = q
 
-def embedding_vjp(q: Tensor, angular: bool, cotangent: Tensor) -> Tensor:
-    """gᵀ ∂embed_angles(q)/∂q for cotangents g on the embedding."""
-    if not angular:
-        return cotangent
-    cos, sin = cotangent.chunk(2, -1)
-    return torch.cos(q) * sin - torch.sin(q) * cos
+    def jvp(self, tangent: Tensor) -> Tensor:
+        """∂embed_angles(q)/∂q · t for tangents t (..., n)."""
+        return torch.cat([-self.sin * tangent, self.cos * tangent], -1) if self.angular else tangent
+
+    def vjp(self, cotangent: Tensor) -> Tensor:
+        """gᵀ ∂embed_angles(q)/∂q for cotangents g on the embedding."""
+        if not self.angular:
+            return cotangent
+        cos, sin = cotangent.chunk(2, -1)
+        return self.cos * sin - self.sin * cos
 
 
 def embedded_width(n: int, angular: Angular) -> int:
