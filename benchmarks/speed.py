@@ -193,6 +193,15 @@ def time_step(step: Callable[[], None], steps: int, warm_up: bool = True) -> tup
     return min(wall), min(cpu)
 
 
+def alternated(first: Callable[[], None], second: Callable[[], None], steps: int,
+               repeats: int) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The fastest (wall, CPU) ms of each of two steps timed in turn over ``repeats`` rounds of
+    ``time_step``, so that the pair shares the machine's load of the moment (a burst while one was
+    timed alone would skew their ratio)."""
+    rounds = [(time_step(first, steps), time_step(second, steps)) for _ in range(repeats)]
+    return tuple(min((r[i] for r in rounds), key=lambda timing: timing[1]) for i in (0, 1))
+
+
 def peak_memory(step: Callable[[], None]) -> float:
     """MiB: the high-water mark of torch's allocations during one call, from the profiler's memory
     events in order (tensors alive before the call, e.g. parameters, not counted)."""
@@ -273,16 +282,6 @@ def main() -> None:
             floor_rows[order] = rows[-1]
             print(f"{system_name}: floor order {order}: {wall:.1f} ms", flush=True)
 
-        def floor_again(order: int) -> float:
-            """The floor's CPU ms re-timed just before a model, so that the pair shares the machine's
-            load of the moment (a burst while the floor alone was timed would skew every ratio);
-            the floor's row keeps its fastest."""
-            wall, cpu = time_step(floor_steps[order], args.steps)
-            row = floor_rows[order]
-            row.update(wall_ms=min(row["wall_ms"], wall), cpu_ms=min(row["cpu_ms"], cpu))
-            row["steps_per_s"] = 1e3 / row["wall_ms"]
-            return cpu
-
         for i_model, model_name in enumerate(args.models):
             progress = f"[{i_system * len(args.models) + i_model + 1}/{total}] {system_name}: {model_name}"
             try:
@@ -293,8 +292,10 @@ def main() -> None:
             batch = windows(system, model.chart, dt, args.batch, args.chunk)
             step = stepper(model, list(model.parameters()), system, batch, dt)
             order = 2 if isinstance(model, LNN) else 1  # LNN, GLNN: Hessians of the network; the rest gradients
-            pairs = [(floor_again(order), time_step(step, args.steps)) for _ in range(args.repeats)]
-            floor_cpu, (wall, cpu) = min(p[0] for p in pairs), min((p[1] for p in pairs), key=lambda t: t[1])
+            (floor_wall, floor_cpu), (wall, cpu) = alternated(floor_steps[order], step, args.steps, args.repeats)
+            floor_row = floor_rows[order]  # keeps the floor's fastest over every pairing
+            floor_row.update(wall_ms=min(floor_row["wall_ms"], floor_wall), cpu_ms=min(floor_row["cpu_ms"], floor_cpu))
+            floor_row["steps_per_s"] = 1e3 / floor_row["wall_ms"]
             row = dict(system=system_name, model=model_name, order=order, wall_ms=wall, cpu_ms=cpu,
                        steps_per_s=1e3 / wall, peak_mb=peak_memory(step), ratio_floor=cpu / floor_cpu)
             naive = naive_of(model, system) if args.naive_steps else None
@@ -311,9 +312,8 @@ def main() -> None:
                 start = time.perf_counter()
                 compiled_step()  # compiles
                 row["compile_s"] = time.perf_counter() - start
-                pairs = [(time_step(step, args.steps)[1], time_step(compiled_step, args.steps)[1])
-                         for _ in range(args.repeats)]  # alternated, as with the floor
-                row["speedup_compiled"] = min(p[0] for p in pairs) / min(p[1] for p in pairs)
+                (_, eager_cpu), (_, compiled_cpu) = alternated(step, compiled_step, args.steps, args.repeats)
+                row["speedup_compiled"] = eager_cpu / compiled_cpu
             add(**row)
             print(f"{progress}: {wall:.1f} ms" + (f", naive {row['naive_cpu_ms']:.0f} ms" if naive else "")
                   + (f", compiled ×{row['speedup_compiled']:.2f}" if "compile_s" in row else ""), flush=True)

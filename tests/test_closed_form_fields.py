@@ -66,8 +66,9 @@ def test_hidden_tangents_are_the_tangents_push_returns():
     torch.manual_seed(0)
     net = mlp(5, 1, 16, 3).double()
     tape = MLPTape(net, torch.randn(7, 5, dtype=torch.float64))
-    first = torch.randn(7, 2, 16, dtype=torch.float64)
-    assert all(torch.equal(h, t) for h, t in zip(tape.hidden_tangents(first), tape.push_first(first)[1], strict=True))
+    directions = torch.randn(7, 2, 5, dtype=torch.float64)
+    hidden = tape.hidden_tangents(directions @ net[0].weight.T)
+    assert all(torch.equal(h, t) for h, t in zip(hidden, tape.push(directions)[1], strict=True))
 
 
 def states(system, n=24):

@@ -102,17 +102,13 @@ class MLPTape:
     def push(self, tangent: Tensor) -> tuple[Tensor, list[Tensor]]:
         """∂out/∂x · t (..., k, out) and the pre-activation tangents ż_k (..., k, ·), for k input
         tangents t (..., k, d) per sample (directions second to last: every product stays one matmul)."""
-        return self.push_first(tangent @ self.linears[0].weight.T)
-
-    def push_first(self, first: Tensor) -> tuple[Tensor, list[Tensor]]:
-        """``push`` from the first layer's tangents ż_1 = W_1 t (..., k, width), for a caller that has
-        them without the product (e.g. columns of W_1 for unit directions t)."""
-        tangents = self.hidden_tangents(first)
+        tangents = self.hidden_tangents(tangent @ self.linears[0].weight.T)
         return (self.slopes[-1][0].unsqueeze(-2) * tangents[-1]) @ self.linears[-1].weight.T, tangents
 
     def hidden_tangents(self, first: Tensor) -> list[Tensor]:
-        """The pre-activation tangents ż_k of ``push_first`` alone (what ``curvature`` needs), without
-        the output's."""
+        """The pre-activation tangents ż_k of ``push`` alone (what ``curvature`` needs, not the output's),
+        from the first layer's ż_1 = W_1 t (..., k, width): a caller may have them without the product
+        (e.g. columns of W_1 for unit directions t)."""
         tangents = [first]
         for linear, (slope, _) in zip(self.linears[1:-1], self.slopes):
             tangents.append((slope.unsqueeze(-2) * tangents[-1]) @ linear.weight.T)
@@ -120,7 +116,7 @@ class MLPTape:
 
     def curvature(self, rows: list[Tensor], columns: list[Tensor]) -> Tensor:
         """uᵢᵀ ∇²(cᵀ out) v_j (..., I, J) for the tangents ż_k of directions u (..., I, ·) and v
-        (..., J, ·) from ``push``, c the cotangent of the last ``pullback``."""
+        (..., J, ·) from ``push`` or ``hidden_tangents``, c the cotangent of the last ``pullback``."""
         total = 0
         for row, column, adjoint, (_, second) in zip(rows, columns, self.adjoints, self.slopes):
             total = total + pair_products(row * (adjoint * second()).unsqueeze(-2), column)

@@ -95,7 +95,6 @@ class DistanceConstraints:
         linear = linear.expand(*x.shape[:-1], *linear.shape)
         return torch.cat([jac, linear], -2), torch.cat([d_rate, torch.zeros_like(linear)], -2)
 
-
     def eliminate_linear(self, minv: Tensor) -> tuple[Tensor, Tensor | None]:
         """M_P⁻¹ = P₂ M⁻¹ and P₂ = I − M⁻¹A₂ᵀ(A₂M⁻¹A₂ᵀ)⁻¹A₂ (D, D) for the linear rows A₂ and the
         constant ``minv`` (D, D); (``minv``, None) without linear rows.
