@@ -16,7 +16,7 @@ from torch.func import grad, jvp, vjp, vmap
 from encons.batching import batched_grad
 from encons.errors import ConfigError
 from encons.models.base import DynamicsModel
-from encons.models.networks import AngleEmbedding, MLPTape, cranmer_init_, embed_angles, mlp
+from encons.models.networks import AngleEmbedding, MLPTape, cranmer_init_, embed_angles, mlp, narrow_in
 from encons.models.structured import MassPotentialModel
 from encons.systems.base import System, split_state
 
@@ -97,9 +97,9 @@ class LNN(DynamicsModel):
         embedding = AngleEmbedding(q, self.angular)
         tape = MLPTape(self.lagrangian_net, torch.cat([embedding.x, qd], -1))
         g = tape.pullback(torch.ones_like(tape.out))
-        width, weight = g.shape[-1], tape.linears[0].weight
-        along = embedding.jvp(qd) @ weight[:, :width - self.n].T  # W_1 (q̇ through the embedding, 0)
-        units = weight[:, width - self.n:].T  # W_1 (0, e_i): columns of W_1, no product
+        width = g.shape[-1]
+        along = narrow_in(embedding.jvp(qd), tape.first[:width - self.n])  # W_1 (q̇ through the embedding, 0)
+        units = tape.first[width - self.n:]  # W_1 (0, e_i): columns of W_1, no product
         tangents = tape.hidden_tangents(torch.cat([units.expand(*along.shape[:-1], *units.shape), along.unsqueeze(-2)], -2))
         curvature = tape.curvature([t[..., :self.n, :] for t in tangents], tangents)
         return embedding.vjp(g[..., :width - self.n]), curvature[..., :self.n], curvature[..., self.n]
