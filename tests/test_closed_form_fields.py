@@ -16,7 +16,7 @@ from encons.batching import batched_grad
 from encons.models.constrained import CHNN, CLNN
 from encons.models.hnn import HNN, HNNStructure
 from encons.models.lnn import LNN, LNNStructure, euler_lagrange_terms, lagrangian_derivatives
-from encons.models.networks import ACTIVATIONS, MLPTape, mlp, narrow_in, narrow_out, pair_products
+from encons.models.networks import ACTIVATIONS, MLPTape, mlp, narrow_in, narrow_out, layer_curvature
 from encons.systems.base import split_state
 from encons.systems.gyroscope import Gyroscope
 from encons.systems.pendulum import NPendulum
@@ -42,23 +42,28 @@ def test_tape_derivatives_are_autodiff_ones(activation):
     assert gap(out_dot, vmap(lambda d: jvp(net, (x,), (d,))[1], 1, 1)(directions)) < 1e-13
     exact = torch.einsum("bik,bkl,bjl->bij", directions, vmap(hessian(f))(x), directions)
     if activation != "relu":  # piecewise linear: zero curvature on both sides
-        assert gap(tape.curvature(tangents, tangents), exact) < 1e-12
+        assert gap(tape.curvature(tangents), exact) < 1e-12
     else:
-        assert tape.curvature(tangents, tangents).abs().max() == 0 and exact.abs().max() == 0
+        assert tape.curvature(tangents).abs().max() == 0 and exact.abs().max() == 0
 
 
-def test_pair_products_are_a_matmul_to_every_order():
-    """``pair_products`` (its own backward, for speed) against ``a @ bᵀ``: values, first and second
-    derivatives (gradcheck/gradgradcheck), forward mode, and jacrev/jacfwd under vmap."""
+def test_layer_curvature_is_its_plain_expression_to_every_order():
+    """``layer_curvature`` (its own backward, for speed) against Σ_k (T_k[:I] ⊙ w_k) T_kᵀ: values, first
+    and second derivatives (gradcheck/gradgradcheck), forward mode, and jacrev/jacfwd under vmap."""
     torch.manual_seed(0)
-    a = torch.randn(5, 3, 7, dtype=torch.float64, requires_grad=True)
-    b = torch.randn(5, 4, 7, dtype=torch.float64, requires_grad=True)
-    assert torch.equal(pair_products(a, b), a @ b.transpose(-1, -2))
-    assert torch.autograd.gradcheck(pair_products, (a, b), check_forward_ad=True)
-    assert torch.autograd.gradgradcheck(pair_products, (a, b))
+    tangents = [torch.randn(5, 4, 7, dtype=torch.float64, requires_grad=True) for _ in range(2)]
+    weights = [torch.randn(5, 7, dtype=torch.float64, requires_grad=True) for _ in range(2)]
+    f = lambda t1, t2, w1, w2: layer_curvature(3, [t1, t2], [w1, w2])  # noqa: E731
+    plain = lambda t1, t2, w1, w2: sum(torch.einsum("...ic,...c,...jc->...ij", t[..., :3, :], w, t)  # noqa: E731
+                                       for t, w in ((t1, w1), (t2, w2)))
+    args = (*tangents, *weights)
+    assert f(*args).shape == (5, 3, 4) and gap(f(*args), plain(*args)) < 1e-14
+    assert torch.autograd.gradcheck(f, args, check_forward_ad=True)
+    assert torch.autograd.gradgradcheck(f, args)
+    detached = [a.detach() for a in args]
     for jacobian in (jacrev, jacfwd):
-        got = vmap(jacobian(pair_products, argnums=(0, 1)))(a.detach(), b.detach())
-        want = vmap(jacobian(lambda x, y: x @ y.T, argnums=(0, 1)))(a.detach(), b.detach())
+        got = vmap(jacobian(f, argnums=(0, 1, 2, 3)))(*detached)
+        want = vmap(jacobian(plain, argnums=(0, 1, 2, 3)))(*detached)
         assert all(torch.allclose(g, w, atol=1e-14) for g, w in zip(got, want))
 
 

@@ -74,7 +74,7 @@ class CartesianModel(DynamicsModel):
     def potential_gradient(self, x: Tensor) -> Tensor:
         """∇V(x) through the network in closed form (``MLPTape``: one forward, one explicit backward)."""
         tape = MLPTape(self.potential_net.net, x)
-        return tape.pullback(torch.ones_like(tape.out))
+        return tape.pullback()
 
 
 class CLNN(CartesianModel):

@@ -63,7 +63,7 @@ class HNN(HamiltonianModel):
         q, p = split_state(z)
         embedding = AngleEmbedding(q, self.angular)
         tape = MLPTape(self.hamiltonian_net, torch.cat([embedding.x, p], -1))
-        g = tape.pullback(torch.ones_like(tape.out))
+        g = tape.pullback()
         return torch.cat([embedding.vjp(g[..., :-self.n]), g[..., -self.n:]], -1)
 
 
@@ -94,7 +94,7 @@ class HNNStructure(HamiltonianModel, MassPotentialModel):
             g_x = tape.pullback(torch.cat([g_out, torch.ones_like(g_out[..., :1])], -1))  # ∂H/∂V = 1
         else:
             potential = MLPTape(self.potential_net.net, x)
-            g_x = tape.pullback(g_out) + potential.pullback(torch.ones_like(potential.out))
+            g_x = tape.pullback(g_out) + potential.pullback()
         return torch.cat([embedding.vjp(g_x), g_p], -1)
 
 

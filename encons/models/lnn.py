@@ -96,12 +96,12 @@ class LNN(DynamicsModel):
         q, qd = split_state(s)
         embedding = AngleEmbedding(q, self.angular)
         tape = MLPTape(self.lagrangian_net, torch.cat([embedding.x, qd], -1))
-        g = tape.pullback(torch.ones_like(tape.out))
+        g = tape.pullback()
         width = g.shape[-1]
         along = narrow_in(embedding.jvp(qd), tape.first[:width - self.n])  # W_1 (q̇ through the embedding, 0)
         units = tape.first[width - self.n:]  # W_1 (0, e_i): columns of W_1, no product
         tangents = tape.hidden_tangents(torch.cat([units.expand(*along.shape[:-1], *units.shape), along.unsqueeze(-2)], -2))
-        curvature = tape.curvature([t[..., :self.n, :] for t in tangents], tangents)
+        curvature = tape.curvature(tangents, rows=self.n)
         return embedding.vjp(g[..., :width - self.n]), curvature[..., :self.n], curvature[..., self.n]
 
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
@@ -152,7 +152,7 @@ class LNNStructure(MassPotentialModel):
             g_x = tape.pullback(torch.cat([g_out, -torch.ones_like(g_out[..., :1])], -1))  # ∂(−V)/∂V = −1
         else:
             potential = MLPTape(self.potential_net.net, x)
-            g_x = tape.pullback(g_out) - potential.pullback(torch.ones_like(potential.out))
+            g_x = tape.pullback(g_out) - potential.pullback()
         mass_dot_qd = factor_dot @ w.unsqueeze(-1) + factor @ (factor_dot.transpose(-1, -2) @ qd.unsqueeze(-1))
         return factor, embedding.vjp(g_x), mass_dot_qd.squeeze(-1)
 
