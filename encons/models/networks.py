@@ -77,7 +77,8 @@ def _narrow(width: int) -> bool:
 
 
 def narrow_in(x: Tensor, weight_t: Tensor, bias: Tensor | None = None) -> Tensor:
-    """x @ Wᵀ (+ b) for x (..., d) and Wᵀ (d, width) given row-major (a Linear layer's first product).
+    """x @ Wᵀ (+ b) for x (..., d) and Wᵀ (d, width) given row-major (a network's first layer, or
+    an output cotangent pulled back through its last).
 
     For a ``_narrow`` d, x goes in column-major: torch's mm backward returns each operand's gradient in
     that operand's layout (``mm_mat1_backward``/``mm_mat2_backward``), so x̄ = (W ḡᵀ)ᵀ and
@@ -92,19 +93,21 @@ def narrow_in(x: Tensor, weight_t: Tensor, bias: Tensor | None = None) -> Tensor
 
 def narrow_out(g: Tensor, weight_t: Tensor) -> Tensor:
     """g @ W (..., d) for g (..., width) and Wᵀ (d, width) row-major, as (Wᵀ gᵀ)ᵀ for a ``_narrow`` d
-    (a Linear layer's input gradient; its own backward products come out wide, see ``narrow_in``)."""
+    (a first layer's input gradient, or a last layer's product with a few outputs: W_L is its own
+    row-major Wᵀ); its own backward products come out wide, see ``narrow_in``."""
     if not _narrow(weight_t.shape[0]):
         return g @ weight_t.T
     return (weight_t @ g.reshape(-1, g.shape[-1]).T).T.reshape(*g.shape[:-1], weight_t.shape[0])
 
 
 def run(net: nn.Sequential, x: Tensor) -> Tensor:
-    """net(x) for an ``mlp``, its first layer through ``narrow_in`` (same values to rounding)."""
-    first, *rest = net
+    """net(x) for an ``mlp``, its first layer through ``narrow_in`` and its last through ``narrow_out``
+    (same values to rounding)."""
+    first, *hidden, last = net
     a = narrow_in(x, first.weight.T.contiguous(), first.bias)
-    for layer in rest:
+    for layer in hidden:
         a = layer(a)
-    return a
+    return narrow_out(a, last.weight) + last.bias
 
 
 class MLPTape:
@@ -130,12 +133,12 @@ class MLPTape:
             z = narrow_in(a, self.first, linear.bias) if linear is self.linears[0] else linear(a)
             a = activation(z)
             self.slopes.append(SLOPES[type(activation)](z))
-        self.out = self.linears[-1](a)
+        self.out = narrow_out(a, self.linears[-1].weight) + self.linears[-1].bias
 
     def pullback(self, cotangent: Tensor | None = None) -> Tensor:
         """cᵀ ∂out/∂x (..., d) for output cotangents c (..., out), or ∇out for a scalar output (no c:
         the last layer's weight row, no product); keeps ḡ_k = cᵀ ∂out/∂a_k."""
-        g = self.linears[-1].weight if cotangent is None else cotangent @ self.linears[-1].weight
+        g = self.linears[-1].weight if cotangent is None else narrow_in(cotangent, self.linears[-1].weight)
         self.adjoints = []
         for linear, (slope, _) in zip(reversed(self.linears[1:-1]), reversed(self.slopes[1:])):
             self.adjoints.insert(0, g)
@@ -147,7 +150,7 @@ class MLPTape:
         """∂out/∂x · t (..., k, out) and the pre-activation tangents ż_k (..., k, ·), for k input
         tangents t (..., k, d) per sample (directions second to last: every product stays one matmul)."""
         tangents = self.hidden_tangents(narrow_in(tangent, self.first))
-        return (self.slopes[-1][0].unsqueeze(-2) * tangents[-1]) @ self.linears[-1].weight.T, tangents
+        return narrow_out(self.slopes[-1][0].unsqueeze(-2) * tangents[-1], self.linears[-1].weight), tangents
 
     def hidden_tangents(self, first: Tensor) -> list[Tensor]:
         """The pre-activation tangents ż_k of ``push`` alone (what ``curvature`` needs, not the output's),
