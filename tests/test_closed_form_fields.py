@@ -16,7 +16,7 @@ from encons.batching import batched_grad
 from encons.models.constrained import CHNN, CLNN
 from encons.models.hnn import HNN, HNNStructure
 from encons.models.lnn import LNN, LNNStructure, euler_lagrange_terms, lagrangian_derivatives
-from encons.models.networks import ACTIVATIONS, MLPTape, mlp, narrow_in, narrow_out, layer_curvature
+from encons.models.networks import ACTIVATIONS, MLPTape, layer_curvature, mlp, narrow_in, narrow_out
 from encons.systems.base import split_state
 from encons.systems.gyroscope import Gyroscope
 from encons.systems.pendulum import NPendulum
@@ -77,7 +77,9 @@ def test_narrow_products_are_the_plain_ones_to_every_order():
     bias = torch.randn(16, dtype=torch.float64, requires_grad=True)
     assert gap(narrow_in(x, weight_t, bias), x @ weight_t + bias) < 1e-14
     assert gap(narrow_out(g, weight_t), g @ weight_t.T) < 1e-14
-    for f, args in ((narrow_in, (x, weight_t, bias)), (narrow_in, (x, weight_t)), (narrow_out, (g, weight_t))):
+    assert gap(narrow_out(g, weight_t, bias[:5]), g @ weight_t.T + bias[:5]) < 1e-14
+    for f, args in ((narrow_in, (x, weight_t, bias)), (narrow_in, (x, weight_t)), (narrow_out, (g, weight_t)),
+                    (narrow_out, (g, weight_t, bias[:5]))):
         assert torch.autograd.gradcheck(f, args) and torch.autograd.gradgradcheck(f, args)
     wide_t = torch.randn(16, 3, dtype=torch.float64)
     assert torch.equal(narrow_in(g, wide_t), g @ wide_t)

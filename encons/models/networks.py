@@ -91,13 +91,15 @@ def narrow_in(x: Tensor, weight_t: Tensor, bias: Tensor | None = None) -> Tensor
     return out.reshape(*x.shape[:-1], weight_t.shape[-1])
 
 
-def narrow_out(g: Tensor, weight_t: Tensor) -> Tensor:
-    """g @ W (..., d) for g (..., width) and Wᵀ (d, width) row-major, as (Wᵀ gᵀ)ᵀ for a ``_narrow`` d
-    (a first layer's input gradient, or a last layer's product with a few outputs: W_L is its own
+def narrow_out(g: Tensor, weight_t: Tensor, bias: Tensor | None = None) -> Tensor:
+    """g @ W (+ b) (..., d) for g (..., width) and Wᵀ (d, width) row-major, as (Wᵀ gᵀ + b)ᵀ for a
+    ``_narrow`` d (a first layer's input gradient, or a last layer of a few outputs: W_L is its own
     row-major Wᵀ); its own backward products come out wide, see ``narrow_in``."""
     if not _narrow(weight_t.shape[0]):
-        return g @ weight_t.T
-    return (weight_t @ g.reshape(-1, g.shape[-1]).T).T.reshape(*g.shape[:-1], weight_t.shape[0])
+        return g @ weight_t.T if bias is None else torch.nn.functional.linear(g, weight_t, bias)
+    rows = g.reshape(-1, g.shape[-1]).T
+    out = weight_t @ rows if bias is None else torch.addmm(bias.unsqueeze(-1), weight_t, rows)
+    return out.T.reshape(*g.shape[:-1], weight_t.shape[0])
 
 
 def run(net: nn.Sequential, x: Tensor) -> Tensor:
@@ -107,7 +109,7 @@ def run(net: nn.Sequential, x: Tensor) -> Tensor:
     a = narrow_in(x, first.weight.T.contiguous(), first.bias)
     for layer in hidden:
         a = layer(a)
-    return narrow_out(a, last.weight) + last.bias
+    return narrow_out(a, last.weight, last.bias)
 
 
 class MLPTape:
@@ -133,7 +135,7 @@ class MLPTape:
             z = narrow_in(a, self.first, linear.bias) if linear is self.linears[0] else linear(a)
             a = activation(z)
             self.slopes.append(SLOPES[type(activation)](z))
-        self.out = narrow_out(a, self.linears[-1].weight) + self.linears[-1].bias
+        self.out = narrow_out(a, self.linears[-1].weight, self.linears[-1].bias)
 
     def pullback(self, cotangent: Tensor | None = None) -> Tensor:
         """cᵀ ∂out/∂x (..., d) for output cotangents c (..., out), or ∇out for a scalar output (no c:
