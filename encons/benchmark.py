@@ -89,7 +89,7 @@ def expand(cfg: DictConfig) -> list[Run]:
     if not entries:
         raise ConfigError("profile has no runs: give systems and models, runs or n_train")
     return [Run(system, label, seed, [f"system={system}", *ovr, *c["common"], *per_system.get(system, []),
-                                     f"seed={seed}", *c["train"]], n, paper)
+                                     f"seed={seed}", f"threads={json.dumps(c['threads'])}", *c["train"]], n, paper)
             for system, label, ovr, n, paper in entries for seed in c["seeds"]]
 
 
@@ -157,10 +157,6 @@ def run_profile(cfg: DictConfig) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     (out / "benchmark.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(plain(cfg))))
     cache_dir = cfg.get("cache_dir")
-    if cfg.get("threads"):
-        import torch
-
-        torch.set_num_threads(int(cfg.threads))
     todo = [run for run in runs if not finished(run, out).is_file()]
     progress = Progress(len(runs), "benchmark run", work=len(todo))  # the ETA counts runs still to train
     for run in runs:

@@ -43,7 +43,7 @@ def print_summary(title: str, results: dict[str, float], output_dir: Path, note:
     table.add_column("metric")
     table.add_column("value", justify="right")
     for key in sorted(results):
-        if key.startswith(("val/", "test/", "best/")) or key in ("wall_time_s", "best_epoch"):
+        if key.startswith(("val/", "test/", "best/")) or key in ("wall_time_s", "threads", "best_epoch"):
             table.add_row(key, f"{results[key]:.4g}")
     out = Console(record=True) if console else Console(record=True, file=io.StringIO())
     out.print(table)
