@@ -142,3 +142,28 @@ def test_control_command_refuses_a_node_run_and_a_bad_option_in_one_line(tmp_pat
         assert stop.value.code == 2
         err = capsys.readouterr().err.strip()
         assert err.startswith(expected) and "\n" not in err and "Traceback" not in err
+
+
+def test_control_profile_lists_the_energy_models_with_inputs_on_both_systems():
+    from encons.benchmark import compose_benchmark, expand
+
+    cfg = compose_benchmark(["profile=control"])
+    runs = expand(cfg)
+    assert cfg.control is True and len(runs) == 18
+    assert {(r.system, r.label) for r in runs} == {(s, m) for s in ("pendulum_control", "cartpole")
+                                                  for m in ("lnode", "symo", "e2e_symo")}
+
+
+@pytest.mark.slow
+def test_control_profile_reports_the_controller_beside_the_oracle(tmp_path):
+    from encons.benchmark import main
+
+    out = tmp_path / "bench"
+    main(["profile=control", "seeds=[0]", "models=[lnode]", "systems=[pendulum_control]", f"out={out}",
+          f"cache_dir={tmp_path / 'cache'}", 'train=["debug=fast"]'])
+    row = json.loads(next((out / "runs").glob("*/result.json")).read_text())
+    assert not row["error"] and row["test/oracle/success_rate"] >= 0.95
+    assert 0 <= row["test/control/success_rate"] <= 1 and (out / "runs" / "pendulum_control-lnode-seed0" /
+                                                           "control" / "control_phase.png").is_file()
+    headline = (out / "summary.md").read_text().split("## Every metric")[0]
+    assert "control/success_rate" in headline and "oracle/success_rate" in headline
