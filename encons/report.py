@@ -44,7 +44,7 @@ def print_summary(title: str, results: dict[str, float], output_dir: Path, note:
     table.add_column("metric")
     table.add_column("value", justify="right")
     for key in sorted(results):
-        if key.startswith(("val/", "test/", "best/")) or key in ("wall_time_s", "best_epoch"):
+        if key.startswith(("val/", "test/", "best/")) or key in ("wall_time_s", "threads", "best_epoch"):
             table.add_row(key, f"{results[key]:.4g}")
     out = Console(record=True) if console else Console(record=True, file=io.StringIO())
     out.print(table)
@@ -160,7 +160,9 @@ def write_csv(path: Path, rows: list[dict]) -> None:
 
 HEADLINE = ("wall_time_s", "test/diverged", "test/traj_rel_err", "test/geom_rel_err", "test/energy_rmse_median",
             "test/state_mse_final", "test/energy_mse_final", "test/baseline_constant/state_mse_final",
-            "test/baseline_linear_ode/state_mse_final", "test/pixel_mse_final", "test/pixel_mse_final_median")
+            "test/baseline_linear_ode/state_mse_final", "test/pixel_mse_final", "test/pixel_mse_final_median",
+            "test/control/success_rate", "test/oracle/success_rate", "test/control/time_to_upright_s",
+            "test/oracle/time_to_upright_s", "test/control/effort", "test/oracle/effort", "test/control/pred_rmse")
 
 
 def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", headline: bool = False) -> str:
