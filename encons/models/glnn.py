@@ -28,14 +28,14 @@ class GLNN(LNN):
 
     LNN's closed-form ``lagrangian_derivatives`` of the L network (``MLPTape``; tests check them against
     ``encons.models.lnn.lagrangian_derivatives``, torch.func of any L) with F added to the right-hand
-    side, and LNN's ``guarded_solve`` (``guard`` 1e-4: the plain inverse of eq. (11) wherever ∇²_q̇L is
+    side, and LNN's ``guarded_solve`` (``guard`` 1e-3: the plain inverse of eq. (11) wherever ∇²_q̇L is
     not near singular; 0: always). L starts from
     Cranmer et al.'s initialisation as in LNN; F from PyTorch's default. Limits: L and F are not
     identifiable apart (any F can absorb a change of L), so only q̈ is learned, not the energy split.
     """
 
     def __init__(self, system: System, chart: str | None = None, hidden: int = 200, depth: int = 3,
-                 activation: str = "softplus", guard: float = 1e-4, angular: bool = False):
+                 activation: str = "softplus", guard: float = 1e-3, angular: bool = False):
         super().__init__(system, chart, hidden, depth, activation, guard, angular)
         self.force_net = mlp(embedded_width(self.n, angular) + self.n, self.n, hidden, depth, activation)
 
