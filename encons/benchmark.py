@@ -136,10 +136,18 @@ def run_one(run: Run, out: Path, cache_dir: str | None, control: bool = False) -
         results, error, wall = {}, str(err), time.perf_counter() - started
     row = {"system": run.system, "model": run.label, "seed": run.seed, "n_train": cfg.data.n_train,
            "data_efficiency": run.n_train is not None, "run_dir": str(run_dir), "error": error,
-           "wall_time_s": wall, "overrides": " ".join(run.overrides),
+           "wall_time_s": wall, "overrides": " ".join(run.overrides), "optimiser": optimiser(cfg),
            **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))}}
     write_json(done, row, indent=1)  # atomic: a run killed before it is rerun
     return row
+
+
+def optimiser(cfg: DictConfig) -> str:
+    """The optimiser, lr and schedule a run trained with, as the report's optimiser column shows it."""
+    o = cfg.optim
+    schedule = {None: "constant", "cosine": f"warm-up {o.warmup:g} + cosine", "onecycle": "one-cycle",
+                "plateau": f"plateau (patience {o.patience}, factor {o.factor:g})"}.get(o.scheduler, str(o.scheduler))
+    return f"AdamW lr {o.lr:g} wd {o.weight_decay:g}, {schedule}, {cfg.trainer.max_epochs} epochs"
 
 
 def resume_or_clear(cfg: DictConfig, checkpoints: Path) -> None:

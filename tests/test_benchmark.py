@@ -28,6 +28,11 @@ def test_smoke_profile_writes_report_and_resumes(tmp_path, capsys):
     assert len(list(cache.iterdir())) == 2  # n_train 8 and 16 (the grid runs share the n16 data)
     md = (out / "summary.md").read_text()
     assert "| pendulum1 | hnn | 16 |" in md and "traj_rel_err" in md
+    # the floor beside the models (the true field, same evaluation), and the optimiser each model used
+    assert "| pendulum1 | oracle (true field) |" in md and "optimiser |" in md.splitlines()[2]
+    assert "AdamW lr 0.001 wd 0.01, constant, 2 epochs |" in md
+    oracle_row = next(line for line in md.splitlines() if "oracle (true field)" in line)
+    assert float(oracle_row.split("|")[md.splitlines()[2].split("|").index(" geom_rel_err ")].split("±")[0]) < 1e-6
     for name in ("summary.csv", *FIGURES):
         assert (out / name).stat().st_size > 0, name
     stamps = {p: p.stat().st_mtime_ns for p in (out / "runs").glob("*/result.json")}
