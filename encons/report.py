@@ -97,11 +97,12 @@ def _duration(seconds: float) -> str:
 
 
 def load_rows(out: Path) -> list[dict]:
-    """The rows of the finished runs under ``out/runs`` (sorted by run folder)."""
+    """The rows of the finished runs under ``out/runs`` (sorted by run folder), each ``run_dir`` the folder
+    its ``result.json`` lies in now (a moved or committed results folder still finds its curves)."""
     files = sorted((out / "runs").glob("*/result.json"))
     if not files:
         raise ConfigError(f"{str(out)!r} holds no finished benchmark runs (no runs/*/result.json)")
-    return [json.loads(f.read_text()) for f in files]
+    return [{**json.loads(f.read_text()), "run_dir": str(f.parent)} for f in files]
 
 
 def summarise(rows: list[dict]) -> list[dict]:
