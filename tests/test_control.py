@@ -168,3 +168,4 @@ def test_control_profile_reports_the_controller_beside_the_oracle(tmp_path):
                                                            "control" / "control_phase.png").is_file()
     headline = (out / "summary.md").read_text().split("## Every metric")[0]
     assert "control/success_rate" in headline and "oracle/success_rate" in headline
+    assert (out / "control_success_rate.png").stat().st_size > 10_000
