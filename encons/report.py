@@ -212,6 +212,7 @@ def write_report(out: str | Path) -> list[Path]:
     if grid:
         files += plots.comparison_figures(grid, grid_summary, out)
         files += plots.energy_rmse_figure(grid_summary, paper, out)
+        files += plots.control_success_figure(grid_summary, out)
     efficiency = [e for e in summary if e["data_efficiency"] and "test/traj_rel_err" in e]  # runs that finished
     if efficiency:
         files += plots.data_efficiency_figure(efficiency, out)
