@@ -48,6 +48,7 @@ import torch
 from torch import Tensor
 
 from encons.errors import ConfigError, DataError
+from encons.io import save_npz
 
 log = logging.getLogger(__name__)
 
@@ -314,10 +315,7 @@ def write_example(path: str | Path, duration: float = 60.0, dt: float = 0.02,
     keep = torch.ones(len(t), dtype=torch.bool)
     for first, count in dropped:
         keep[first:first + count] = False
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path, t=t[keep].numpy(), states=wrap(states[keep], [True, True]).numpy(), chart="angle")
-    return path
+    return save_npz(path, t=t[keep].numpy(), states=wrap(states[keep], [True, True]).numpy(), chart="angle")
 
 
 if __name__ == "__main__":
