@@ -15,7 +15,6 @@ to ``out`` at the end and can be rebuilt alone with ``python -m encons.report OU
 
 from __future__ import annotations
 
-import json
 import shutil
 import sys
 import time
@@ -28,6 +27,7 @@ from hydra.errors import MissingConfigException
 from omegaconf import DictConfig, OmegaConf
 
 from encons.errors import ConfigError, EnconsError
+from encons.io import write_json, write_yaml
 from encons.paths import config_dir
 
 
@@ -89,7 +89,7 @@ def expand(cfg: DictConfig) -> list[Run]:
     if not entries:
         raise ConfigError("profile has no runs: give systems and models, runs or n_train")
     return [Run(system, label, seed, [f"system={system}", *ovr, *c["common"], *per_system.get(system, []),
-                                     f"seed={seed}", *c["train"]], n, paper)
+                                     f"seed={seed}", f"threads={json.dumps(c['threads'])}", *c["train"]], n, paper)
             for system, label, ovr, n, paper in entries for seed in c["seeds"]]
 
 
@@ -122,10 +122,7 @@ def run_one(run: Run, out: Path, cache_dir: str | None, control: bool = False) -
            "data_efficiency": run.n_train is not None, "run_dir": str(run_dir), "error": error,
            "wall_time_s": wall, "overrides": " ".join(run.overrides),
            **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))}}
-    run_dir.mkdir(parents=True, exist_ok=True)
-    tmp = done.with_suffix(".tmp")
-    tmp.write_text(json.dumps(row, indent=1))
-    tmp.replace(done)  # atomic: a run killed before this line is rerun
+    write_json(done, row, indent=1)  # atomic: a run killed before it is rerun
     return row
 
 
@@ -161,13 +158,8 @@ def run_profile(cfg: DictConfig) -> Path:
 
     runs = expand(cfg)
     out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "benchmark.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(plain(cfg))))
+    write_yaml(out / "benchmark.yaml", plain(cfg))
     cache_dir = cfg.get("cache_dir")
-    if cfg.get("threads"):
-        import torch
-
-        torch.set_num_threads(int(cfg.threads))
     todo = [run for run in runs if not finished(run, out).is_file()]
     progress = Progress(len(runs), "benchmark run", work=len(todo))  # the ETA counts runs still to train
     for run in runs:

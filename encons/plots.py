@@ -12,6 +12,7 @@ import torch  # noqa: E402
 from torch import Tensor  # noqa: E402
 
 from encons import metrics  # noqa: E402
+from encons.io import save_figure  # noqa: E402
 
 
 TIME = "time t [s]"
@@ -41,7 +42,6 @@ def test_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] |
                  title: str, n_show: int = 3) -> list[Path]:
     """Rollout vs truth (every coordinate, positions and velocities), relative error vs time and
     (if known) energy error vs time; states are in the system's common chart."""
-    out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     names = coordinate_names(true.shape[-1])
     n, shown = true.shape[-1] // 2, min(n_show, true.shape[0])
@@ -151,9 +151,10 @@ def _curve_keys(row: dict) -> list[str]:
 def _save(fig, path: Path, layout: bool = True) -> Path:
     if layout:
         fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    try:
+        return save_figure(fig, path, dpi=110)
+    finally:
+        plt.close(fig)
 
 
 def log_figures(logger, paths: list[Path]) -> None:
@@ -237,7 +238,6 @@ def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], out_dir: Path, t
     """State MSE and (if known) energy MSE against time of the model and the baselines on the test
     windows (Xiao et al. Figs. 3 and 5; curves from ``metrics.long_rollout_errors``), from the first step
     (at t = 0 every rollout starts on the truth): ``mse_vs_time.png``."""
-    out_dir.mkdir(parents=True, exist_ok=True)
     keys = list(curves["model"])
     labels = {"state_mse": "state MSE, common chart [(units of s)²]", "energy_mse": "energy MSE [J²]"}
     fig, axes = plt.subplots(1, len(keys), figsize=(6 * len(keys), 4), squeeze=False)
@@ -260,7 +260,6 @@ DATA_TIME = "time t [the data's time unit]"
 def pixel_mse_figure(t: Tensor, mse: Tensor, out_dir: Path, title: str) -> list[Path]:
     """Pixel MSE (N, T) of decoded predictions against the true frames over time, median and 2.5–97.5 %
     band over test videos, with the mean (``pixel_mse.png``)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
     fig, ax = plt.subplots(figsize=(6.5, 4))
     _band(ax, t, mse.clamp_min(1e-12), PIXEL_MSE)
     ax.plot(t, mse.mean(0), "k--", lw=1, label="mean over test videos")
@@ -274,7 +273,6 @@ def latent_phase_figure(pred: Tensor, encoded: Tensor, out_dir: Path, title: str
     """Lim & Kasim Fig. 4: latent rollouts (N, T, d) of a few test videos in their phase plane — for
     d = 2 the latent (z₁, z₂) itself, else its first two principal components over the encoded test
     states — with the encoder's states of the true frames (``latent_phase.png``)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
     d = pred.shape[-1]
     if d == 2:
         project, names = (lambda z: z), ("latent z₁ (position-like) [–]", "latent z₂ (velocity-like) [–]")
@@ -301,7 +299,6 @@ def latent_phase_figure(pred: Tensor, encoded: Tensor, out_dir: Path, title: str
 def frames_figure(t: Tensor, pred: Tensor, true: Tensor, out_dir: Path, title: str, n_times: int = 6) -> list[Path]:
     """Lim & Kasim Figs. 5–6: true (top) and predicted (bottom) frames of the first test video at
     ``n_times`` times from 0 to the end (``frames.png``)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
     picks = torch.linspace(0, len(t) - 1, n_times).round().long().tolist()
     fig, axes = plt.subplots(2, n_times, figsize=(1.6 * n_times, 3.8), squeeze=False)
     for col, k in enumerate(picks):
