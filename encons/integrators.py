@@ -71,6 +71,11 @@ def rollout(model: DynamicsModel, start: Tensor, t: Tensor, integrator: Integrat
     continuous model index 0 along time is ``start`` itself (``decode(encode(start))`` in exact
     arithmetic; not computed, so a learned decoder costs T − 1 evaluations).
     """
+    weight = next(model.parameters(), None)
+    if weight is not None and weight.is_floating_point() and weight.dtype != start.dtype:
+        raise ConfigError(f"start dtype={str(start.dtype).removeprefix('torch.')} differs from the model's "
+                          f"{str(weight.dtype).removeprefix('torch.')}; allowed: start.to({weight.dtype}) or a model "
+                          f"of the start's dtype (model.to(start.dtype))")
     t = t.to(start)
     if model.discrete:
         return model.rollout(start, t, u)
