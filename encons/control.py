@@ -17,8 +17,8 @@ the true system (the oracle row), and scores both on the true simulator from one
   a = k_E (E_p − E*) M_xθ θ̇ − k_x x − k_v ẋ (Åström & Furuta's pivot-acceleration law, cos θ
   replaced by the learned M_xθ; the cart terms keep it near the origin), turned into the force u by
   collocated partial feedback linearisation of the learned control-affine field (ẍ = a₀(s) + b₀(s) u,
-  two field evaluations); LQR near upright. Model-predictive shooting is not needed: every model that takes inputs and has an
-  energy (L-NODE, SyMo, E2E-SyMo) gives M, V and f.
+  two field evaluations); LQR near upright. Model-predictive shooting is not needed: every model that
+  takes inputs and has an energy (L-NODE, SyMo, E2E-SyMo) gives M, V and f.
 
 LQR (both systems): f linearised at the upright equilibrium s* = 0, u = 0 by ``torch.func.jacrev``
 (A = ∂f/∂s, B = ∂f/∂u), discretised for the zero-order hold at the control period h (the run's data
