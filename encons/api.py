@@ -212,7 +212,7 @@ def build(cfg: DictConfig) -> tuple[TrajectoryDataModule, DynamicsModule]:
         regulariser = instantiate_node(cfg, "regulariser") if cfg.get("regulariser") else None
         module = DynamicsModule(model, system, data.dt, instantiate_node(cfg, "integrator"), objective=objective,
                                 regulariser=regulariser, observation=observation, horizon=cfg.horizon,
-                                output_dir=cfg.paths.output_dir, **cfg.optim)
+                                output_dir=cfg.paths.output_dir, model_name=cfg.get("model_name"), **cfg.optim)
     return data, module
 
 
