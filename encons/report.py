@@ -205,7 +205,8 @@ HEADLINE = ("wall_time_s", "test/diverged", "test/traj_rel_err", "test/geom_rel_
             "test/state_mse_final", "test/energy_mse_final", "test/baseline_constant/state_mse_final",
             "test/baseline_linear_ode/state_mse_final", "test/pixel_mse_final", "test/pixel_mse_final_median",
             "test/control/success_rate", "test/oracle/success_rate", "test/control/time_to_upright_s",
-            "test/oracle/time_to_upright_s", "test/control/effort", "test/oracle/effort", "test/control/pred_rmse")
+            "test/oracle/time_to_upright_s", "test/control/effort", "test/oracle/effort", "test/control/pred_rmse",
+            "test/control/b_rel_err")
 
 
 def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", headline: bool = False) -> str:

@@ -91,6 +91,6 @@ def test_help_lists_the_profiles_and_trains_nothing(tmp_path, capsys):
     main(["--help", f"out={tmp_path}"])
     out = capsys.readouterr().out
     profiles = sorted(p.stem for p in (Path(config_dir()) / "profile").glob("*.yaml"))
-    assert {"finzi", "lim_kasim", "pixels", "quick", "smoke", "zhong"} <= set(profiles)
+    assert {"control", "finzi", "lim_kasim", "pixels", "quick", "smoke", "zhong"} <= set(profiles)
     assert f"profiles: {', '.join(profiles)}" in out and "seeds:" in out
     assert not any(tmp_path.iterdir())
