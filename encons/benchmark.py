@@ -28,6 +28,7 @@ from hydra.errors import MissingConfigException
 from omegaconf import DictConfig, OmegaConf
 
 from encons.errors import ConfigError, EnconsError
+from encons.io import write_json, write_yaml
 from encons.paths import config_dir
 
 
@@ -75,6 +76,7 @@ def expand(cfg: DictConfig) -> list[Run]:
     from encons.api import catalogue
 
     c = plain(cfg)
+    check_keys(c)
     for key, group in (("systems", "system"), ("models", "model")):
         if c[key] == "all" or c[key] == ["all"]:
             c[key] = catalogue(group)  # a model a system cannot serve fails with its one-line reason
@@ -83,7 +85,7 @@ def expand(cfg: DictConfig) -> list[Run]:
     entries += [(r["system"], r["label"], list(r["overrides"]), None, r.get("paper", {})) for r in c["runs"]]
     for n in c["n_train"]:
         if n < 1:
-            raise ConfigError(f"n_train={n} must be >= 1")
+            raise ConfigError(f"n_train={n}; allowed: training-set sizes >= 1")
         for m in c["n_train_models"] or c["models"]:
             entries.append((c["n_train_system"], m, [f"model={m}", f"data.n_train={n}"], n, {}))
     if not entries:
@@ -93,13 +95,28 @@ def expand(cfg: DictConfig) -> list[Run]:
             for system, label, ovr, n, paper in entries for seed in c["seeds"]]
 
 
+def check_keys(c: dict) -> None:
+    """Refuse seeds, threads and an output folder that cannot work, naming the key and what is allowed."""
+    seeds = c["seeds"]
+    if not isinstance(seeds, list) or not seeds or not all(
+            isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**32 for s in seeds):
+        raise ConfigError(f"seeds={seeds}; allowed: a non-empty list of integer seeds in 0..2**32-1, e.g. seeds=[0,1]")
+    threads = c.get("threads")
+    if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool) or threads < 1):
+        raise ConfigError(f"threads={threads!r}; allowed: an integer >= 1, or null (torch's default)")
+    blocking = next((p for p in (Path(c["out"]), *Path(c["out"]).parents) if p.exists() and not p.is_dir()), None)
+    if blocking is not None:
+        raise ConfigError(f"out={c['out']!r}: {str(blocking)!r} is a file; allowed: a folder for the runs and report")
+
+
 def finished(run: Run, out: Path) -> Path:
     """Where ``run`` leaves its result row; the run is finished when the file exists."""
     return out / "runs" / run.id / "result.json"
 
 
-def run_one(run: Run, out: Path, cache_dir: str | None) -> dict:
-    """Train and test ``run`` through ``encons.api``; write and return its result row."""
+def run_one(run: Run, out: Path, cache_dir: str | None, control: bool = False) -> dict:
+    """Train and test ``run`` through ``encons.api`` (and with ``control`` score its controller beside the
+    oracle, ``encons.control``: ``test/control/*``, ``test/oracle/*``); write and return its result row."""
     from encons import api
 
     done = finished(run, out)
@@ -109,17 +126,19 @@ def run_one(run: Run, out: Path, cache_dir: str | None) -> dict:
     resume_or_clear(cfg, run_dir / "checkpoints")
     started = time.perf_counter()
     try:
-        results, error = api.train(cfg, summary=False).metrics, ""
+        trained = api.train(cfg, summary=False)
+        results, error, wall = dict(trained.metrics), "", time.perf_counter() - started  # training time only
+        if control:
+            from encons.control import score_control
+
+            results.update({f"test/{k}": v for k, v in score_control(trained).items()})
     except EnconsError as err:
-        results, error = {}, str(err)
+        results, error, wall = {}, str(err), time.perf_counter() - started
     row = {"system": run.system, "model": run.label, "seed": run.seed, "n_train": cfg.data.n_train,
            "data_efficiency": run.n_train is not None, "run_dir": str(run_dir), "error": error,
-           "wall_time_s": time.perf_counter() - started, "overrides": " ".join(run.overrides),
+           "wall_time_s": wall, "overrides": " ".join(run.overrides),
            **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))}}
-    run_dir.mkdir(parents=True, exist_ok=True)
-    tmp = done.with_suffix(".tmp")
-    tmp.write_text(json.dumps(row, indent=1))
-    tmp.replace(done)  # atomic: a run killed before this line is rerun
+    write_json(done, row, indent=1)  # atomic: a run killed before it is rerun
     return row
 
 
@@ -143,19 +162,19 @@ def resume_or_clear(cfg: DictConfig, checkpoints: Path) -> None:
 
 def result_line(row: dict) -> str:
     """The headline of a finished run: its test errors and wall time (every metric: its result.json)."""
-    keys = ("test/traj_rel_err", "test/geom_rel_err", "test/energy_abs_err", "test/diverged")
+    keys = ("test/traj_rel_err", "test/geom_rel_err", "test/energy_abs_err", "test/diverged",
+            "test/control/success_rate", "test/oracle/success_rate")
     shown = [f"{k.removeprefix('test/')} {row[k]:.3g}" for k in keys if k in row]
     return ", ".join(shown + [f"{row['wall_time_s']:.0f} s"])
 
 
 def run_profile(cfg: DictConfig) -> Path:
     """Run every run of ``cfg`` not yet finished under ``cfg.out``, then write the report there."""
-    from encons.report import Progress, write_report
+    from encons.report import Progress, load_rows, write_report
 
     runs = expand(cfg)
     out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "benchmark.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(plain(cfg))))
+    write_yaml(out / "benchmark.yaml", plain(cfg))
     cache_dir = cfg.get("cache_dir")
     todo = [run for run in runs if not finished(run, out).is_file()]
     progress = Progress(len(runs), "benchmark run", work=len(todo))  # the ETA counts runs still to train
@@ -164,13 +183,16 @@ def run_profile(cfg: DictConfig) -> Path:
             progress.start(f"{run.id}: finished before, skipped", work=0)
             continue
         progress.start(run.id)
-        row = run_one(run, out, cache_dir)
+        row = run_one(run, out, cache_dir, bool(cfg.get("control")))
         if row["error"]:
             print(f"{run.id} failed: {row['error']}", file=sys.stderr)
         else:
             print(f"{run.id}: {result_line(row)}", file=sys.stderr, flush=True)
     progress.done()
     write_report(out)
+    errors = [row.get("error") for row in load_rows(out)]
+    if all(errors):
+        raise ConfigError(f"{errors[0]}; every one of the {len(errors)} benchmark runs failed (errors: {out / 'results.csv'})")
     return out
 
 

@@ -32,6 +32,7 @@ from rich.console import Console
 from rich.table import Table
 
 from encons.errors import ConfigError, EnconsError
+from encons.io import atomic_open, write_text
 
 
 def print_summary(title: str, results: dict[str, float], output_dir: Path, note: str = "",
@@ -98,10 +99,20 @@ def _duration(seconds: float) -> str:
 
 def load_rows(out: Path) -> list[dict]:
     """The rows of the finished runs under ``out/runs`` (sorted by run folder)."""
+    allowed = "allowed: a benchmark's output folder (runs/*/result.json) or a Hydra multirun folder (multirun.yaml)"
+    if not out.is_dir():
+        raise ConfigError(f"folder={str(out)!r} {'is a file' if out.exists() else 'does not exist'}; {allowed}")
     files = sorted((out / "runs").glob("*/result.json"))
     if not files:
-        raise ConfigError(f"{str(out)!r} holds no finished benchmark runs (no runs/*/result.json)")
-    return [json.loads(f.read_text()) for f in files]
+        raise ConfigError(f"folder={str(out)!r} holds no finished benchmark runs (no runs/*/result.json); {allowed}")
+    rows = []
+    for f in files:
+        try:
+            rows.append(json.loads(f.read_text()))
+        except ValueError as err:
+            raise ConfigError(f"{str(f)!r} is not a result row ({err}); allowed: a result.json written by "
+                              f"encons.benchmark (delete it and rerun the benchmark to redo that run)") from None
+    return rows
 
 
 def summarise(rows: list[dict]) -> list[dict]:
@@ -141,7 +152,7 @@ def published(out: Path) -> dict[str, dict]:
 
 def write_csv(path: Path, rows: list[dict]) -> None:
     keys = list(dict.fromkeys(k for row in rows for k in row))
-    with path.open("w", newline="") as f:
+    with atomic_open(path, "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=keys)
         writer.writeheader()
         writer.writerows(rows)
@@ -149,7 +160,9 @@ def write_csv(path: Path, rows: list[dict]) -> None:
 
 HEADLINE = ("wall_time_s", "test/diverged", "test/traj_rel_err", "test/geom_rel_err", "test/energy_rmse_median",
             "test/state_mse_final", "test/energy_mse_final", "test/baseline_constant/state_mse_final",
-            "test/baseline_linear_ode/state_mse_final", "test/pixel_mse_final", "test/pixel_mse_final_median")
+            "test/baseline_linear_ode/state_mse_final", "test/pixel_mse_final", "test/pixel_mse_final_median",
+            "test/control/success_rate", "test/oracle/success_rate", "test/control/time_to_upright_s",
+            "test/oracle/time_to_upright_s", "test/control/effort", "test/oracle/effort", "test/control/pred_rmse")
 
 
 def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", headline: bool = False) -> str:
@@ -190,15 +203,15 @@ def write_report(out: str | Path) -> list[Path]:
     write_csv(out / "summary.csv", [{**e, **{f"paper {m}": v for m, v in
                                             paper.get(f"{e['system']}/{e['model']}", {}).items()}}
                                     for e in summary])
-    (out / "summary.md").write_text(f"# {out.name}\n\n" + markdown(summary, paper, source, headline=True)
-                                    + "\n## Every metric\n\n" + markdown(summary, paper, source))
+    write_text(out / "summary.md", f"# {out.name}\n\n" + markdown(summary, paper, source, headline=True)
+               + "\n## Every metric\n\n" + markdown(summary, paper, source))
     grid = [r for r in rows if not r.get("data_efficiency") and not r.get("error")]
     grid_summary = [e for e in summary if not e["data_efficiency"]]
     files = [out / "results.csv", out / "summary.csv", out / "summary.md"]
     if grid:
         files += plots.comparison_figures(grid, grid_summary, out)
         files += plots.energy_rmse_figure(grid_summary, paper, out)
-    efficiency = [e for e in summary if e["data_efficiency"]]
+    efficiency = [e for e in summary if e["data_efficiency"] and "test/traj_rel_err" in e]  # runs that finished
     if efficiency:
         files += plots.data_efficiency_figure(efficiency, out)
     Console(width=200).print(markdown(summary, paper, source, headline=True))
@@ -219,7 +232,8 @@ def sweep_rows(out: Path) -> tuple[list[str], list[dict]]:
 
     jobs = sorted(p.parent.parent for p in out.glob("**/.hydra/overrides.yaml") if p.parent.parent != out)
     if not jobs:
-        raise ConfigError(f"{str(out)!r} holds no jobs of a multirun (no */.hydra/overrides.yaml)")
+        raise ConfigError(f"folder={str(out)!r} holds no jobs of a multirun (no */.hydra/overrides.yaml); allowed: "
+                          f"the folder of a multirun (python -m encons.train -m ...) whose jobs started")
     given = [dict(o.split("=", 1) for o in yaml.safe_load((j / ".hydra" / "overrides.yaml").read_text()) or []
                   if "=" in o) for j in jobs]
     keys = [k for k in dict.fromkeys(k for g in given for k in g) if len({g.get(k) for g in given}) > 1]
@@ -261,7 +275,7 @@ def write_sweep_report(out: str | Path) -> list[Path]:
     keys, rows = sweep_rows(out)
     write_csv(out / "sweep.csv", rows)
     text = sweep_markdown(keys, rows)
-    (out / "sweep.md").write_text(f"# {out.name}\n\n" + text)
+    write_text(out / "sweep.md", f"# {out.name}\n\n" + text)
     Console(width=200).print(text, markup=False)
     return [out / "sweep.csv", out / "sweep.md"]
 
