@@ -1,6 +1,6 @@
 """Benchmark runner: the runs of a profile (conf/profile/*.yaml), trained one by one, then the report.
 
-    python -m encons.benchmark [profile=smoke|quick|zhong|finzi|lim_kasim|pixels] [seeds=[0,1]] [out=DIR]
+    python -m encons.benchmark [profile=smoke|quick|zhong|finzi|lim_kasim|pixels|control] [seeds=[0,1]] [out=DIR]
         ['train=["trainer.max_epochs=50"]']   (quoted: Hydra's grammar wants '=' inside a list quoted)
 
 A profile lists its runs as a grid (``systems`` × ``models``), as explicit ``runs`` (a label and
@@ -102,7 +102,7 @@ def check_keys(c: dict) -> None:
     if not isinstance(seeds, list) or not seeds or not all(
             isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**32 for s in seeds):
         raise ConfigError(f"seeds={seeds}; allowed: a non-empty list of integer seeds in 0..2**32-1, e.g. seeds=[0,1]")
-    threads.choose(c.get("threads"))  # the runs' policy refuses what it cannot use
+    threads.choose(c.get("threads"))  # the thread policy refuses what it does not take, in its own words
     blocking = next((p for p in (Path(c["out"]), *Path(c["out"]).parents) if p.exists() and not p.is_dir()), None)
     if blocking is not None:
         raise ConfigError(f"out={c['out']!r}: {str(blocking)!r} is a file; allowed: a folder for the runs and report")
