@@ -245,6 +245,31 @@ def energy_rmse_figure(summary: list[dict], paper: dict[str, dict], out_dir: Pat
     return [_save(fig, out_dir / "energy_rmse.png")]
 
 
+def control_success_figure(summary: list[dict], out_dir: Path) -> list[Path]:
+    """Swing-up success rate per model (``encons.control``, mean ± std over seeds) beside the same
+    controller built from the true model (oracle), one panel per system."""
+    entries = [e for e in summary if "test/control/success_rate" in e]
+    systems = list(dict.fromkeys(e["system"] for e in entries))
+    if not systems:
+        return []
+    fig, axes = plt.subplots(1, len(systems), figsize=(4.5 * len(systems), 4), squeeze=False, sharey=True)
+    for ax, system in zip(axes[0], systems):
+        rows = [e for e in entries if e["system"] == system]
+        x = torch.arange(len(rows), dtype=torch.float64)
+        for offset, side, label in ((-0.2, "control", "controller from the learned model"),
+                                    (0.2, "oracle", "same controller from the true model")):
+            ax.bar(x + offset, [e[f"test/{side}/success_rate"] for e in rows], width=0.4,
+                   yerr=[e.get(f"test/{side}/success_rate_sd", 0.0) for e in rows], capsize=3, label=label)
+        ax.set_xticks(x.tolist(), [e["model"] for e in rows])
+        ax.set_ylim(0, 1.3)
+        ax.set_yticks([0, 0.2, 0.4, 0.6, 0.8, 1.0])
+        ax.set_title(system)
+        ax.set_xlabel("model")
+        ax.legend(fontsize=7, loc="upper center")
+    axes[0, 0].set_ylabel("success rate (held upright) [–]")
+    return [_save(fig, out_dir / "control_success_rate.png")]
+
+
 def data_efficiency_figure(summary: list[dict], out_dir: Path) -> list[Path]:
     """Zhong et al. Fig. 5: test trajectory relative error against the number of training
     trajectories, one line per model (mean over seeds). Bars: ± 1 std over seeds where a point has
