@@ -28,7 +28,7 @@ from hydra.errors import MissingConfigException
 from omegaconf import DictConfig, OmegaConf
 
 from encons import threads
-from encons.errors import ConfigError, EnconsError
+from encons.errors import ConfigError, EnconsError, Interrupted
 from encons.io import write_json, write_yaml
 from encons.paths import config_dir
 
@@ -131,6 +131,9 @@ def run_one(run: Run, out: Path, cache_dir: str | None, control: bool = False) -
             from encons.control import score_control
 
             results.update({f"test/{k}": v for k, v in score_control(trained).items()})
+    except Interrupted as err:  # stops the benchmark; its rerun resumes this run (resume_or_clear)
+        raise Interrupted(f"{run.id}: {str(err).split(';')[0]}; rerun the same benchmark command: finished runs "
+                          f"are skipped and this one resumes from its last.ckpt") from None
     except EnconsError as err:
         results, error, wall = {}, str(err), time.perf_counter() - started
     row = {"system": run.system, "model": run.label, "seed": run.seed, "n_train": cfg.data.n_train,
