@@ -38,7 +38,18 @@ def floor(system, chart, t, true, u, evaluation: Evaluation) -> float:
                                                                          system.common_chart)).mean().item()
 
 
-@pytest.mark.parametrize("name", [pytest.param(s, marks=pytest.mark.slow) if s in LONG else s for s in STATE_SYSTEMS])
+#: Lim & Kasim's double pendulum is chaotic over its 4759-step (100 s) test horizon: any two integrators
+#: part, and the true field scores ~2e-2 against the data (RK4 at dt/2, the authors' truth) under RK4 x1,
+#: x16 and dopri5 at 1e-10 alike (measured); its paper scores energy there, and its oracle row shows this floor.
+CHAOTIC = {"double_pendulum": "chaotic over its 100 s test horizon: the floor is the data's own error, amplified"}
+
+
+def marks(name: str) -> list:
+    return ([pytest.mark.slow] if name in LONG else []) + (
+        [pytest.mark.xfail(strict=True, reason=CHAOTIC[name])] if name in CHAOTIC else [])
+
+
+@pytest.mark.parametrize("name", [pytest.param(s, marks=marks(s)) for s in STATE_SYSTEMS])
 def test_true_field_scores_below_1e_6_under_the_default_evaluation(name):
     system, t, true, u = simulated_test_set(name)
     for chart in system.charts:
