@@ -46,7 +46,7 @@ class Integrator:
         if self.method in FIXED_STEP:
             return {"method": self.method, "options": {"step_size": float(t[1] - t[0]) / self.substeps}}
         return {"method": self.method, "rtol": self.rtol, "atol": self.atol,
-                "options": {"max_num_steps": self.max_steps * (len(t) - 1)}}
+                "options": {"max_num_steps": self.max_steps}}  # torchdiffeq counts per output interval
 
 
 def odeint_held(field: Callable[[Tensor, Tensor, Tensor], Tensor], z0: Tensor, t: Tensor, u: Tensor,

@@ -38,7 +38,18 @@ def floor(system, chart, t, true, u, evaluation: Evaluation) -> float:
                                                                          system.common_chart)).mean().item()
 
 
-@pytest.mark.parametrize("name", [pytest.param(s, marks=pytest.mark.slow) if s in LONG else s for s in STATE_SYSTEMS])
+#: Lim & Kasim's double pendulum is chaotic over its 4759-step (100 s) test horizon: any two integrators
+#: part, and the true field scores ~2e-2 against the data (RK4 at dt/2, the authors' truth) under RK4 x1,
+#: x16 and dopri5 at 1e-10 alike (measured); its paper scores energy there, and its oracle row shows this floor.
+CHAOTIC = {"double_pendulum": "chaotic over its 100 s test horizon: the floor is the data's own error, amplified"}
+
+
+def marks(name: str) -> list:
+    return ([pytest.mark.slow] if name in LONG else []) + (
+        [pytest.mark.xfail(strict=True, reason=CHAOTIC[name])] if name in CHAOTIC else [])
+
+
+@pytest.mark.parametrize("name", [pytest.param(s, marks=marks(s)) for s in STATE_SYSTEMS])
 def test_true_field_scores_below_1e_6_under_the_default_evaluation(name):
     system, t, true, u = simulated_test_set(name)
     for chart in system.charts:
@@ -62,16 +73,19 @@ def test_float64_rollout_leaves_the_model_alone():
                                      Integrator("dopri5", rtol=1e-10, atol=1e-12)))
 
 
-def test_a_rollout_the_solver_gives_up_on_counts_as_diverged():
-    """A field that turns NaN makes dopri5's step underflow: the rollout is NaN (diverged), not an error."""
+def test_where_the_adaptive_solver_gives_up_rk4_takes_over():
+    """Past ``max_steps`` per dt dopri5 stops and the rollout is RK4 x16's (bounded cost); a field that
+    turns NaN makes the step underflow, and its RK4 rollout is NaN: diverged, not an exception."""
 
     class Broken(TrueField):
         def forward(self, t, s, u=None):
             return super().forward(t, s, u) * torch.where(t > 0.5, float("nan"), 1.0)
 
     system, t, true, _ = simulated_test_set("pendulum1", n=2)
+    stubborn = Evaluation(max_steps=1, rtol=1e-13, atol=1e-15).oracle(system, "angle", true[:, 0], t)
+    assert torch.equal(stubborn, rollout(TrueField(system, "angle"), true[:, 0], t, Integrator("rk4", 16)))
     pred = Evaluation().rollout(Broken(system, "angle"), true[:, 0], t)
-    assert pred.shape == true.shape and pred.isnan().all()
+    assert pred.shape == true.shape and pred[:, -1].isnan().all() and pred[:, 1].isfinite().all()
     assert metrics.summarise(pred, true, None, None)["diverged"] == 1.0
 
 

@@ -1,0 +1,51 @@
+"""The evaluation's own floor: the true field of each system, rolled out from simulated test starts by
+candidate test integrators (``encons.evaluation.Evaluation``), scored by geom_rel_err in the common chart.
+
+    python benchmarks/evaluation_floor.py gyroscope,pendulum2 [N_TRAJECTORIES] [--long]
+
+Prints one line per system × chart × integrator: RK4 at the data dt (the training integrator, what test
+rollouts used before), RK4 with 16 steps per dt, and the default (dopri5 at rtol 1e-10, atol 1e-12), all
+in float64, over the training horizon (``data.n_steps``; ``--long``: the test horizon ``data.test_steps``).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import torch
+
+from encons import api, metrics
+from encons.config import build_system
+from encons.data.simulate import sample_trajectories
+from encons.evaluation import Evaluation
+
+CANDIDATES = {"rk4 x1": Evaluation(method="rk4"), "rk4 x16": Evaluation(method="rk4", substeps=16),
+              "dopri5 1e-10 (default)": Evaluation()}
+
+
+def main(argv: list[str]) -> None:
+    torch.set_num_threads(1)
+    names = argv[0].split(",")
+    n = int(argv[1]) if len(argv) > 1 and argv[1].isdigit() else 100
+    for name in names:
+        cfg = api.compose(f"system={name}", output_dir=".")
+        system = build_system(cfg)
+        steps = (cfg.data.test_steps or cfg.data.n_steps) if "--long" in argv else cfg.data.n_steps
+        t = torch.arange(steps + 1, dtype=torch.float64) * cfg.data.dt
+        true, u, _ = sample_trajectories(system, n, t, torch.Generator().manual_seed(123), cfg.data.substeps)
+        reference = system.to_chart(true, system.base_chart, system.common_chart)
+        for chart in system.charts:
+            start = system.to_chart(true[:, 0], system.base_chart, chart)
+            for label, evaluation in CANDIDATES.items():
+                began = time.perf_counter()
+                pred = evaluation.oracle(system, chart, start, t, u)
+                took = time.perf_counter() - began
+                geom = metrics.geometric_mean_relative_error(system.to_chart(pred, chart, system.common_chart),
+                                                             reference).mean().item()
+                print(f"{name:18s} {chart:9s} {steps:5d} steps  {label:24s} geom_rel_err {geom:.2e}  {took:6.1f} s",
+                      flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
