@@ -56,7 +56,7 @@ def guarded_solve(hessian: Tensor, rhs: Tensor, guard: float) -> Tensor:
     lam = guard * hessian.flatten(-2).norm(dim=-1)
     with torch.no_grad():
         plain = x.norm(dim=-1) * lam <= rhs.norm(dim=-1)  # NaN compares False
-    if bool(plain.all()):
+    if not plain.is_meta and bool(plain.all()):  # a meta tensor has no values to branch on
         return x
     eye = torch.eye(hessian.shape[-1], dtype=rhs.dtype, device=rhs.device)
     # the plain branch again on H where it is used and I elsewhere, so a singular H sends no NaN backward
