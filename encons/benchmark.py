@@ -80,7 +80,8 @@ def expand(cfg: DictConfig) -> list[Run]:
         if c[key] == "all" or c[key] == ["all"]:
             c[key] = catalogue(group)  # a model a system cannot serve fails with its one-line reason
     per_system = c.get("per_system") or {}
-    entries = [(s, m, [f"model={m}"], None, {}) for s in c["systems"] for m in c["models"]]
+    per_model = c.get("per_model") or {}
+    entries = [(s, m, [f"model={m}", *per_model.get(m, [])], None, {}) for s in c["systems"] for m in c["models"]]
     entries += [(r["system"], r["label"], list(r["overrides"]), None, r.get("paper", {})) for r in c["runs"]]
     efficiency_systems = c["n_train_system"] if isinstance(c["n_train_system"], list) else [c["n_train_system"]]
     per_n = {int(k): list(v) for k, v in (c.get("per_n_train") or {}).items()}
@@ -89,7 +90,8 @@ def expand(cfg: DictConfig) -> list[Run]:
             raise ConfigError(f"n_train={n} must be >= 1")
         for system in efficiency_systems:
             for m in c["n_train_models"] or c["models"]:  # a model name, or {label, overrides} (e.g. an integrator)
-                label, ovr = (m, [f"model={m}"]) if isinstance(m, str) else (m["label"], list(m["overrides"]))
+                label, ovr = ((m, [f"model={m}", *per_model.get(m, [])]) if isinstance(m, str)
+                              else (m["label"], list(m["overrides"])))
                 entries.append((system, label, [*ovr, f"data.n_train={n}", *per_n.get(n, [])], n, {}))
     if not entries:
         raise ConfigError("profile has no runs: give systems and models, runs or n_train")
