@@ -44,18 +44,16 @@ def fastest(fn, steps: int) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--steps", type=int, default=5)
-    parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.threads' policy)")
     parser.add_argument("--videos", type=int, default=None)
     args = parser.parse_args()
     sizes = [] if args.videos is None else [f"data.{k}={args.videos}" for k in ("n_train", "n_val", "n_test")]
-    if args.threads:
-        torch.set_num_threads(args.threads)
     print(f"{'system':<24}{'model':<26}{'train frames/s':>15}{'rollout frames/s':>18}")
     with tempfile.TemporaryDirectory() as tmp:
         generated = set()
         for system, model, extra in RUNS:
             cfg = api.compose(f"system={system}", f"model={model}", "logger=none", *extra, *sizes,
-                              output_dir=f"{tmp}/run", cache_dir=f"{tmp}/cache")
+                              f"threads={args.threads or 'null'}", output_dir=f"{tmp}/run", cache_dir=f"{tmp}/cache")
             data, module = api.build(cfg)
             if system not in generated:  # again, timed, into a fresh cache file
                 generated.add(system)

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from encons import threads
 from encons.errors import ConfigError
 from encons.paths import config_dir
 
@@ -189,6 +190,7 @@ def build(cfg: DictConfig) -> tuple[TrajectoryDataModule, DynamicsModule]:
 
     check_config(cfg)
     check_targets(run_config(cfg))
+    threads.apply(cfg.get("threads"))  # before the data are simulated
     pl.seed_everything(cfg.seed, workers=True, verbose=False)
     with execution_whitelist(trusted_targets()):
         system = build_system(cfg)
@@ -328,6 +330,7 @@ def _train(cfg: DictConfig, summary: bool) -> Run:
     finally:
         _finish_wandb(loggers)
     results["wall_time_s"] = time.perf_counter() - started
+    results["threads"] = float(torch.get_num_threads())  # what wall_time_s ran on (encons.threads)
     if trainer.is_global_zero:
         print_summary(module.run_title(), results, run_dir, note=_which(tested, results), console=summary)
     return Run(module, data, config, run_dir, tested, results)

@@ -1,6 +1,6 @@
 """Benchmark runner: the runs of a profile (conf/profile/*.yaml), trained one by one, then the report.
 
-    python -m encons.benchmark [profile=smoke|quick|zhong|finzi|lim_kasim|pixels|santos|xiao] [seeds=[0,1]] [out=DIR]
+    python -m encons.benchmark [profile=smoke|quick|zhong|finzi|lim_kasim|pixels|santos|xiao|control] [seeds=[0,1]] [out=DIR]
         ['train=["trainer.max_epochs=50"]']   (quoted: Hydra's grammar wants '=' inside a list quoted)
 
 A profile lists its runs as a grid (``systems`` × ``models``), as explicit ``runs`` (a label and
@@ -16,7 +16,6 @@ to ``out`` at the end and can be rebuilt alone with ``python -m encons.report OU
 
 from __future__ import annotations
 
-import json
 import shutil
 import sys
 import time
@@ -29,6 +28,7 @@ from hydra.errors import MissingConfigException
 from omegaconf import DictConfig, OmegaConf
 
 from encons.errors import ConfigError, EnconsError
+from encons.io import write_json, write_yaml
 from encons.paths import config_dir
 
 
@@ -96,7 +96,7 @@ def expand(cfg: DictConfig) -> list[Run]:
     if not entries:
         raise ConfigError("profile has no runs: give systems and models, runs or n_train")
     return [Run(system, label, seed, [f"system={system}", *ovr, *c["common"], *per_system.get(system, []),
-                                     f"seed={seed}", *c["train"]], n, paper)
+                                     f"seed={seed}", f"threads={json.dumps(c['threads'])}", *c["train"]], n, paper)
             for system, label, ovr, n, paper in entries for seed in c["seeds"]]
 
 
@@ -105,8 +105,9 @@ def finished(run: Run, out: Path) -> Path:
     return out / "runs" / run.id / "result.json"
 
 
-def run_one(run: Run, out: Path, cache_dir: str | None) -> dict:
-    """Train and test ``run`` through ``encons.api``; write and return its result row."""
+def run_one(run: Run, out: Path, cache_dir: str | None, control: bool = False) -> dict:
+    """Train and test ``run`` through ``encons.api`` (and with ``control`` score its controller beside the
+    oracle, ``encons.control``: ``test/control/*``, ``test/oracle/*``); write and return its result row."""
     from encons import api
 
     done = finished(run, out)
@@ -116,17 +117,19 @@ def run_one(run: Run, out: Path, cache_dir: str | None) -> dict:
     resume_or_clear(cfg, run_dir / "checkpoints")
     started = time.perf_counter()
     try:
-        results, error = api.train(cfg, summary=False).metrics, ""
+        trained = api.train(cfg, summary=False)
+        results, error, wall = dict(trained.metrics), "", time.perf_counter() - started  # training time only
+        if control:
+            from encons.control import score_control
+
+            results.update({f"test/{k}": v for k, v in score_control(trained).items()})
     except EnconsError as err:
-        results, error = {}, str(err)
+        results, error, wall = {}, str(err), time.perf_counter() - started
     row = {"system": run.system, "model": run.label, "seed": run.seed, "n_train": cfg.data.n_train,
            "data_efficiency": run.n_train is not None, "run_dir": str(run_dir), "error": error,
-           "wall_time_s": time.perf_counter() - started, "overrides": " ".join(run.overrides),
+           "wall_time_s": wall, "overrides": " ".join(run.overrides),
            **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))}}
-    run_dir.mkdir(parents=True, exist_ok=True)
-    tmp = done.with_suffix(".tmp")
-    tmp.write_text(json.dumps(row, indent=1))
-    tmp.replace(done)  # atomic: a run killed before this line is rerun
+    write_json(done, row, indent=1)  # atomic: a run killed before it is rerun
     return row
 
 
@@ -150,7 +153,8 @@ def resume_or_clear(cfg: DictConfig, checkpoints: Path) -> None:
 
 def result_line(row: dict) -> str:
     """The headline of a finished run: its test errors and wall time (every metric: its result.json)."""
-    keys = ("test/traj_rel_err", "test/geom_rel_err", "test/energy_abs_err", "test/diverged")
+    keys = ("test/traj_rel_err", "test/geom_rel_err", "test/energy_abs_err", "test/diverged",
+            "test/control/success_rate", "test/oracle/success_rate")
     shown = [f"{k.removeprefix('test/')} {row[k]:.3g}" for k in keys if k in row]
     return ", ".join(shown + [f"{row['wall_time_s']:.0f} s"])
 
@@ -161,13 +165,8 @@ def run_profile(cfg: DictConfig) -> Path:
 
     runs = expand(cfg)
     out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "benchmark.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(plain(cfg))))
+    write_yaml(out / "benchmark.yaml", plain(cfg))
     cache_dir = cfg.get("cache_dir")
-    if cfg.get("threads"):
-        import torch
-
-        torch.set_num_threads(int(cfg.threads))
     todo = [run for run in runs if not finished(run, out).is_file()]
     progress = Progress(len(runs), "benchmark run", work=len(todo))  # the ETA counts runs still to train
     for run in runs:
@@ -175,7 +174,7 @@ def run_profile(cfg: DictConfig) -> Path:
             progress.start(f"{run.id}: finished before, skipped", work=0)
             continue
         progress.start(run.id)
-        row = run_one(run, out, cache_dir)
+        row = run_one(run, out, cache_dir, bool(cfg.get("control")))
         if row["error"]:
             print(f"{run.id} failed: {row['error']}", file=sys.stderr)
         else:

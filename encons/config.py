@@ -213,8 +213,25 @@ def check_folders(cfg: DictConfig) -> None:
             raise ConfigError(f"{key}={str(folder)!r} is not writable; allowed: a writable folder")
 
 
+def apply_presets(cfg: DictConfig) -> None:
+    """Drop the keys a preset set for any model (``preset_keys``, e.g. ``debug=fast``'s ``model.hidden``)
+    from a node whose ``_target_``'s constructor does not take them; a key also set on the command line stays
+    (and is refused where the node is built)."""
+    for full in cfg.get("preset_keys") or ():
+        node_key, _, name = str(full).rpartition(".")
+        node = OmegaConf.select(cfg, node_key)
+        target = locate(str(node.get("_target_", ""))) if isinstance(node, DictConfig) and name in node else None
+        if target is None or full in _overridden():
+            continue
+        params = inspect.signature(target).parameters
+        if name not in params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+            with open_dict(node):
+                del node[name]
+
+
 def check_config(cfg: DictConfig) -> None:
     """Reject types, sizes, budgets and folders that cannot work, naming the key and what is allowed."""
+    apply_presets(cfg)
     from encons.data.datamodule import TrajectoryDataModule
     from encons.integrators import Integrator
 

@@ -89,7 +89,7 @@ def test_bad_command_line_is_one_line_exit_2(tmp_path, capsys, arg):
 def test_help_lists_the_profiles_and_trains_nothing(tmp_path, capsys):
     main(["--help", f"out={tmp_path}"])
     out = capsys.readouterr().out
-    assert "profiles: finzi, lim_kasim, pixels, quick, santos, smoke, xiao, zhong" in out and "seeds:" in out
+    assert "profiles: control, finzi, lim_kasim, pixels, quick, santos, smoke, xiao, zhong" in out and "seeds:" in out
     assert not any(tmp_path.iterdir())
 
 
