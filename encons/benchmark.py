@@ -16,6 +16,7 @@ to ``out`` at the end and can be rebuilt alone with ``python -m encons.report OU
 
 from __future__ import annotations
 
+import json
 import shutil
 import sys
 import time
