@@ -59,6 +59,9 @@ def test_profiles_expand_and_carry_published_numbers():
     assert len(quick) == 11 * 4 * 3
     zhong = expand(compose_benchmark(["profile=zhong"]))
     assert {r.n_train for r in zhong} == {None, 10, 100, 1000, 10000}
+    two_networks = {r.label for r in zhong if "model.shared_trunk=false" in r.overrides}
+    assert two_networks == {"hnn_structure", "hnn_structure_angle", "lnn_structure", "lnn_structure_angle"}
+    assert all(("system.min_sin_theta=0.0" in r.overrides) == (r.system == "gyroscope") for r in zhong)
     santos = expand(compose_benchmark(["profile=santos"]))
     assert len(santos) == 5 * 2 * 6 and {r.system for r in santos} == {"pendulum_control", "cartpole"}
     big = next(r for r in santos if r.n_train == 128 and r.system == "cartpole" and r.label == "symo")
