@@ -75,8 +75,8 @@ class SyMo(DiscreteModel):
     Rolled out by Newton on the learned DEL (eq. (11)). ``angular`` embeds the system's angles as
     (cos q, sin q) (§5.3). Newton stops at RMS residual ``train_tol`` / ``train_iters`` in training
     mode, ``eval_tol`` / ``eval_iters`` otherwise (§7: 1e-5 / 10 and 1e-4 / 10); ``backtracks`` halvings
-    of a step that would raise the residual (§7 gives plain Newton; without this safeguard a learned
-    DEL without a root near the guess threw rollouts to 1e6 rad, measured). Limits: B is constant
+    of a step that would raise the residual (§7 gives plain Newton; the safeguard keeps an iterate from
+    moving where the learned DEL's residual grows). Limits: B is constant
     (control-affine forcing, eq. (14)); a singular ∂g/∂q_{k+1} leaves that sample's iterate where it
     is, counted as not converged.
     """
