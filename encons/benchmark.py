@@ -94,6 +94,11 @@ def expand(cfg: DictConfig) -> list[Run]:
                 label, ovr = ((m, [f"model={m}", *per_model.get(m, [])]) if isinstance(m, str)
                               else (m["label"], list(m["overrides"])))
                 entries.append((system, label, [*ovr, f"data.n_train={n}", *per_n.get(n, [])], n, {}))
+    if c.get("only"):  # a part of the profile: entries whose system or system/label is listed
+        entries = [e for e in entries if e[0] in c["only"] or f"{e[0]}/{e[1]}" in c["only"]]
+        if not entries:
+            raise ConfigError(f"only={c['only']} selects none of the profile's runs; allowed: its systems or "
+                              f"system/label pairs")
     if not entries:
         raise ConfigError("profile has no runs: give systems and models, runs or n_train")
     return [Run(system, label, seed, [f"system={system}", *ovr, *c["common"], *per_system.get(system, []),

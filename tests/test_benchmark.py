@@ -66,6 +66,10 @@ def test_profiles_expand_and_carry_published_numbers():
     assert len(santos) == 5 * 2 * 6 and {r.system for r in santos} == {"pendulum_control", "cartpole"}
     big = next(r for r in santos if r.n_train == 128 and r.system == "cartpole" and r.label == "symo")
     assert {"data.batch_size=17", "optim.lr=1e-3", "model.hidden=256", "objective=residual"} <= set(big.overrides)
+    part = expand(compose_benchmark(["profile=lim_kasim", "only=[mass_spring,pendulum/hnn]"]))
+    assert [r.id for r in part][-1] == "pendulum-hnn-seed0" and {r.system for r in part[:-1]} == {"mass_spring"}
+    with pytest.raises(ConfigError, match="only=\\['nope'\\] selects none"):
+        expand(compose_benchmark(["profile=lim_kasim", "only=[nope]"]))
     xiao = expand(compose_benchmark(["profile=xiao"]))
     assert len(xiao) == 16 and next(r for r in xiao if r.label == "glnn-h200-d3" and r.system == "damped_oscillator"
                                     ).paper == {"table_3_4": 1.94e-4}
