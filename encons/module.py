@@ -29,6 +29,7 @@ from torch import Tensor
 
 from encons import metrics, plots
 from encons.errors import ConfigError, DivergenceError
+from encons.evaluation import Evaluation
 from encons.integrators import Integrator, rollout, state_derivative
 from encons.io import save_npz, write_json
 from encons.models.base import DynamicsModel
@@ -49,8 +50,10 @@ class DynamicsModule(pl.LightningModule):
                  lr: float = 1e-3, weight_decay: float = 1e-2, scheduler: str | None = None, warmup: float = 0.0,
                  patience: int = 50, factor: float = 0.7,
                  objective: str | None = None, regulariser: Regulariser | None = None,
-                 horizon: int = 4, output_dir: str | None = None, observation: Observation | None = None):
+                 horizon: int = 4, output_dir: str | None = None, observation: Observation | None = None,
+                 model_name: str | None = None, evaluation: Evaluation | None = None):
         super().__init__()
+        self.model_name = model_name  # the model's config name (hnn_angle, not the class HNN) for titles
         objective = objective or model.objectives[0]
         self.observation = observation if observation is not None else Observation()
         if self.observation.objectives is not None and objective not in self.observation.objectives:
@@ -71,6 +74,7 @@ class DynamicsModule(pl.LightningModule):
         self.lr, self.weight_decay, self.scheduler_name, self.warmup = lr, weight_decay, scheduler, warmup
         self.patience, self.factor = patience, factor
         self.objective, self.regulariser, self.horizon = objective, regulariser, horizon
+        self.evaluation = evaluation or Evaluation()  # test rollouts: their own integrator (encons.evaluation)
         self.output_dir = Path(output_dir) if output_dir else None
         self.test_metrics: dict[str, float] = {}
         self._test_batches: list[tuple[Tensor, ...]] = []
@@ -83,12 +87,14 @@ class DynamicsModule(pl.LightningModule):
         x = batch[self.observation.key]
         return x, self.observation.encode(x)
 
-    def predict(self, batch: Batch, states: Tensor | None = None) -> Tensor:
+    def predict(self, batch: Batch, states: Tensor | None = None, evaluation: Evaluation | None = None) -> Tensor:
         """Roll out from the first state (``history`` states) of each window's (encoded) states over the
-        window's length T: (N, T, 2n)."""
+        window's length T: (N, T, 2n); by ``evaluation`` if given, else by the training integrator."""
         x, states = (batch[self.observation.key], states) if states is not None else self.encode(batch)
         history = self.model.history
         start = states[:, 0] if history == 1 else states[:, :history]
+        if evaluation is not None:
+            return evaluation.rollout(self.model, start, self.times(x.shape[1], states), batch.get("u"))
         return rollout(self.model, start, self.times(x.shape[1], states), self.integrator, batch.get("u"))
 
     def rollout_loss(self, x: Tensor, states: Tensor, pred: Tensor) -> Tensor:
@@ -169,9 +175,12 @@ class DynamicsModule(pl.LightningModule):
 
     def test_step(self, batch: Batch, batch_idx: int) -> None:
         x, states = self.encode(batch)
-        pred = self.predict(batch, states)
-        kept = (x, pred) if self.observation.identity else (x, states, pred)
-        self._test_batches.append(tuple(p.detach() for p in kept))
+        pred = self.predict(batch, states, self.evaluation)
+        if not self.observation.identity:
+            return self._test_batches.append(tuple(p.detach() for p in (x, states, pred.to(states.dtype))))
+        oracle = (self.evaluation.oracle(self.system, self.model.chart, x[:, 0], self.times(x.shape[1], x), batch.get("u"))
+                  if self.system.known_physics else None)  # the floor: the true field, same starts and integrator
+        self._test_batches.append(tuple(p.detach() for p in (x, pred) + ((oracle,) if oracle is not None else ())))
 
     def _gathered(self) -> list[Tensor]:
         """The test batches concatenated; under DDP, every process's share."""
@@ -184,32 +193,41 @@ class DynamicsModule(pl.LightningModule):
     def on_test_epoch_end(self) -> None:
         if not self.observation.identity:
             return self._test_observations(*self._gathered())
-        true, pred = (p.double() for p in self._gathered())
+        true, pred, *oracle = (p.double() for p in self._gathered())
         energy = (lambda x: self.system.energy(x, self.model.chart)) if self.system.known_physics else None
         if energy is None:
             log.info("energy metrics skipped: system '%s' has no known energy", self.system.name)
         energies = [energy(x) for x in (pred, true)] if energy else None
         true_c, pred_c = self.to_common(true), self.to_common(pred)
-        self.test_metrics = metrics.summarise(pred_c, true_c, *(energies or (None, None)), horizon=self.horizon)
+        score = dict(horizon=self.horizon, dt=self.dt, vpt_threshold=self.evaluation.vpt_threshold)
+        self.test_metrics = metrics.summarise(pred_c, true_c, *(energies or (None, None)), **score)
         scalars, curves = metrics.long_rollout_errors(true, pred, self.trainer.datamodule.states["train"].to(true),
                                                       self.dt, self.to_common, energy, self.horizon)
         self.test_metrics.update(scalars)
         self.test_metrics.update(self.model.diagnostics())  # e.g. SyMo's non-converged root-finds
+        if oracle:  # the floor, scored by the same metrics
+            floor = metrics.summarise(self.to_common(oracle[0]), true_c, energy(oracle[0]) if energy else None,
+                                      energies[1] if energies else None, **score)
+            self.test_metrics.update({f"oracle/{k}": v for k, v in floor.items()})
         log.info("%s", metrics.curves_table(self.times(true.shape[1], true), curves))
         self.log_dict({f"test/{k}": v for k, v in self.test_metrics.items()}, sync_dist=True)
         if self.output_dir is not None and self.trainer.is_global_zero:
             write_json(self.output_dir / "test_metrics.json", self.test_metrics)
+            units = self.system.units(self.system.common_chart)
             figures = plots.mse_figure(self.times(true.shape[1], true).cpu(), curves, self.output_dir / "figures",
-                                       title=self.run_title())
+                                       title=self.run_title(), units=units)
             curves = {"t": self.times(true.shape[1], true).cpu().numpy(),
                       "rel_err": metrics.relative_error(pred_c, true_c).cpu().numpy(),
                       **{f"{k}_{name}": v.cpu().numpy() for name, c in curves.items() for k, v in c.items()}}
             if energies:
                 curves["energy_err"] = metrics.energy_abs_error(*energies).cpu().numpy()
             save_npz(self.output_dir / "test_curves.npz", **curves)
+            linear = metrics.fit_linear_ode(self.trainer.datamodule.states["train"].to(true), self.dt)
+            baseline = self.to_common(metrics.linear_ode_rollout(linear, true[:, 0], self.times(true.shape[1], true)))
             figures += plots.test_figures(self.times(true.shape[1], true).cpu(), pred_c.cpu(), true_c.cpu(),
                                          [e.cpu() for e in energies] if energies else None,
-                                         self.output_dir / "figures", title=self.run_title())
+                                         self.output_dir / "figures", title=self.run_title(), units=units,
+                                         baseline=baseline.cpu())
             plots.log_figures(self.logger, figures)
 
     def _test_observations(self, x: Tensor, states: Tensor, pred: Tensor) -> None:
@@ -242,7 +260,7 @@ class DynamicsModule(pl.LightningModule):
 
     def run_title(self) -> str:
         """Figure title: model (+ regulariser, e.g. ``NODE + C_H``) on system (chart or observation)."""
-        model = type(self.model).__name__
+        model = self.model_name or type(self.model).__name__
         if self.regulariser is not None:
             model += f" + {getattr(self.regulariser, 'label', type(self.regulariser).__name__)}"
         if not self.observation.identity:

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import csv
 import json
+from pathlib import Path
 
 import pytest
 
 from encons.benchmark import compose_benchmark, expand, main
 from encons.errors import ConfigError
+from encons.paths import config_dir
 from encons.report import write_report
 
 FIGURES = ("traj_rel_err.png", "rel_err_vs_time.png", "energy_err_vs_time.png", "energy_rmse.png",
@@ -23,7 +25,8 @@ def test_smoke_profile_writes_report_and_resumes(tmp_path, capsys):
         rows = list(csv.DictReader(f))
     assert len(rows) == 6 and not any(r["error"] for r in rows)
     assert all(float(r["test/traj_rel_err"]) > 0 for r in rows)
-    assert len(list(cache.iterdir())) == 2  # n_train 8 and 16 (the grid runs share the n16 data)
+    assert len({(r["system"], r["model"], r["n_train"]) for r in rows}) == 6  # no configuration trained twice
+    assert len(list(cache.iterdir())) == 3  # n_train 4, 8 and the grid runs' 16
     md = (out / "summary.md").read_text()
     assert "| pendulum1 | hnn | 16 |" in md and "traj_rel_err" in md
     for name in ("summary.csv", *FIGURES):
@@ -96,7 +99,9 @@ def test_bad_command_line_is_one_line_exit_2(tmp_path, capsys, arg):
 def test_help_lists_the_profiles_and_trains_nothing(tmp_path, capsys):
     main(["--help", f"out={tmp_path}"])
     out = capsys.readouterr().out
-    assert "profiles: control, finzi, lim_kasim, pixels, quick, santos, smoke, xiao, zhong" in out and "seeds:" in out
+    profiles = sorted(p.stem for p in (Path(config_dir()) / "profile").glob("*.yaml"))
+    assert {"finzi", "lim_kasim", "pixels", "quick", "santos", "smoke", "xiao", "zhong"} <= set(profiles)
+    assert f"profiles: {', '.join(profiles)}" in out and "seeds:" in out
     assert not any(tmp_path.iterdir())
 
 
