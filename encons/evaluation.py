@@ -80,6 +80,7 @@ class Evaluation:
     def rollout(self, model: DynamicsModel, start: Tensor, t: Tensor, u: Tensor | None = None) -> Tensor:
         """``encons.integrators.rollout`` of ``model`` with this integrator; with ``float64`` on a float64
         copy of the model (the model itself is left as it is), else in the model's dtype."""
+        original = model
         if self.float64:
             if any(p.dtype != torch.float64 for p in model.parameters()):
                 model = copy.deepcopy(model).double()
@@ -95,6 +96,9 @@ class Evaluation:
                         type(model).__name__, err)
             return torch.full((*start.shape[:-1], len(t), start.shape[-1]), float("nan"), dtype=start.dtype,
                               device=start.device)
+        finally:
+            if model is not original:  # the copy's solver counters (e.g. SyMo's Newton failures) are the model's
+                original.sync_diagnostics(model)
 
     def oracle(self, system: System, chart: str, start: Tensor, t: Tensor, u: Tensor | None = None) -> Tensor:
         """The true field's rollout in ``chart`` from continuous-model starts ``start`` (..., 2n): the floor."""

@@ -79,6 +79,10 @@ class DynamicsModel(nn.Module):
     def reset_diagnostics(self) -> None:
         """Start the counters of ``diagnostics`` afresh (the module does so before testing)."""
 
+    def sync_diagnostics(self, copy: DynamicsModel) -> None:
+        """Take the counters of ``copy``, a copy of this model that rolled out in its place (the
+        evaluation's float64 copy), as this model's."""
+
     def constrained_field(self, s: Tensor, u: Tensor | None = None) -> tuple[Tensor, Callable[..., Tensor]]:
         """Points, per-point inputs and the per-sample field that soft dynamics constraints act on.
 

@@ -28,7 +28,7 @@ from torch import Tensor
 from torch.func import grad, vjp, vmap
 
 from encons.errors import ConfigError
-from encons.models.base import DiscreteModel
+from encons.models.base import DiscreteModel, DynamicsModel
 from encons.models.networks import CholeskyMass, Potential
 from encons.systems.base import System
 
@@ -202,6 +202,9 @@ class SyMo(DiscreteModel):
 
     def reset_diagnostics(self) -> None:
         self.newton_solves, self.newton_unconverged = 0, 0
+
+    def sync_diagnostics(self, copy: DynamicsModel) -> None:
+        self.newton_solves, self.newton_unconverged = copy.newton_solves, copy.newton_unconverged
 
     def momentum(self, a: Tensor, b: Tensor, d1: Tensor, h: Tensor) -> Tensor:
         """D₂L_d(a, b) from D₁L_d(a, b): the midpoint rule gives D₂ − D₁ = 2 M((a + b)/2) (b − a)/h."""
