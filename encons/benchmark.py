@@ -1,10 +1,11 @@
 """Benchmark runner: the runs of a profile (conf/profile/*.yaml), trained one by one, then the report.
 
-    python -m encons.benchmark [profile=smoke|quick|zhong|finzi|lim_kasim|pixels|control] [seeds=[0,1]] [out=DIR]
+    python -m encons.benchmark [profile=smoke|quick|zhong|finzi|lim_kasim|pixels|santos|xiao|control] [seeds=[0,1]] [out=DIR]
         ['train=["trainer.max_epochs=50"]']   (quoted: Hydra's grammar wants '=' inside a list quoted)
 
 A profile lists its runs as a grid (``systems`` × ``models``), as explicit ``runs`` (a label and
-its train overrides, e.g. a model with a regulariser) and as data-efficiency runs (``n_train``);
+its train overrides, e.g. a model with a regulariser) and as data-efficiency runs (``n_train`` on
+each ``n_train_system``, models by name or as ``{label, overrides}``, ``per_n_train`` overrides);
 each is trained ``len(seeds)`` times through the training entry point, on datasets cached under
 ``paths.cache_dir`` (one per system and data config, shared by every model and seed). A finished
 run leaves ``runs/<id>/result.json``; a rerun skips it, so an interrupted benchmark resumes where it
@@ -82,13 +83,24 @@ def expand(cfg: DictConfig) -> list[Run]:
         if c[key] == "all" or c[key] == ["all"]:
             c[key] = catalogue(group)  # a model a system cannot serve fails with its one-line reason
     per_system = c.get("per_system") or {}
-    entries = [(s, m, [f"model={m}"], None, {}) for s in c["systems"] for m in c["models"]]
+    per_model = c.get("per_model") or {}
+    entries = [(s, m, [f"model={m}", *per_model.get(m, [])], None, {}) for s in c["systems"] for m in c["models"]]
     entries += [(r["system"], r["label"], list(r["overrides"]), None, r.get("paper", {})) for r in c["runs"]]
+    efficiency_systems = c["n_train_system"] if isinstance(c["n_train_system"], list) else [c["n_train_system"]]
+    per_n = {int(k): list(v) for k, v in (c.get("per_n_train") or {}).items()}
     for n in c["n_train"]:
         if n < 1:
             raise ConfigError(f"n_train={n}; allowed: training-set sizes >= 1")
-        for m in c["n_train_models"] or c["models"]:
-            entries.append((c["n_train_system"], m, [f"model={m}", f"data.n_train={n}"], n, {}))
+        for system in efficiency_systems:
+            for m in c["n_train_models"] or c["models"]:  # a model name, or {label, overrides} (e.g. an integrator)
+                label, ovr = ((m, [f"model={m}", *per_model.get(m, [])]) if isinstance(m, str)
+                              else (m["label"], list(m["overrides"])))
+                entries.append((system, label, [*ovr, f"data.n_train={n}", *per_n.get(n, [])], n, {}))
+    if c.get("only"):  # a part of the profile: entries whose system or system/label is listed
+        entries = [e for e in entries if e[0] in c["only"] or f"{e[0]}/{e[1]}" in c["only"]]
+        if not entries:
+            raise ConfigError(f"only={c['only']} selects none of the profile's runs; allowed: its systems or "
+                              f"system/label pairs")
     if not entries:
         raise ConfigError("profile has no runs: give systems and models, runs or n_train")
     return [Run(system, label, seed, [f"system={system}", *ovr, *c["common"], *per_system.get(system, []),

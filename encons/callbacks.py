@@ -61,6 +61,7 @@ class SantosMetrics(pl.Callback):
       rolled out ``steps`` steps of the data dt from their first ``history`` true states;
     - ``energy_mse_integration``: per-trajectory MSE of the true energy along those rollouts against the
       initial energy (conserved without inputs), averaged over trajectories;
+    - the model's solver counters over those rollouts (``diagnostics``, e.g. ``newton_unconverged_integration``);
     - ``mass_mse``: MSE of the model's M(q) (its ``mass``) against the true M along the true integration
       trajectories; only for models with a ``mass`` network in the system's generalised coordinates.
 
@@ -109,12 +110,14 @@ class SantosMetrics(pl.Callback):
         start = true[:, 0] if model.history == 1 else true[:, : model.history]
         u = torch.zeros(self.n_trajectories, len(t), system.n_controls) if system.n_controls else None
         dtype = next(model.parameters()).dtype
+        model.reset_diagnostics()
         pred = rollout(model, start.to(module.device, dtype), t.to(module.device, dtype), module.integrator,
                        None if u is None else u.to(module.device, dtype)).double().cpu()
         n = model.n
         energy_pred, energy_true = system.energy(pred, model.chart), system.energy(true, model.chart)
         out = {"mse_integration": metrics.configuration_mse(pred[..., :n], true[..., :n]).item(),
-               "energy_mse_integration": metrics.energy_mse(energy_pred, energy_true[:, :1]).item()}
+               "energy_mse_integration": metrics.energy_mse(energy_pred, energy_true[:, :1]).item(),
+               **{f"{k}_integration": v for k, v in model.diagnostics().items()}}
         if isinstance(getattr(model, "mass", None), torch.nn.Module) and model.chart == system.base_chart:
             q = true[..., :n]
             learned = model.mass(q.to(module.device, dtype)).double().cpu()

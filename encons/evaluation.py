@@ -83,6 +83,7 @@ class Evaluation:
     def rollout(self, model: DynamicsModel, start: Tensor, t: Tensor, u: Tensor | None = None) -> Tensor:
         """``encons.integrators.rollout`` of ``model`` with this integrator; with ``float64`` on a float64
         copy of the model (the model itself is left as it is), else in the model's dtype."""
+        original = model
         if self.float64:
             if any(p.dtype != torch.float64 for p in model.parameters()):
                 model = copy.deepcopy(model).double()
@@ -98,6 +99,9 @@ class Evaluation:
                         "by rk4 with %d steps per dt instead", type(model).__name__, self.method, self.rtol,
                         self.max_steps, err, FALLBACK.substeps)
             return rollout(model, start, t, FALLBACK, u)
+        finally:
+            if model is not original:  # the copy's solver counters (e.g. SyMo's Newton failures) are the model's
+                original.sync_diagnostics(model)
 
     def oracle(self, system: System, chart: str, start: Tensor, t: Tensor, u: Tensor | None = None) -> Tensor:
         """The true field's rollout in ``chart`` from continuous-model starts ``start`` (..., 2n): the floor."""

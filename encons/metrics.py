@@ -57,19 +57,34 @@ def percentiles(values: Tensor, qs: tuple[float, ...] = (0.025, 0.5, 0.975)) -> 
     return torch.quantile(values.double(), torch.tensor(qs, dtype=torch.float64)).tolist()
 
 
+DIVERGED_ENERGY_ERROR = 1e10  # |E(ŝ_t) − E(s_t)| at which a rollout counts as diverged (in the system's units)
+
+
+def diverged(pred: Tensor, pred_energy: Tensor | None = None, true_energy: Tensor | None = None) -> Tensor:
+    """Per rollout (N,): a non-finite state, or, given energies, an energy error that is non-finite or
+    reaches ``DIVERGED_ENERGY_ERROR`` at any time — a rollout thrown that far from the physics has left
+    every metric's meaningful range even while its states are still finite numbers."""
+    out = ~pred.isfinite().all(-1).all(-1)
+    if pred_energy is not None and true_energy is not None:
+        error = (pred_energy - true_energy).abs()
+        out |= ~(error < DIVERGED_ENERGY_ERROR).all(-1)  # NaN compares False: counted
+    return out
+
+
 def summarise(pred: Tensor, true: Tensor, pred_energy: Tensor | None, true_energy: Tensor | None,
               horizon: int = 4, dt: float = 1.0, vpt_threshold: float = 0.1) -> dict[str, float]:
     """Scalar test metrics of rollouts ``pred`` against ``true`` in one common chart, sampled every ``dt``.
 
-    ``diverged`` is the fraction of rollouts with a non-finite state; the means over trajectories
-    are then NaN on purpose (the horizon-``horizon`` ``traj_rel_err`` may still be finite). ``vpt``
+    ``diverged`` is the fraction of rollouts that diverged (``diverged``: a non-finite state, or an
+    energy error ≥ ``DIVERGED_ENERGY_ERROR``); with a non-finite one the means over trajectories are NaN
+    on purpose (the horizon-``horizon`` ``traj_rel_err`` may still be finite). ``vpt``
     is the mean ``valid_prediction_time`` at ``vpt_threshold``, ``vpt_censored`` the fraction of
     rollouts still valid at the last step (their VPT is the horizon).
     """
     tre = trajectory_relative_error(pred, true, horizon)
     vpt = valid_prediction_time(pred, true, dt, vpt_threshold)
     out = {
-        "diverged": (~pred.isfinite().all(-1).all(-1)).double().mean().item(),
+        "diverged": diverged(pred, pred_energy, true_energy).double().mean().item(),
         "traj_rel_err": tre.mean().item(),
         "traj_rel_err_std": tre.std().item() if tre.numel() > 1 else 0.0,
         "rel_err_final": relative_error(pred, true)[..., -1].mean().item(),

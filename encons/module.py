@@ -3,7 +3,9 @@
 Objectives: ``rollout`` (Zhong et al. §4.1: L1 loss summed over a window rolled out from its
 first state, or first ``model.history`` states), ``derivative`` (Lim & Kasim eq. (2): squared
 error of the field against the state derivatives the data module pairs with the states),
-``acceleration`` (Xiao et al. §3: the same on the q̈ half only) or
+``acceleration`` (Xiao et al. §3: the same on the q̈ half only), ``onestep`` (Santos et al. §7:
+MSE over states and coordinates of each state of a window predicted from the true ``model.history``
+states before it) or
 ``residual`` (the squared norm of a discrete model's own residual, e.g. SyMo's DEL equations).
 A model lists the objectives it supports in ``objectives``. An optional regulariser adds a
 weighted penalty. Batches are dicts (see ``encons.data.datamodule``): ``states`` and, where
@@ -35,7 +37,7 @@ from encons.models.observation import Observation
 from encons.systems.base import System
 
 log = logging.getLogger(__name__)
-OBJECTIVES = ("rollout", "derivative", "acceleration", "residual")
+OBJECTIVES = ("rollout", "derivative", "acceleration", "residual", "onestep")
 SCHEDULERS = (None, "cosine", "onecycle", "plateau")
 Regulariser = Callable[[DynamicsModel, Tensor, Tensor | None], Tensor]
 Batch = dict[str, Tensor]
@@ -110,6 +112,12 @@ class DynamicsModule(pl.LightningModule):
             return self.rollout_loss(x, states, self.predict(batch, states))
         if self.objective == "residual":
             return (self.model.residual(states, self.times(states.shape[1], states), u) ** 2).sum(-1).mean()
+        if self.objective == "onestep":  # every state of the window from the true ``history`` states before it
+            size = self.model.history + 1
+            one = {"states": states.unfold(1, size, 1).movedim(-1, -2).flatten(0, 1)}
+            if u is not None:
+                one["u"] = u[:, : states.shape[1]].unfold(1, size, 1).movedim(-1, -2).flatten(0, 1)
+            return (self.predict(one)[:, -1] - one["states"][:, -1]).square().mean()
         if "rates" not in batch:
             raise ConfigError(f"objective={self.objective} needs batches with rates; allowed: a data module built "
                               f"with objective='{self.objective}' (data.objective: ${{objective}})")
@@ -162,6 +170,9 @@ class DynamicsModule(pl.LightningModule):
         self.log("val/loss", self.rollout_loss(x, states, pred), batch_size=size, sync_dist=True)
         self.log("val/traj_rel_err", tre.mean(), prog_bar=True, batch_size=size, sync_dist=True)
 
+    def on_test_epoch_start(self) -> None:
+        self.model.reset_diagnostics()
+
     def test_step(self, batch: Batch, batch_idx: int) -> None:
         x, states = self.encode(batch)
         pred = self.predict(batch, states, self.evaluation)
@@ -193,6 +204,7 @@ class DynamicsModule(pl.LightningModule):
         scalars, curves = metrics.long_rollout_errors(true, pred, self.trainer.datamodule.states["train"].to(true),
                                                       self.dt, self.to_common, energy, self.horizon)
         self.test_metrics.update(scalars)
+        self.test_metrics.update(self.model.diagnostics())  # e.g. SyMo's non-converged root-finds
         if oracle:  # the floor, scored by the same metrics
             floor = metrics.summarise(self.to_common(oracle[0]), true_c, energy(oracle[0]) if energy else None,
                                       energies[1] if energies else None, **score)

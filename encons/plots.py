@@ -18,6 +18,8 @@ from encons.io import save_figure  # noqa: E402
 TIME = "time t [s]"
 REL_ERR = "relative error ‖ŝ_t − s_t‖ / ‖s_t‖ [–]"
 ENERGY_ERR = "energy error |E(ŝ_t) − E(s_t)| [J]"
+STATE_MSE = "state MSE of ŝ_t against s_t [(rad, rad/s)²]"
+ENERGY_MSE = "energy MSE of E(ŝ_t) against E(s_t) [J²]"
 
 
 def coordinate_names(width: int) -> list[str]:
@@ -130,7 +132,9 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
 
     Trajectory relative error per model (Zhong et al. Fig. 2: mean and std of its log over test
     trajectories; diverged trajectories left out), and relative error, absolute energy error and
-    pixel MSE (runs on frames) vs time averaged over test trajectories and seeds (Figs. 3–4), read
+    pixel MSE (runs on frames) vs time averaged over test trajectories and seeds (Figs. 3–4), and the
+    state and energy MSE vs time (Xiao et al. Figs. 3 and 5, the whole curve: a single late-time value
+    rewards a model that stops moving over one that drifts in phase), read
     from each run's ``test_curves.npz``; a curve no run has is left out.
     """
     import numpy as np
@@ -162,6 +166,8 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
 
     for key, label, name in (("rel_err", REL_ERR, "rel_err_vs_time.png"),
                              ("energy_err", ENERGY_ERR, "energy_err_vs_time.png"),
+                             ("state_mse_model", STATE_MSE, "state_mse_vs_time.png"),
+                             ("energy_mse_model", ENERGY_MSE, "energy_mse_vs_time.png"),
                              ("pixel_mse", PIXEL_MSE, "pixel_mse_vs_time.png")):
         if not any(key in _curve_keys(row) for row in rows):
             continue
@@ -174,7 +180,8 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
                 if row["system"] == system and path.is_file():
                     with np.load(path) as f:
                         if key in f.files:
-                            curves.setdefault(row["model"], []).append((f["t"], f[key].mean(0)))
+                            curve = f[key] if f[key].ndim == 1 else f[key].mean(0)  # MSE curves: already means
+                            curves.setdefault(row["model"], []).append((f["t"], curve))
             for model, runs in curves.items():
                 k = styles.setdefault(model, len(styles))
                 ax.plot(runs[0][0][1:], np.mean([c for _, c in runs], 0)[1:], label=model,
@@ -272,31 +279,65 @@ def control_success_figure(summary: list[dict], out_dir: Path) -> list[Path]:
 
 def data_efficiency_figure(summary: list[dict], out_dir: Path) -> list[Path]:
     """Zhong et al. Fig. 5: test trajectory relative error against the number of training
-    trajectories, one line per model (mean over seeds). Bars: ± 1 std over seeds where a point has
-    two or more seeds, else ± 1 std over test trajectories (cut at the axis where it reaches below 0)."""
+    trajectories, one line per model (mean over seeds), one panel per system. Bars: ± 1 std over seeds
+    where a point has two or more seeds, else ± 1 std over test trajectories (cut at the axis where it
+    reaches below 0)."""
     import numpy as np
 
-    fig, ax = plt.subplots(figsize=(6.5, 4.2))
-    sizes, seeds = set(), min(e.get("runs", 1) for e in summary)
-    for model in dict.fromkeys(e["model"] for e in summary):
-        rows = sorted((e for e in summary if e["model"] == model and "test/traj_rel_err" in e),
-                      key=lambda e: e["n_train"])
-        mean = np.array([e["test/traj_rel_err"] for e in rows])
-        spread = np.array([e["test/traj_rel_err_sd"] if seeds >= 2 else e.get("test/traj_rel_err_std", 0.0)
-                           for e in rows])
-        ax.errorbar([e["n_train"] for e in rows], mean, yerr=[np.minimum(spread, 0.95 * mean), spread],
-                    marker="o", capsize=3, label=model)
-        sizes.update(e["n_train"] for e in rows)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    plain_log_ticks(ax.xaxis, sizes)
-    plain_log_ticks(ax.yaxis)
-    ax.set_xlabel("training trajectories")
-    ax.set_ylabel("trajectory relative error (T = 4) [–]")
-    ax.set_title(f"data efficiency on {summary[0]['system']}\nmean over {seeds} seed(s); bars: ± 1 std over "
-                 + ("seeds" if seeds >= 2 else "test trajectories"), fontsize=9)
-    ax.legend(fontsize=7)
+    systems = list(dict.fromkeys(e["system"] for e in summary))
+    seeds = min(e.get("runs", 1) for e in summary)
+    fig, axes = plt.subplots(1, len(systems), figsize=(6.5 * len(systems), 4.2), squeeze=False)
+    for ax, system in zip(axes[0], systems):
+        sizes = set()
+        for model in dict.fromkeys(e["model"] for e in summary if e["system"] == system):
+            rows = sorted((e for e in summary if e["system"] == system and e["model"] == model
+                           and "test/traj_rel_err" in e), key=lambda e: e["n_train"])
+            mean = np.array([e["test/traj_rel_err"] for e in rows])
+            spread = np.array([e["test/traj_rel_err_sd"] if seeds >= 2 else e.get("test/traj_rel_err_std", 0.0)
+                               for e in rows])
+            ax.errorbar([e["n_train"] for e in rows], mean, yerr=[np.minimum(spread, 0.95 * mean), spread],
+                        marker="o", capsize=3, label=model)
+            sizes.update(e["n_train"] for e in rows)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        plain_log_ticks(ax.xaxis, sizes)
+        plain_log_ticks(ax.yaxis)
+        ax.set_xlabel("training trajectories")
+        ax.set_ylabel("trajectory relative error (T = 4) [–]")
+        ax.set_title(f"data efficiency on {system}\nmean over {seeds} seed(s); bars: ± 1 std over "
+                     + ("seeds" if seeds >= 2 else "test trajectories"), fontsize=9)
+        ax.legend(fontsize=7)
     return [_save(fig, out_dir / "data_efficiency.png")]
+
+
+SANTOS_PANELS = {"test/mse_train": "one-step train MSE of q [rad², m²]",
+                 "test/mse_test": "one-step test MSE of q [rad², m²]",
+                 "test/mse_integration": "integration MSE of q, 500 steps [rad², m²]",
+                 "test/energy_mse_integration": "energy MSE along the integration [J²]",
+                 "test/mass_mse": "M(q) MSE [(kg m²)²]"}
+
+
+def santos_figures(summary: list[dict], out_dir: Path) -> list[Path]:
+    """Santos et al. Figs. 3 (pendulum) and 4 (cart-pole): each §7 metric against N_train, one line per
+    model (mean over seeds; bars: std), one figure ``santos_<system>.png`` per system with these metrics."""
+    paths = []
+    for system in dict.fromkeys(e["system"] for e in summary if "test/mse_integration" in e):
+        entries = [e for e in summary if e["system"] == system]
+        fig, axes = plt.subplots(1, len(SANTOS_PANELS), figsize=(4 * len(SANTOS_PANELS), 3.8))
+        for ax, (key, label) in zip(axes, SANTOS_PANELS.items()):
+            for k, model in enumerate(dict.fromkeys(e["model"] for e in entries)):  # one colour per model
+                rows = sorted((e for e in entries if e["model"] == model and key in e), key=lambda e: e["n_train"])
+                if rows:
+                    ax.errorbar([e["n_train"] for e in rows], [e[key] for e in rows],
+                                yerr=[e[f"{key}_sd"] for e in rows], marker="o", capsize=3, color=f"C{k}", label=model)
+            ax.set_xscale("log", base=2)
+            ax.set_yscale("log")
+            ax.set_xlabel("training trajectories N_train")
+            ax.set_ylabel(label)
+            ax.legend(fontsize=7)
+        fig.suptitle(f"Santos et al. §7 metrics against N_train on {system}")
+        paths.append(_save(fig, out_dir / f"santos_{system}.png"))
+    return paths
 
 
 def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], out_dir: Path, title: str,

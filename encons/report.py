@@ -8,7 +8,9 @@ Writes ``results.csv`` (one row per run), ``summary.csv`` and ``summary.md`` (ev
 model × system, mean ± std over seeds, beside the paper's published value where the profile gives
 one) and the papers' figures: trajectory relative error per model (Zhong et al. Fig. 2), relative
 and energy error vs time (Figs. 3–4), data efficiency (Fig. 5, when the profile has ``n_train``
-runs) and the energy-deviation RMSE median with 2.5–97.5 % bars (Lim & Kasim Table 1). No training.
+runs; with the §7 metrics also Santos et al. Figs. 3–4, ``santos_<system>.png``), state and energy MSE
+vs time (Xiao et al. Figs. 3 and 5) and the energy-deviation RMSE median with 2.5–97.5 % bars (Lim &
+Kasim Table 1). No training.
 
 For a multirun folder: ``sweep.csv`` and ``sweep.md``, one row per job (the keys the sweep varied,
 then every test metric of its ``test_metrics.json``; unfinished jobs are listed as such), and with
@@ -204,8 +206,11 @@ def write_csv(path: Path, rows: list[dict]) -> None:
 
 HEADLINE = ("wall_time_s", "test/diverged", "test/traj_rel_err", "test/geom_rel_err", "test/vpt",
             "test/energy_abs_err", "test/energy_rmse_median",
-            "test/state_mse_final", "test/energy_mse_final", "test/baseline_constant/state_mse_final",
-            "test/baseline_linear_ode/state_mse_final", "test/pixel_mse_final", "test/pixel_mse_final_median",
+            "test/state_mse", "test/state_mse_final", "test/energy_mse", "test/energy_mse_final",
+            "test/baseline_constant/state_mse_final", "test/baseline_linear_ode/state_mse_final",
+            "test/mse_train", "test/mse_test", "test/mse_integration", "test/energy_mse_integration",
+            "test/mass_mse", "test/newton_unconverged", "test/newton_unconverged_integration",
+            "test/pixel_mse", "test/pixel_mse_final", "test/pixel_mse_final_median",
             "test/control/success_rate", "test/oracle/success_rate", "test/control/time_to_upright_s",
             "test/oracle/time_to_upright_s", "test/control/effort", "test/oracle/effort", "test/control/pred_rmse",
             "test/control/b_rel_err")
@@ -266,6 +271,7 @@ def write_report(out: str | Path) -> list[Path]:
     efficiency = [e for e in summary if e["data_efficiency"] and "test/traj_rel_err" in e]  # runs that finished
     if efficiency:
         files += plots.data_efficiency_figure(efficiency, out)
+        files += plots.santos_figures(efficiency, out)
     Console(width=200).print(markdown(summary, paper, source, headline=True))
     return files
 

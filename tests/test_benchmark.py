@@ -67,6 +67,20 @@ def test_profiles_expand_and_carry_published_numbers():
     assert len(quick) == 11 * 4 * 3
     zhong = expand(compose_benchmark(["profile=zhong"]))
     assert {r.n_train for r in zhong} == {None, 10, 100, 1000, 10000}
+    two_networks = {r.label for r in zhong if "model.shared_trunk=false" in r.overrides}
+    assert two_networks == {"hnn_structure", "hnn_structure_angle", "lnn_structure", "lnn_structure_angle"}
+    assert all(("system.min_sin_theta=0.0" in r.overrides) == (r.system == "gyroscope") for r in zhong)
+    santos = expand(compose_benchmark(["profile=santos"]))
+    assert len(santos) == 5 * 2 * 6 and {r.system for r in santos} == {"pendulum_control", "cartpole"}
+    big = next(r for r in santos if r.n_train == 128 and r.system == "cartpole" and r.label == "symo")
+    assert {"data.batch_size=17", "optim.lr=1e-3", "model.hidden=256", "objective=residual"} <= set(big.overrides)
+    part = expand(compose_benchmark(["profile=lim_kasim", "only=[mass_spring,pendulum/hnn]"]))
+    assert [r.id for r in part][-1] == "pendulum-hnn-seed0" and {r.system for r in part[:-1]} == {"mass_spring"}
+    with pytest.raises(ConfigError, match="only=\\['nope'\\] selects none"):
+        expand(compose_benchmark(["profile=lim_kasim", "only=[nope]"]))
+    xiao = expand(compose_benchmark(["profile=xiao"]))
+    assert len(xiao) == 16 and next(r for r in xiao if r.label == "glnn-h200-d3" and r.system == "damped_oscillator"
+                                    ).paper == {"table_3_4": 1.94e-4}
 
 
 def test_unknown_profile_is_one_line_error():
@@ -91,6 +105,57 @@ def test_help_lists_the_profiles_and_trains_nothing(tmp_path, capsys):
     main(["--help", f"out={tmp_path}"])
     out = capsys.readouterr().out
     profiles = sorted(p.stem for p in (Path(config_dir()) / "profile").glob("*.yaml"))
-    assert {"control", "finzi", "lim_kasim", "pixels", "quick", "smoke", "zhong"} <= set(profiles)
+    assert {"control", "finzi", "lim_kasim", "pixels", "quick", "santos", "smoke", "xiao", "zhong"} <= set(profiles)
     assert f"profiles: {', '.join(profiles)}" in out and "seeds:" in out
     assert not any(tmp_path.iterdir())
+
+
+TINY_SANTOS = ['train=["data.n_val=2","data.n_test=2","model.hidden=8","trainer.max_epochs=1",'
+               '"callbacks.santos.steps=4","callbacks.santos.n_trajectories=2"]', "n_train=[2,4]",
+               "per_n_train={}"]
+
+
+@pytest.mark.slow
+def test_santos_profile_at_smoke_size_writes_figures_3_4_and_resumes(tmp_path, capsys):
+    """profile=santos (Santos et al. Figs. 3–4) with tiny sizes: every model × system × N_train trains,
+    the §7 metrics reach the table, one five-panel figure per system is drawn, and a rerun skips."""
+    out, cache = tmp_path / "santos", tmp_path / "cache"
+    args = ["profile=santos", f"out={out}", f"cache_dir={cache}", *TINY_SANTOS]
+    main(args)
+    with (out / "results.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 2 * 6 * 2 and not any(r["error"] for r in rows)
+    assert {r["model"] for r in rows} == {"node-rk4", "node-midpoint", "lnode-rk4", "lnode-midpoint", "symo", "e2e_symo"}
+    assert all(("objective=residual" in r["overrides"]) == (r["model"] == "symo") for r in rows)  # the rest: onestep
+    md = (out / "summary.md").read_text()
+    for key in ("mse_train", "mse_test", "mse_integration", "energy_mse_integration", "mass_mse", "newton_unconverged"):
+        assert key in md, key
+    assert "| cartpole | e2e_symo | 4 |" in md
+    for name in ("santos_pendulum_control.png", "santos_cartpole.png", "data_efficiency.png", "summary.csv"):
+        assert (out / name).stat().st_size > 0, name
+    capsys.readouterr()
+    main(args)
+    assert capsys.readouterr().err.count("finished before, skipped") == 24
+
+
+@pytest.mark.slow
+def test_xiao_profile_at_smoke_size_writes_tables_3_4_and_mse_curves_and_resumes(tmp_path, capsys):
+    """profile=xiao (Xiao et al. Tables 3–4, Figs. 3 and 5) with tiny sizes: the width/depth runs and the
+    baseline on both systems, the paper's cell values beside them, state and energy MSE against time."""
+    out, cache = tmp_path / "xiao", tmp_path / "cache"
+    args = ["profile=xiao", f"out={out}", f"cache_dir={cache}",
+            'train=["data.n_train=2","data.n_val=1","data.n_test=2","data.n_steps=20","data.test_steps=30",'
+            '"data.chunk_len=20","trainer.max_epochs=1"]']
+    main(args)
+    with (out / "results.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 2 * 8 and not any(r["error"] for r in rows)
+    md = (out / "summary.md").read_text()
+    assert "| compound_pendulum | glnn-h200-d4 |" in md and "9.5e-05" in md and "paper table_3_4" in md
+    for key in ("state_mse", "energy_mse", "baseline_linear_ode/state_mse_final"):
+        assert key in md, key
+    for name in ("state_mse_vs_time.png", "energy_mse_vs_time.png", "summary.csv"):
+        assert (out / name).stat().st_size > 0, name
+    capsys.readouterr()
+    main(args)
+    assert capsys.readouterr().err.count("finished before, skipped") == 16

@@ -35,6 +35,20 @@ def test_summary_counts_diverged_rollouts_and_keeps_nan():
     assert math.isnan(out["rel_err_final"])    # ... the long-horizon metrics do, and stay NaN
 
 
+def test_a_finite_rollout_whose_energy_error_explodes_counts_as_diverged():
+    """Lim & Kasim's double pendulum: states finite, energy RMSE 1e7–1e10 — not 'diverged 0'."""
+    true = torch.ones(4, 10, 2)
+    pred = true.clone()
+    true_e = torch.ones(4, 10)
+    pred_e = true_e.clone()
+    pred_e[0, 5] = 1e10 + 1.0     # reaches the bound
+    pred_e[1, 9] = float("inf")  # non-finite energy of finite states
+    pred_e[2, 3] = 1e9           # large but below the bound: still a (bad) prediction
+    out = metrics.summarise(pred, true, pred_e, true_e, horizon=4)
+    assert out["diverged"] == 0.5
+    assert metrics.diverged(pred, pred_e, true_e).tolist() == [True, True, False, False]
+
+
 def test_energy_rmse_against_the_true_energy_at_each_time():
     true_e = torch.tensor([[1.0, 0.5, 0.25]])
     pred_e = torch.tensor([[1.0, 0.5, 0.0]])

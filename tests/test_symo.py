@@ -8,6 +8,8 @@ gradient through unrolled Newton iterations and finite differences.
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 from torch import nn
@@ -168,3 +170,70 @@ def test_implicit_gradient_matches_unrolled_newton_and_finite_differences():
 def test_symo_trains_on_the_residual_and_e2e_on_the_rollout():
     assert SyMo.objectives[0] == "residual" and E2ESyMo.objectives[0] == "rollout"
     assert SyMo.discrete and SyMo.history == 2 and SyMo.supports_controls
+
+
+def test_newton_step_matches_the_closed_form_del_root_of_the_pendulum():
+    """One SyMo step with the pendulum's true M = m l²/3 and V = ½ m g l (1 + cos q) lands on the root of
+    its scalar forced DEL equation (Santos et al. eqs. (13)–(15)), written out by hand and bracketed by
+    scipy's brentq — an independent solve, not the model's own residual."""
+    from scipy.optimize import brentq
+
+    system = ControlledPendulum()
+    model = true_symo(system, eval_tol=1e-13, eval_iters=30).eval()
+    s0, u = draw(system, 6, seed=4)
+    h = 0.1
+    t = torch.arange(3, dtype=torch.float64) * h
+    start = exact(system, s0, t[:2], u)
+    pred = model.rollout(start, t, per_step(u, 3))
+    inertia, mgl2 = system.m * system.l**2 / 3, 0.5 * system.m * system.g * system.l
+    dv = lambda q: -mgl2 * math.sin(q)  # noqa: E731 - V'(q)
+    for i in range(len(s0)):
+        q0, q1, f = start[i, 0, 0].item(), start[i, 1, 0].item(), u[i, 0].item()
+        del_eq = lambda q2: (inertia * (q1 - q0) / h - 0.5 * h * dv(0.5 * (q0 + q1))  # noqa: E731 - D₂L_d(q0, q1)
+                             - inertia * (q2 - q1) / h - 0.5 * h * dv(0.5 * (q1 + q2))   # D₁L_d(q1, q2)
+                             + 0.5 * h * (f + f))                                         # (h/2) B (u0 + u1)
+        root = brentq(del_eq, 2 * q1 - q0 - 1.0, 2 * q1 - q0 + 1.0, xtol=1e-15)
+        assert abs(pred[i, 2, 0].item() - root) < 1e-10
+    assert model.diagnostics() == {"newton_unconverged": 0.0}
+
+
+def test_non_converged_newton_steps_are_counted_not_returned_silently():
+    """With one iteration allowed and a tolerance below what one step reaches, every root-find ends
+    unconverged and the model says so; with room to converge, none is counted."""
+    system = CartPole()
+    s0, u = draw(system, 5, seed=2)
+    t = torch.arange(6, dtype=torch.float64) * 0.05
+    start = exact(system, s0, t[:2], u)
+    starved = true_symo(system, eval_tol=1e-15, eval_iters=1).eval()
+    starved.rollout(start, t, per_step(u, 6))
+    assert starved.diagnostics()["newton_unconverged"] == 1.0
+    assert starved.newton_solves == 5 * 4  # one root-find per trajectory and step
+    roomy = true_symo(system, eval_tol=1e-10, eval_iters=20).eval()
+    roomy.rollout(start, t, per_step(u, 6))
+    assert roomy.diagnostics()["newton_unconverged"] == 0.0
+
+
+def test_newton_backtracking_never_raises_the_residual():
+    """A learned DEL far from any root (an untrained network, a huge step) cannot throw the iterate away:
+    the safeguarded step keeps each sample's residual at or below the plain guess's."""
+    torch.manual_seed(0)
+    system = CartPole()
+    model = SyMo(system, hidden=16, depth=2, eval_iters=5).double().eval()
+    s0, u = draw(system, 16, seed=5)
+    h = torch.tensor(0.05, dtype=torch.float64)
+    q_prev, q = s0[:, :2], s0[:, :2] + h * s0[:, 2:]
+    c = model.slot_derivatives(q_prev, q, h)[1]
+    guess = 2 * q - q_prev
+    g0 = (c + model.d1_and_jacobian(q, guess, h)[0]).pow(2).mean(-1).sqrt()
+    root, _, _, _ = model.newton(c, q, guess, h, 1e-12, 5)
+    g1 = (c + model.d1_and_jacobian(q, root, h)[0]).pow(2).mean(-1).sqrt()
+    assert torch.all(g1 <= g0 + 1e-15)
+    assert root.isfinite().all()
+
+
+def test_newton_failures_reach_the_test_metrics(train_run):
+    """End to end: a starved Newton shows up in the run's test metrics and §7 integration metrics."""
+    results = train_run(["model=symo", "system=pendulum_control", "model.eval_iters=1", "model.eval_tol=1e-15",
+                         "callbacks.santos.steps=6", "callbacks.santos.n_trajectories=2", "trainer.max_epochs=1"])
+    assert results["test/newton_unconverged"] == 1.0
+    assert results["test/newton_unconverged_integration"] == 1.0

@@ -64,3 +64,26 @@ def test_symo_learns_the_true_inertia_of_the_pendulum(tmp_path):
     assert module.loss(batch).item() < first / 1000
     q = torch.linspace(-math.pi, math.pi, 64)[:, None]
     assert (module.model.mass(q) - 1 / 3).abs().max() < 1e-2
+
+
+@pytest.mark.parametrize("model", ["node", "e2e_symo"])
+def test_onestep_objective_is_the_mse_of_each_state_from_the_true_states_before_it(tmp_path, model):
+    """Santos et al. §7's loss: every state of a window predicted from the ``history`` true states before
+    it (NODE: one, E2E-SyMo: two), squared error averaged over predictions and coordinates."""
+    from encons import api
+
+    torch.manual_seed(0)
+    cfg = api.compose(f"model={model}", "system=pendulum_control", "experiment=symo_paper", "logger=none",
+                      "data.n_train=3", "data.batch_size=3", "model.hidden=8", output_dir=tmp_path / "run",
+                      cache_dir=tmp_path / "cache")
+    data, module = api.build(cfg)
+    data.setup("fit")
+    batch = next(iter(data.train_dataloader()))
+    states, u, h = batch["states"], batch["u"], module.model.history
+    assert module.objective == "onestep" and states.shape[1] == 33
+    errors = []
+    for k in range(h, states.shape[1]):
+        one = {"states": states[:, k - h: k + 1], "u": u[:, k - h: k + 1]}
+        errors.append((module.predict(one)[:, -1] - states[:, k]).square())
+    with torch.no_grad():
+        assert torch.allclose(module.loss(batch), torch.stack(errors).mean(), rtol=1e-5)

@@ -38,7 +38,7 @@ class DynamicsModel(nn.Module):
     supports_controls: ClassVar[bool] = False   # accepts exogenous inputs u
     discrete: ClassVar[bool] = False            # False: a vector field rolled out by the integrator group
     history: ClassVar[int] = 1                  # data states a rollout starts from
-    objectives: ClassVar[tuple[str, ...]] = ("rollout", "derivative")  # supported; the first is the default
+    objectives: ClassVar[tuple[str, ...]] = ("rollout", "derivative", "onestep")  # supported; the first is the default
 
     def __init__(self, system: System | None = None, chart: str | None = None):
         if not hasattr(system, "check_chart"):  # a subclass's super().__init__() without the system encons passed it
@@ -71,6 +71,18 @@ class DynamicsModel(nn.Module):
         (CHNN/CLNN: the inverse mass matrix). Default: nothing."""
         yield
 
+    def diagnostics(self) -> dict[str, float]:
+        """Counters of the model's own solvers over the rollouts since ``reset_diagnostics`` (e.g. SyMo's
+        Newton root-finds that did not converge), added to the test metrics. Default: none."""
+        return {}
+
+    def reset_diagnostics(self) -> None:
+        """Start the counters of ``diagnostics`` afresh (the module does so before testing)."""
+
+    def sync_diagnostics(self, copy: DynamicsModel) -> None:
+        """Take the counters of ``copy``, a copy of this model that rolled out in its place (the
+        evaluation's float64 copy), as this model's."""
+
     def constrained_field(self, s: Tensor, u: Tensor | None = None) -> tuple[Tensor, Callable[..., Tensor]]:
         """Points, per-point inputs and the per-sample field that soft dynamics constraints act on.
 
@@ -92,7 +104,7 @@ class DiscreteModel(DynamicsModel):
 
     discrete = True
     history = 2
-    objectives = ("rollout",)
+    objectives = ("rollout", "onestep")
 
     def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
         raise TypeError(f"{type(self).__name__} is a discrete model: it has no vector field")

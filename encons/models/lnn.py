@@ -69,7 +69,7 @@ def guarded_solve(hessian: Tensor, rhs: Tensor, guard: float) -> Tensor:
 
 #: Objectives of models whose field is (q̇, q̈) by construction: q̈ alone is a complete target
 #: (``acceleration``, Xiao et al. §3), beside the rollout and full-derivative ones.
-SECOND_ORDER_OBJECTIVES = ("rollout", "acceleration", "derivative")
+SECOND_ORDER_OBJECTIVES = ("rollout", "acceleration", "derivative", "onestep")
 
 
 class LNN(DynamicsModel):

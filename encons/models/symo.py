@@ -13,7 +13,9 @@ is discretised by the midpoint rule (eqs. (12)–(13)):
 the midpoint forces of eq. (14) with u held constant over each data step (the rollout seam's
 zero-order hold, so u_{k+1/2} = u_k) and B the system's input matrix. A rollout solves g_k = 0 for
 q_{k+1} by batched Newton (one linear solve per iteration for the whole batch), from the guess
-2q_k − q_{k−1} (§6), until the RMS residual over the batch is ≤ ``tol`` or ``iters`` iterations;
+2q_k − q_{k−1} (§6), until each sample's RMS residual is ≤ ``tol`` or ``iters`` iterations, each step
+halved until it lowers the sample's residual (backtracking); a root-find that ends above ``tol`` is
+counted and reported (``newton_unconverged`` among the test metrics), never returned silently;
 velocities come from the discrete Legendre transform p_{k+1} = D₂L_d(q_k, q_{k+1}) + (h/2) B u_k,
 q̇ = M(q)⁻¹ p. The gradient of a root is implicit (Theorem 1, eq. (16)): Newton's iterations are
 not differentiated.
@@ -26,7 +28,7 @@ from torch import Tensor
 from torch.func import grad, vjp, vmap
 
 from encons.errors import ConfigError
-from encons.models.base import DiscreteModel
+from encons.models.base import DiscreteModel, DynamicsModel
 from encons.models.networks import CholeskyMass, Potential
 from encons.systems.base import System
 
@@ -72,9 +74,11 @@ class SyMo(DiscreteModel):
 
     Rolled out by Newton on the learned DEL (eq. (11)). ``angular`` embeds the system's angles as
     (cos q, sin q) (§5.3). Newton stops at RMS residual ``train_tol`` / ``train_iters`` in training
-    mode, ``eval_tol`` / ``eval_iters`` otherwise (§7: 1e-5 / 10 and 1e-4 / 10). Limits: B is
-    constant (control-affine forcing, eq. (14)); a singular ∂g/∂q_{k+1} (a learned M far from
-    positive-definite scale) makes the Newton step inf, not an error.
+    mode, ``eval_tol`` / ``eval_iters`` otherwise (§7: 1e-5 / 10 and 1e-4 / 10); ``backtracks`` halvings
+    of a step that would raise the residual (§7 gives plain Newton; the safeguard keeps an iterate from
+    moving where the learned DEL's residual grows). Limits: B is constant
+    (control-affine forcing, eq. (14)); a singular ∂g/∂q_{k+1} leaves that sample's iterate where it
+    is, counted as not converged.
     """
 
     default_chart = "angle"
@@ -83,7 +87,8 @@ class SyMo(DiscreteModel):
 
     def __init__(self, system: System, chart: str | None = None, hidden: int = 128, depth: int = 2,
                  activation: str = "tanh", mass_eps: float = 1e-3, angular: bool = True,
-                 train_tol: float = 1e-5, train_iters: int = 10, eval_tol: float = 1e-4, eval_iters: int = 10):
+                 train_tol: float = 1e-5, train_iters: int = 10, eval_tol: float = 1e-4, eval_iters: int = 10,
+                 backtracks: int = 8):
         super().__init__(system, chart)
         for key, value in dict(train_tol=train_tol, eval_tol=eval_tol).items():
             if not value > 0:
@@ -91,12 +96,16 @@ class SyMo(DiscreteModel):
         for key, value in dict(train_iters=train_iters, eval_iters=eval_iters).items():
             if value < 1:
                 raise ConfigError(f"model.{key}={value}; allowed: >= 1")
+        if backtracks < 0:
+            raise ConfigError(f"model.backtracks={backtracks}; allowed: >= 0")
         angles = angle_mask(system, angular)
         self.mass = CholeskyMass(self.n, angles, hidden, depth, activation, mass_eps)
         self.potential = Potential(self.n, angles, hidden, depth, activation)
         self.register_buffer("input_matrix", input_matrix(system), persistent=False)
         self.train_tol, self.train_iters, self.eval_tol, self.eval_iters = train_tol, train_iters, eval_tol, eval_iters
+        self.backtracks = backtracks
         self.newton_iterations: list[int] = []  # iterations of each step of the last rollout
+        self.reset_diagnostics()
 
     # -- the discrete mechanics -------------------------------------------------------------------
     def discrete_lagrangian(self, a: Tensor, b: Tensor, h: Tensor) -> Tensor:
@@ -136,27 +145,66 @@ class SyMo(DiscreteModel):
         return value, rows.movedim(0, -2)
 
     def newton(self, c: Tensor, q: Tensor, guess: Tensor, h: Tensor, tol: float,
-               iters: int) -> tuple[Tensor, Tensor, int]:
-        """Root of g(x) = c + D₁L_d(q, x) near ``guess``: (root, ∂g/∂x at the root, iterations), no graph."""
+               iters: int) -> tuple[Tensor, Tensor, int, Tensor]:
+        """Root of g(x) = c + D₁L_d(q, x) near ``guess``, by damped Newton without a graph.
+
+        Each sample (leading index) converges on its own: it stops moving once its RMS residual over
+        the n coordinates is ≤ ``tol``. A Newton step is safeguarded by backtracking: it is halved (up to
+        ``backtracks`` times) until the sample's residual norm decreases; a sample whose residual no
+        halved step decreases keeps its iterate. Returns (root, ∂g/∂x at the root, Newton iterations
+        taken, mask of the samples not converged after ``iters`` iterations).
+        """
         c, q, x = c.detach(), q.detach(), guess.detach()
+
+        def rms(value: Tensor) -> Tensor:
+            return value.pow(2).mean(-1).sqrt().nan_to_num(nan=float("inf"))
+
         with torch.no_grad():
-            for it in range(iters + 1):
+            d1, jac = self.d1_and_jacobian(q, x, h)
+            g = c + d1
+            norm, it = rms(g), 0
+            while it < iters and (active := norm > tol).any():
+                it += 1
+                step = torch.linalg.solve_ex(jac, g.unsqueeze(-1))[0].squeeze(-1)
+                step = torch.where(active.unsqueeze(-1), step, torch.zeros_like(step)).nan_to_num(0.0, 0.0, 0.0)
+                scale, todo = torch.ones_like(norm), active.clone()
+                for _ in range(self.backtracks + 1):
+                    trial = x - scale.unsqueeze(-1) * step
+                    trial_norm = rms(c + grad(lambda a: self.discrete_lagrangian(a, trial, h).sum())(q))
+                    better = todo & (trial_norm < norm)
+                    x = torch.where(better.unsqueeze(-1), trial, x)
+                    norm = torch.where(better, trial_norm, norm)
+                    todo = todo & ~better
+                    if not todo.any():
+                        break
+                    scale = torch.where(todo, 0.5 * scale, scale)
                 d1, jac = self.d1_and_jacobian(q, x, h)
                 g = c + d1
-                if it == iters or g.pow(2).mean().sqrt() <= tol:
-                    break
-                x = x - torch.linalg.solve(jac, g.unsqueeze(-1)).squeeze(-1)
-        return x, jac, it
+        return x, jac, it, rms(g) > tol
 
     def step(self, c: Tensor, q_prev: Tensor, q: Tensor, h: Tensor) -> Tensor:
-        """q_{k+1} solving c + D₁L_d(q_k, q_{k+1}) = 0, differentiable by the implicit gradient."""
+        """q_{k+1} solving c + D₁L_d(q_k, q_{k+1}) = 0, differentiable by the implicit gradient; every
+        sample whose root-find did not converge is counted (``diagnostics``)."""
         tol, iters = (self.train_tol, self.train_iters) if self.training else (self.eval_tol, self.eval_iters)
-        root, jac, it = self.newton(c, q, 2 * q - q_prev, h, tol, iters)
+        root, jac, it, unconverged = self.newton(c, q, 2 * q - q_prev, h, tol, iters)
         self.newton_iterations.append(it)
+        self.newton_solves += unconverged.numel()
+        self.newton_unconverged += int(unconverged.sum())
         if not torch.is_grad_enabled():
             return root
         residual = c + grad(lambda x: self.discrete_lagrangian(x, root, h).sum())(q)
         return ImplicitRoot.apply(residual, jac, root)
+
+    def diagnostics(self) -> dict[str, float]:
+        """``newton_unconverged``: the fraction of root-finds (one per sample and step) since the last
+        ``reset_diagnostics`` whose RMS DEL residual stayed above the tolerance after the iteration cap."""
+        return {"newton_unconverged": self.newton_unconverged / max(1, self.newton_solves)}
+
+    def reset_diagnostics(self) -> None:
+        self.newton_solves, self.newton_unconverged = 0, 0
+
+    def sync_diagnostics(self, copy: DynamicsModel) -> None:
+        self.newton_solves, self.newton_unconverged = copy.newton_solves, copy.newton_unconverged
 
     def momentum(self, a: Tensor, b: Tensor, d1: Tensor, h: Tensor) -> Tensor:
         """D₂L_d(a, b) from D₁L_d(a, b): the midpoint rule gives D₂ − D₁ = 2 M((a + b)/2) (b − a)/h."""
@@ -191,4 +239,4 @@ class E2ESyMo(SyMo):
     (Theorem 1, eq. (16)) — no backpropagation through the iterations.
     """
 
-    objectives = ("rollout", "residual")
+    objectives = ("rollout", "residual", "onestep")

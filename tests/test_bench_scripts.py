@@ -1,0 +1,38 @@
+"""Every script left in benchmarks/ (speed benches only: grids are encons.benchmark profiles) runs at a
+smoke size, so none can rot: each exits 0 and prints its table. Timings are not asserted."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCHMARKS = Path(__file__).parents[1] / "benchmarks"
+SMOKE = {
+    "jacobian_speed.py": ["--dims", "2", "--batch", "8", "--hidden", "8", "--repeats", "1"],
+    "symo_speed.py": ["--steps", "1", "--batch", "4"],
+    "pixel_speed.py": ["--steps", "1", "--videos", "2"],
+    "time_to_accuracy.py": ["--runs", "node/pendulum2", "--max-epochs", "1", "debug=fast"],
+    "speed.py": ["--systems", "pendulum2", "--models", "chnn", "--steps", "1", "--repeats", "1", "--naive-steps", "0",
+                 "--compile", "--batch", "4", "--chunk", "3", "--hidden", "8", "--depth", "1"],
+}
+PRINTS = {"jacobian_speed.py": "vmap(jacrev)", "symo_speed.py": "E2ESyMo", "pixel_speed.py": "rollout frames/s",
+          "speed.py": "chnn", "time_to_accuracy.py": "node/pendulum2"}
+
+
+def test_every_benchmark_script_has_a_smoke_run():
+    assert sorted(p.name for p in BENCHMARKS.glob("*.py")) == sorted(SMOKE)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("script", sorted(SMOKE))
+def test_benchmark_script_runs_at_smoke_size(script, tmp_path):
+    extra = ["--out", str(tmp_path / "out.csv")] if script in ("speed.py", "time_to_accuracy.py") else []
+    done = subprocess.run([sys.executable, str(BENCHMARKS / script), "--threads", "1", *extra, *SMOKE[script]],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=900,
+                          env={**os.environ, "OMP_NUM_THREADS": "1", "WANDB_MODE": "disabled"})
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert PRINTS[script] in done.stdout
