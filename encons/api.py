@@ -15,8 +15,10 @@ from __future__ import annotations
 import logging
 import os
 import re
+import shlex
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -72,6 +74,9 @@ class _DropTips(logging.Filter):
         return not str(record.msg).startswith("💡")
 
 
+_DROP_TIPS = _DropTips()  # one instance, so that adding it again is a no-op
+
+
 def quiet_upstream() -> None:
     """Silence upstream messages a user cannot act on: Lightning's tips, and Lightning 2.6's own
     deprecation warning about torch 2.13's pytree ``LeafSpec``. Lightning's info lines (devices,
@@ -81,12 +86,39 @@ def quiet_upstream() -> None:
     warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\)")
     warnings.filterwarnings("ignore", message="The dirpath has changed from")  # a resume: see RunCheckpoints
     for name in ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.rank_zero"):
-        logging.getLogger(name).addFilter(_DropTips())  # the loggers rank_zero_info writes to
+        logging.getLogger(name).addFilter(_DROP_TIPS)  # the loggers rank_zero_info writes to
+
+
+@contextmanager
+def log_file(path: Path) -> Iterator[None]:
+    """The run's log in ``path`` (``train.log``) where nothing configured logging to a file (a script, a
+    notebook, ``encons-evaluate``; Hydra's job logging writes it under the CLI), with upstream noise
+    silenced (:func:`quiet_upstream`). With no handler at all, INFO records go to that file only."""
+    quiet_upstream()
+    root = logging.getLogger()
+    if any(isinstance(h, logging.FileHandler) for h in root.handlers):
+        yield
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handler = logging.FileHandler(path)
+    handler.setFormatter(logging.Formatter("[%(asctime)s][%(name)s][%(levelname)s] - %(message)s"))
+    level, bare = root.level, not root.handlers
+    root.addHandler(handler)
+    if bare:  # nothing else listens, so INFO cannot reach a console the user set up
+        root.setLevel(logging.INFO)
+    try:
+        yield
+    finally:
+        root.removeHandler(handler)
+        handler.close()
+        root.setLevel(level)
 
 
 def _route_lightning_logs() -> None:
     """Under a configured root logger (Hydra's console + ``train.log``), Lightning's info lines go
     there only: drop the stderr handler ``import lightning`` adds to its package logger."""
+    import lightning.pytorch  # noqa: F401 - adds that handler on first import
+
     if logging.getLogger().handlers:
         lightning = logging.getLogger("lightning")
         for handler in [h for h in lightning.handlers if type(h) is logging.StreamHandler]:
@@ -299,7 +331,8 @@ def train(cfg: DictConfig, summary: bool = True) -> Run:
     from encons.report import to_log_files
 
     try:
-        return _train(cfg, summary)
+        with log_file(Path(cfg.paths.output_dir) / "train.log"):
+            return _train(cfg, summary)
     except EnconsError as err:
         to_log_files(f"encons: error: {err}", logging.ERROR)  # the CLI prints the same line on stderr
         raise
@@ -308,10 +341,14 @@ def train(cfg: DictConfig, summary: bool = True) -> Run:
 def _train(cfg: DictConfig, summary: bool) -> Run:
     import torch
 
-    from encons.config import check_checkpoint, resolve_checkpoint
+    from encons.config import check_checkpoint, check_config, resolve_checkpoint
+    from encons.errors import Interrupted
     from encons.report import print_summary
 
     started = time.perf_counter()
+    check_config(cfg)
+    _route_lightning_logs()  # before the Trainer prints its device lines
+    trainer, loggers = build_trainer(cfg)  # before any data: an accelerator, logger or callback that cannot work
     data, module = build(cfg)
     resume = resolve_checkpoint(cfg)
     if resume is not None:
@@ -320,7 +357,6 @@ def _train(cfg: DictConfig, summary: bool) -> Run:
     run_dir.mkdir(parents=True, exist_ok=True)
     config = run_config(cfg)
     OmegaConf.save(config, run_dir / "config.yaml")
-    trainer, loggers = build_trainer(cfg)
     for lg in loggers:
         lg.log_hyperparams(OmegaConf.to_container(config))
     tested = None
@@ -334,6 +370,9 @@ def _train(cfg: DictConfig, summary: bool) -> Run:
             results["best_epoch"] = float(torch.load(tested, map_location="cpu", weights_only=True)["epoch"])
         if cfg.test:
             trainer.test(module, datamodule=data, ckpt_path=str(tested) if tested else None, verbose=False)
+            if trainer.received_sigterm:  # Lightning finishes a one-batch test stage before it looks
+                raise Interrupted(f"SIGTERM during test; the trained checkpoints are complete, test them: "
+                                  f"python -m encons.evaluate {shlex.quote(str(run_dir))}")
             results.update({f"test/{k}": v for k, v in module.test_metrics.items()})
         elif tested is not None:
             module.load_state_dict(torch.load(tested, map_location="cpu", weights_only=True)["state_dict"])
@@ -348,11 +387,17 @@ def _train(cfg: DictConfig, summary: bool) -> Run:
 
 
 def _fit(cfg: DictConfig, trainer, module, data, resume: str | None) -> None:
-    """``trainer.fit``, with a monitored metric the module never logs named as the user's key."""
+    """``trainer.fit``, with a monitored metric the module never logs named as the user's key, and
+    SIGTERM (Lightning stops after the epoch, with a ``SystemExit`` of status 0) as :class:`Interrupted`."""
     from lightning.fabric.utilities.exceptions import MisconfigurationException
+    from lightning.pytorch.utilities.exceptions import SIGTERMException
+
+    from encons.errors import Interrupted
 
     try:
         trainer.fit(module, datamodule=data, ckpt_path=resume)
+    except SIGTERMException:
+        raise Interrupted(_resume_line(cfg, trainer.current_epoch)) from None
     except MisconfigurationException as err:
         logged = re.search(r"could not find the monitored key in the returned metrics: \[([^]]*)\]", str(err))
         if logged is None:
@@ -360,6 +405,21 @@ def _fit(cfg: DictConfig, trainer, module, data, resume: str | None) -> None:
         names = [n.strip(" '") for n in logged.group(1).split(",") if "/" in n]
         raise ConfigError(f"optimized_metric={cfg.optimized_metric!r} is not a metric this run logs; allowed: "
                           f"{', '.join(names)}") from None
+
+
+def _resume_line(cfg: DictConfig, epoch: int) -> str:
+    """What an interrupted fit says: where it stopped and the command that continues it in the same folder."""
+    from hydra.core.hydra_config import HydraConfig
+
+    run_dir = Path(cfg.paths.output_dir)
+    last = run_dir / "checkpoints" / "last.ckpt"
+    given = list(HydraConfig.get().overrides.task) if HydraConfig.initialized() else []
+    kept = [o for o in given if not o.lstrip("+~").startswith(("ckpt_path=", "hydra.run.dir="))]
+    if not last.is_file():
+        return f"SIGTERM during fit, epoch {epoch}, before the first checkpoint; start again: " + \
+            shlex.join(["python", "-m", "encons.train", *given])
+    return (f"SIGTERM during fit, epoch {epoch} (checkpoints/last.ckpt holds the last whole epoch); resume: "
+            + shlex.join(["python", "-m", "encons.train", *kept, f"ckpt_path={last}", f"hydra.run.dir={run_dir}"]))
 
 
 def _which(ckpt: Path | None, results: dict[str, float]) -> str:
@@ -442,8 +502,10 @@ def evaluate(run: Run | str | Path, overrides: Iterable[str] = (), ckpt: str = "
     config = run.config.copy()
     config.logger, config.callbacks = None, None
     run.module.output_dir = run.run_dir / "evaluation"
-    trainer, _ = build_trainer(config)
-    trainer.test(run.module, datamodule=run.data, verbose=False)
+    with log_file(run.module.output_dir / "evaluate.log"):
+        _route_lightning_logs()
+        trainer, _ = build_trainer(config)
+        trainer.test(run.module, datamodule=run.data, verbose=False)
     run.metrics = {f"test/{k}": v for k, v in run.module.test_metrics.items()}
     note = f"tested: {run.checkpoint.name if run.checkpoint else 'in-memory weights'}; {run.module.evaluation.describe()}"
     steps = run.data.states["test"].shape[1] - 1

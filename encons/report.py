@@ -65,7 +65,8 @@ def to_log_files(text: str, level: int = logging.INFO) -> None:
 class Progress:
     """``<what> k of n (label), elapsed, ETA`` lines for a loop over items of known relative cost.
 
-    Lines go to ``log`` at INFO if given (the run's console and log file), else to stderr.
+    Lines go to ``log`` at INFO if given (the run's console and log file), else to stdout, the stream a
+    training run's log lines and progress bar use.
     """
 
     def __init__(self, items: int, what: str, log: logging.Logger | None = None, work: float | None = None):
@@ -76,23 +77,24 @@ class Progress:
     def start(self, label: str, work: float = 1.0) -> None:
         """Item ``label`` begins; ``work`` is its cost in the units of ``work`` (one item by default)."""
         elapsed = time.perf_counter() - self.started
-        eta = (f", ETA {_duration(elapsed / self.done_work * (self.total - self.done_work))}"
+        eta = (f", ETA {duration(elapsed / self.done_work * (self.total - self.done_work))}"
                if self.done_work else "")
         self.count += 1
         self.done_work += work
-        self._say(f"{self.what} {self.count} of {self.items} ({label}), elapsed {_duration(elapsed)}{eta}")
+        self._say(f"{self.what} {self.count} of {self.items} ({label}), elapsed {duration(elapsed)}{eta}")
 
     def done(self) -> None:
-        self._say(f"{self.what} {self.count} of {self.items} done in {_duration(time.perf_counter() - self.started)}")
+        self._say(f"{self.what} {self.count} of {self.items} done in {duration(time.perf_counter() - self.started)}")
 
     def _say(self, line: str) -> None:
         if self.log is not None:
             self.log.info(line)
         else:
-            print(line, file=sys.stderr, flush=True)
+            print(line, flush=True)
 
 
-def _duration(seconds: float) -> str:
+def duration(seconds: float) -> str:
+    """``1m05s``, or ``2h03m`` from an hour on."""
     minutes, secs = divmod(int(seconds), 60)
     return f"{minutes // 60}h{minutes % 60:02d}m" if minutes >= 60 else f"{minutes}m{secs:02d}s"
 
@@ -205,7 +207,8 @@ HEADLINE = ("wall_time_s", "test/diverged", "test/traj_rel_err", "test/geom_rel_
             "test/state_mse_final", "test/energy_mse_final", "test/baseline_constant/state_mse_final",
             "test/baseline_linear_ode/state_mse_final", "test/pixel_mse_final", "test/pixel_mse_final_median",
             "test/control/success_rate", "test/oracle/success_rate", "test/control/time_to_upright_s",
-            "test/oracle/time_to_upright_s", "test/control/effort", "test/oracle/effort", "test/control/pred_rmse")
+            "test/oracle/time_to_upright_s", "test/control/effort", "test/oracle/effort", "test/control/pred_rmse",
+            "test/control/b_rel_err")
 
 
 def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", headline: bool = False) -> str:

@@ -15,7 +15,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from encons import api
+from encons import api, help
 from encons.errors import one_line_errors
 from encons.paths import config_dir
 
@@ -33,6 +33,7 @@ def _hydra_main(cfg: DictConfig) -> float | None:
 def main() -> None:
     os.environ.setdefault("WANDB_SILENT", "true")
     api.quiet_upstream()
+    help.register()
     # Hydra then lets its own errors through to us (else it prints them with its search path and
     # exits 1): a user's error becomes the last line printed, a bug keeps its traceback.
     os.environ["HYDRA_FULL_ERROR"] = "1"
