@@ -41,7 +41,7 @@ import torch
 from torch import Tensor
 
 from encons.api import catalogue, compose
-from encons.config import build_model, build_system
+from encons.build import build_model, build_system
 from encons.data.simulate import sample_trajectories, simulate
 from encons.errors import ConfigError
 from encons.integrators import Integrator

@@ -1,20 +1,53 @@
-"""Evaluation steps run at the end of testing, as Lightning callbacks."""
+"""Lightning callbacks: the run config in every checkpoint, and evaluation steps run at the end of testing."""
 
 from __future__ import annotations
 
 import json
 import logging
+import shutil
+from pathlib import Path
 
 import lightning.pytorch as pl
 import torch
 from torch import Tensor
 
-from encons import metrics, plots
+from omegaconf import DictConfig, OmegaConf
+
+from encons import checkpoints, metrics, plots
 from encons.data.simulate import simulate
 from encons.errors import ConfigError
 from encons.integrators import rollout
 
 log = logging.getLogger(__name__)
+
+
+class RunConfigInCheckpoints(pl.Callback):
+    """Stores the resolved run ``config`` in every checkpoint (``checkpoints.CONFIG_KEY``); on a resume
+    into a new run folder, carries the earlier run's best checkpoint over so that the best is chosen
+    among all epochs (Lightning keeps only its path when the folder changes)."""
+
+    def __init__(self, config: DictConfig):
+        self.config = OmegaConf.to_container(config)
+
+    def on_save_checkpoint(self, trainer: pl.Trainer, pl_module: pl.LightningModule, checkpoint: dict) -> None:
+        checkpoint[checkpoints.CONFIG_KEY] = self.config
+
+    def on_train_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        best = next((cb for cb in trainer.checkpoint_callbacks if cb.monitor), None)
+        if trainer.ckpt_path is None or best is None:
+            return
+        state = checkpoints.read(trainer.ckpt_path, "ckpt_path")["callbacks"].get(best.state_key, {})
+        old = Path(state.get("best_model_path") or "")
+        if state.get("dirpath") == best.dirpath or not old.is_file() or state.get("best_model_score") is None:
+            return
+        new = Path(best.dirpath) / old.name
+        if trainer.is_global_zero:
+            new.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(old, new)
+        trainer.strategy.barrier()
+        best.best_model_path = best.kth_best_model_path = str(new)
+        best.best_model_score = best.kth_value = state["best_model_score"]
+        best.best_k_models = {str(new): state["best_model_score"]}
 
 
 class SantosMetrics(pl.Callback):

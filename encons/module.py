@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from encons import metrics, plots
+from encons import checkpoints, metrics, plots
 from encons.errors import ConfigError, DivergenceError
 from encons.integrators import Integrator, rollout, state_derivative
 from encons.models.base import DynamicsModel
@@ -139,7 +139,7 @@ class DynamicsModule(pl.LightningModule):
         kept = [Path(p) for p in paths if p and Path(p).is_file()]
         if not kept:
             return "no checkpoint was written before it (none to resume from)"
-        epoch = torch.load(kept[0], map_location="cpu", weights_only=False, mmap=True).get("epoch")
+        epoch = checkpoints.read(kept[0]).get("epoch")
         return f"{kept[0]} holds the last good weights (epoch {epoch}); resume with ckpt_path=last"
 
     def compared(self, x: Tensor, pred: Tensor) -> tuple[Tensor, Tensor]:

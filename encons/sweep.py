@@ -27,13 +27,13 @@ from hydra.core.utils import JobReturn, JobStatus
 from hydra.plugins.sweeper import Sweeper
 from hydra.types import HydraContext, TaskFunction
 from hydra.utils import instantiate
-from hydra_plugins.hydra_optuna_sweeper._impl import create_params_from_overrides
 from numpy.random import SeedSequence
 from omegaconf import DictConfig, OmegaConf
 from optuna.trial import TrialState
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import NoSuchModuleError, OperationalError
 
+from encons.compat import job_exception, optuna_search_space
 from encons.errors import ConfigError, SweepError, one_line_errors
 
 log = logging.getLogger(__name__)
@@ -68,7 +68,7 @@ class OptunaSweeper(Sweeper):
             config=config, hydra_context=hydra_context, task_function=task_function)
 
     def sweep(self, arguments: list[str]) -> None:
-        space, fixed, fixed_overrides = create_params_from_overrides(
+        space, fixed, fixed_overrides = optuna_search_space(
             [f"{k}={v}" for k, v in self.params.items()] + list(arguments))
         for name in fixed:
             space.pop(name, None)
@@ -146,7 +146,7 @@ def open_study(storage: str | None, study_name: str, direction: str) -> optuna.S
 def _tell(study: optuna.Study, trial: optuna.Trial, ret: JobReturn) -> TrialState:
     """Record how a launched job ended: complete with its value, pruned, or failed with a reason."""
     if ret.status == JobStatus.FAILED:
-        err = ret._return_value  # the job's exception; ret.return_value would re-raise it
+        err = job_exception(ret)
         if isinstance(err, optuna.TrialPruned):
             log.info("trial %d pruned: %s", trial.number, err)
             study.tell(trial, state=TrialState.PRUNED)

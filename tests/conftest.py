@@ -41,15 +41,16 @@ def isolated_env(tmp_path_factory, monkeypatch):
 def cli(monkeypatch):
     """``encons.train``'s CLI in this process: ``cli(*args, cwd=...)`` -> (exit code, stdout, stderr).
 
-    The same ``main()`` as ``python -m encons.train`` (Hydra, the one-line errors, exit 2) without a
+    The same ``encons.cli.train()`` as ``python -m encons.train`` (Hydra, the one-line errors, exit 2) without a
     new interpreter importing Lightning for each case; ``tests.helpers.run_cli`` runs a real process.
     Output goes to buffers that stay open: loggers set up during the call (Hydra's, Optuna's) may keep them."""
     import contextlib
-    import importlib
     import io
     import logging
     import sys
     from types import SimpleNamespace
+
+    from encons.cli import train
 
     def run(*args: str, cwd=None):
         if cwd is not None:
@@ -60,7 +61,7 @@ def cli(monkeypatch):
         out, err, code = io.StringIO(), io.StringIO(), 0
         try:
             with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-                importlib.import_module("encons.train").main()
+                train()
         except SystemExit as stop:
             code = stop.code
         finally:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from encons.config import compose_train
+from encons.build import compose
 from encons.data import store
 from encons.errors import ConfigError, DataError, EnconsError
 
@@ -23,7 +23,7 @@ from tests.helpers import run_cli
 def build_with(tmp_path, *overrides: str):
     from encons.api import build
 
-    return build(compose_train(["debug=fast", *overrides], tmp_path / "run", tmp_path / "cache"))
+    return build(compose(["debug=fast", *overrides], tmp_path / "run", tmp_path / "cache"))
 
 
 def refused(tmp_path, overrides, key, error=EnconsError):
@@ -113,7 +113,7 @@ def test_resuming_a_checkpoint_of_another_shape_names_the_parameter(train_run, t
         train_run(["model=node", "system=pendulum1", "model.hidden=32", f"ckpt_path={ckpt}"], name="wide")
     assert "\n" not in str(err.value)
     (tmp_path / "junk.ckpt").write_bytes(b"not a checkpoint")
-    with pytest.raises(ConfigError, match="not a readable Lightning checkpoint"):
+    with pytest.raises(ConfigError, match="not a readable checkpoint"):
         train_run(["model=node", "system=pendulum1", f"ckpt_path={tmp_path / 'junk.ckpt'}"], name="junk")
 
 
@@ -138,7 +138,7 @@ def test_a_file_where_a_folder_belongs_is_one_line(tmp_path, where):
     with pytest.raises(ConfigError, match="is a file, not a folder; allowed"):
         from encons.api import build
 
-        build(compose_train(["debug=fast"], out, cache))
+        build(compose(["debug=fast"], out, cache))
 
 
 def test_a_damaged_cache_is_rebuilt_and_said(tmp_path, caplog):
@@ -244,7 +244,7 @@ def test_trainer_logger_and_callback_errors_are_one_line(tmp_path, overrides, ke
     from encons.api import build_trainer
 
     with pytest.raises(ConfigError) as err:
-        build_trainer(compose_train(["debug=fast", *overrides], tmp_path / "run", tmp_path / "cache"))
+        build_trainer(compose(["debug=fast", *overrides], tmp_path / "run", tmp_path / "cache"))
     line = str(err.value)
     assert "\n" not in line and key in line and "allowed" in line, line
 

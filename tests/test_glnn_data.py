@@ -16,7 +16,7 @@ from encons.data.datamodule import TrajectoryDataModule
 from encons.data.recording import load_recording, unwrap, wrap, write_example
 from encons.errors import ConfigError, DataError
 from encons.systems.dissipative import DampedOscillator
-from encons.systems.from_file import FileSystem
+from encons.data.from_file import FileSystem
 
 
 def index_recording(path, n=60, dt=0.1, dropped=(17, 18, 40)):

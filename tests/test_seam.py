@@ -11,7 +11,7 @@ import torch
 from omegaconf import open_dict
 from torch import Tensor, nn
 
-from encons.config import compose_train
+from encons.build import compose
 from encons.data import store
 from encons.errors import ConfigError, DataError
 from encons.integrators import Integrator, rollout
@@ -142,7 +142,7 @@ def trust_this_module(monkeypatch):
 
 
 def toy_config(tmp_path, model: str, *overrides: str):
-    cfg = compose_train(["debug=fast", "model=node", *overrides], tmp_path / "run", tmp_path / "cache")
+    cfg = compose(["debug=fast", "model=node", *overrides], tmp_path / "run", tmp_path / "cache")
     with open_dict(cfg):
         cfg.system = {"_target_": f"{__name__}.ForcedSpring"}
         if model != "node":

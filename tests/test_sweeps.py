@@ -16,7 +16,7 @@ import yaml
 from optuna.trial import TrialState
 
 from tests.helpers import run_cli
-from encons.config import compose_train
+from encons.build import compose
 
 TINY = ["system=pendulum1", "debug=fast", "test=false"]
 NODE = ["model=node", *TINY]
@@ -115,6 +115,6 @@ def test_model_grid_runs_every_model_and_seed(tmp_path):
     ("slurm", "submitit_launcher.SlurmLauncher", "array_parallelism"),
 ])
 def test_launcher_configs_follow_the_sweepers_batch_size(tmp_path, launcher, target, parallel_key):
-    cfg = compose_train(["sweeps=optuna", f"hydra/launcher={launcher}", "hydra.sweeper.n_jobs=3"], tmp_path)
+    cfg = compose(["sweeps=optuna", f"hydra/launcher={launcher}", "hydra.sweeper.n_jobs=3"], tmp_path)
     assert cfg.hydra.launcher._target_.endswith(target)
     assert cfg.hydra.launcher[parallel_key] == 3

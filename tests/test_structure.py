@@ -1,0 +1,92 @@
+"""The shape of the package: imports go one way through the layers below, and what the user asked
+for is passed down, never read from Hydra's process-global state."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+import encons
+from encons.build import Request, build_model, build_system, compose
+from encons.errors import ConfigError
+
+#: Lowest first. A module may import from its own layer and those before it, never from a later one
+#: (imports under ``if TYPE_CHECKING:`` are annotations and those under ``if __name__ == "__main__":``
+#: a script's entry, not dependencies: neither is counted).
+LAYERS = [
+    ["errors", "paths", "compat", "trust", "batching", "progress", "checkpoints", "threads"],
+    ["systems"],
+    ["integrators"],
+    ["data"],
+    ["models"],
+    ["regularisers", "metrics"],
+    ["plots"],
+    ["module", "callbacks"],
+    ["config"],
+    ["build"],
+    ["runs", "report", "benchmark"],
+    ["api", "sweep", "cli", "train", "evaluate", "__init__"],
+]
+PACKAGE = Path(encons.__file__).parent
+
+
+def layer(module: str) -> int:
+    """The layer of ``encons.<module>`` (its first dotted part names it)."""
+    head = module.split(".")[0]
+    found = [i for i, names in enumerate(LAYERS) if head in names]
+    assert found, f"encons.{module} is in no layer of LAYERS: place it there"
+    return found[0]
+
+
+def encons_imports(path: Path) -> set[str]:
+    """The ``encons.*`` modules ``path`` imports (at any depth, lazily too), without TYPE_CHECKING and
+    ``__main__`` blocks."""
+    tree = ast.parse(path.read_text())
+    skipped = {id(n) for node in ast.walk(tree) if isinstance(node, ast.If)
+               and ("TYPE_CHECKING" in ast.unparse(node.test) or "__main__" in ast.unparse(node.test))
+               for n in ast.walk(node)}
+    found = set()
+    for node in ast.walk(tree):
+        if id(node) in skipped:
+            continue
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("encons"):
+            names = [node.module] if node.module != "encons" else [f"encons.{a.name}" for a in node.names]
+            found.update(names)
+        elif isinstance(node, ast.Import):
+            found.update(a.name for a in node.names if a.name.startswith("encons."))
+    return {name.removeprefix("encons.") for name in found if name != "encons"}
+
+
+def test_no_module_imports_from_a_layer_above_it():
+    arrows = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        module = ".".join(path.relative_to(PACKAGE).with_suffix("").parts)
+        for imported in encons_imports(path):
+            if layer(imported) > layer(module):
+                arrows.append(f"encons.{module} -> encons.{imported}")
+    assert arrows == []
+
+
+def test_the_layer_check_sees_a_back_arrow(tmp_path):
+    bad = tmp_path / "bad.py"
+    bad.write_text("def f():\n    from encons.report import write_report\n")
+    assert layer(next(iter(encons_imports(bad)))) > layer("systems")
+
+
+def test_checking_one_config_after_composing_another_gives_its_own_error(tmp_path):
+    """Each config carries its own request: composing B after A does not change what A's check says."""
+    symo = compose(["model=symo", "system=pendulum_control", "integrator=euler"], tmp_path / "a")
+    node = compose(["model=node", "system=pendulum_control", "integrator=euler"], tmp_path / "b")
+    plain = compose(["model=symo", "system=pendulum_control"], tmp_path / "c")
+    with pytest.raises(ConfigError, match=r"^integrator=euler does not apply to model=symo: a discrete model"):
+        build_model(symo, build_system(symo), request=Request.of(symo))
+    build_model(plain, build_system(plain), request=Request.of(plain))   # no integrator override: fine
+    assert node.name == "pendulum_control-node" and symo.name == "pendulum_control-symo"
+
+
+def test_request_of_a_config_without_hydra_is_empty():
+    from omegaconf import OmegaConf
+
+    assert Request.of(OmegaConf.create({"model": {}})) == Request()
