@@ -44,7 +44,7 @@ def run(systems: list[str], models: list[str], sizes: list[int], epochs: int, lr
             for model in models:
                 run_dir = out / "runs" / f"{system}-{model}-n{size}"
                 overrides = ["experiment=symo_paper", f"system={system}", *MODELS[model], *SYSTEM_OVERRIDES[system],
-                             f"data.n_train={size}", f"trainer.max_epochs={epochs}", f"optim.lr={lr}", "logger=none",
+                             f"data.n_train={size}", f"trainer.max_epochs={epochs}", f"optimizer.lr={lr}", "logger=none",
                              "trainer.enable_progress_bar=false"]
                 try:
                     results, error = train(compose(overrides, run_dir, out / "cache")), ""

@@ -218,10 +218,27 @@ def build(cfg: DictConfig, request: Request | None = None) -> tuple[TrajectoryDa
         raise ConfigError(f"horizon={cfg.horizon} exceeds the {test_steps} steps of a test trajectory; "
                           f"allowed: 1..{test_steps}")
     regulariser = instantiate_node(cfg, "regulariser", request) if cfg.get("regulariser") else None
-    module = DynamicsModule(model, system, data.dt, instantiate_node(cfg, "integrator", request), objective=objective,
-                            regulariser=regulariser, observation=observation, horizon=cfg.horizon,
-                            output_dir=cfg.paths.output_dir, **cfg.optim)
+    optimizer, scheduler = build_optimizer(cfg, model, request)
+    module = DynamicsModule(model, system, data.dt, instantiate_node(cfg, "integrator", request), optimizer,
+                            scheduler, objective=objective, regulariser=regulariser, observation=observation,
+                            horizon=cfg.horizon, output_dir=cfg.paths.output_dir)
     return data, module
+
+
+def build_optimizer(cfg: DictConfig, model: DynamicsModel, request: Request = Request()):
+    """The ``optimizer`` and ``scheduler`` partials (``conf/optimizer``, ``conf/scheduler``; the scheduler
+    None when unset), each built once here on ``model``'s parameters so that a value its constructor
+    refuses is one line now, not a traceback once training starts."""
+    from encons.module import takes_total_steps
+
+    optimizer = instantiate_node(cfg, "optimizer", request)
+    instantiate_node(cfg, "optimizer", request, _partial_=False, params=model.parameters())
+    if not cfg.get("scheduler"):
+        return optimizer, None
+    scheduler = instantiate_node(cfg, "scheduler", request)
+    probe = {"total_steps": 100} if takes_total_steps(scheduler) else {}
+    instantiate_node(cfg, "scheduler", request, _partial_=False, optimizer=optimizer(model.parameters()), **probe)
+    return optimizer, scheduler
 
 
 def _route_lightning_logs() -> None:

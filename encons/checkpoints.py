@@ -18,7 +18,8 @@ from encons.errors import ConfigError
 
 CONFIG_KEY = "encons_config"  # where a checkpoint carries its resolved run config
 #: The config keys a resume must share with the checkpoint's run (budget and paths may differ).
-RESUME_KEYS = ("system", "model", "data", "integrator", "regulariser", "objective", "optim", "seed")
+RESUME_KEYS = ("system", "model", "data", "integrator", "regulariser", "objective", "optimizer", "scheduler",
+               "seed")
 
 
 def read(path: str | Path, key: str = "ckpt") -> dict[str, Any]:
@@ -71,7 +72,7 @@ def resume_from(cfg: DictConfig) -> str | None:
             return str(path)
         differences.append(f"{path.parent.parent.name} has {diff}")
     raise ConfigError(f"ckpt_path=last: no earlier run under {runs} has this run's config (newest: {differences[0]}); "
-                      f"allowed: the same system/model/data/optim config, ckpt_path=PATH, or null")
+                      f"allowed: the same system/model/data/optimizer config, ckpt_path=PATH, or null")
 
 
 def difference(cfg: DictConfig, path: Path) -> str | None:

@@ -31,12 +31,13 @@ _COUNT = ((lambda v: v >= 1), "a positive integer")
 _SEED = ((lambda v: 0 <= v < 2**32), "0..2**32-1 (numpy's seed range)")
 
 #: Ranges of numeric keys, checked after their types (a key absent from the config is skipped);
-#: every value must also be finite.
+#: every value must be a finite number.
 BOUNDS: dict[str, tuple[Any, str]] = {
     "seed": _SEED, "data.seed": _SEED, "horizon": _at_least(1),
     "data.dt": _POSITIVE, "data.noise": _at_least(0), "data.n_val": _at_least(0),
-    "optim.lr": _POSITIVE, "optim.weight_decay": _at_least(0), "optim.patience": _at_least(0),
-    "optim.factor": ((lambda v: 0 < v < 1), "in (0, 1)"),
+    "optimizer.lr": _POSITIVE, "optimizer.weight_decay": _at_least(0), "scheduler.patience": _at_least(0),
+    "scheduler.factor": ((lambda v: 0 < v < 1), "in (0, 1)"), "scheduler.warmup": ((lambda v: 0 <= v < 1), "in [0, 1)"),
+    "scheduler.pct_start": ((lambda v: 0 < v < 1), "in (0, 1)"),
     "regulariser.weight": _at_least(0), "integrator.rtol": _POSITIVE, "integrator.atol": _POSITIVE,
     "model.hidden": _COUNT, "model.depth": _COUNT, "trainer.gradient_clip_val": _at_least(0),
     "observation.latent": _at_least(2), "observation.stack": _COUNT, "observation.hidden": _COUNT,
@@ -50,7 +51,9 @@ def check_bounds(cfg: DictConfig) -> None:
     """Refuse a value outside its range in :data:`BOUNDS`, naming key, value and the range."""
     for key, (fits, allowed) in BOUNDS.items():
         value = OmegaConf.select(cfg, key, default=None)
-        if value is None or isinstance(value, bool) or not isinstance(value, (int, float)):
+        if isinstance(value, (str, bool)):  # a constructor annotation may not say (torch's lr: float | Tensor)
+            raise ConfigError(f"{key}={value!r} has type {type(value).__name__}; allowed: a number {allowed}")
+        if value is None or not isinstance(value, (int, float)):
             continue
         if not (math.isfinite(value) and fits(value)):
             raise ConfigError(f"{key}={value}; allowed: {allowed}")
@@ -145,12 +148,9 @@ def check_config(cfg: DictConfig) -> None:
     from encons.data.datamodule import TrajectoryDataModule
     from encons.integrators import Integrator
 
-    from encons.module import DynamicsModule
-
     check_types({k: cfg.get(k) for k in ("seed", "horizon", "test", "compile") if k in cfg}, _top_level_keys, "")
     check_types(OmegaConf.to_container(cfg.data, resolve=True), TrajectoryDataModule, "data")
-    check_types(OmegaConf.to_container(cfg.optim, resolve=True), DynamicsModule, "optim")
-    for key in ("system", "model", "regulariser", "observation"):
+    for key in ("system", "model", "regulariser", "observation", "optimizer", "scheduler"):
         if cfg.get(key):
             check_node_types(cfg, key)
     check_types(OmegaConf.to_container(cfg.integrator, resolve=True), Integrator, "integrator")

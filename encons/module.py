@@ -16,16 +16,18 @@ validation and test compare decoded frames with the true ones (pixel MSE, frames
 
 from __future__ import annotations
 
+import inspect
 import json
-import math
 import logging
+from functools import partial
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import lightning.pytorch as pl
 import numpy as np
 import torch
 from torch import Tensor
+from torch.optim import Optimizer
 
 from encons import checkpoints, metrics, plots
 from encons.errors import ConfigError, DivergenceError
@@ -35,8 +37,6 @@ from encons.models.observation import Observation
 from encons.systems.base import System
 
 log = logging.getLogger(__name__)
-OBJECTIVES = ("rollout", "derivative", "acceleration", "residual")
-SCHEDULERS = (None, "cosine", "onecycle", "plateau")
 Regulariser = Callable[[DynamicsModel, Tensor, Tensor | None], Tensor]
 Batch = dict[str, Tensor]
 
@@ -45,8 +45,7 @@ class DynamicsModule(pl.LightningModule):
     """Trains ``model`` on windows of ``system`` trajectories sampled every ``dt``."""
 
     def __init__(self, model: DynamicsModel, system: System, dt: float, integrator: Integrator,
-                 lr: float = 1e-3, weight_decay: float = 1e-2, scheduler: str | None = None, warmup: float = 0.0,
-                 patience: int = 50, factor: float = 0.7,
+                 optimizer: Callable[..., Optimizer] | None = None, scheduler: Callable[..., Any] | None = None,
                  objective: str | None = None, regulariser: Regulariser | None = None,
                  horizon: int = 4, output_dir: str | None = None, observation: Observation | None = None):
         super().__init__()
@@ -58,17 +57,9 @@ class DynamicsModule(pl.LightningModule):
         if objective not in model.objectives:
             raise ConfigError(f"objective={objective} does not apply to {type(model).__name__}; "
                               f"allowed: {', '.join(model.objectives)}")
-        if scheduler not in SCHEDULERS:
-            raise ConfigError(f"optim.scheduler={scheduler!r} is unknown; allowed: {', '.join(map(str, SCHEDULERS))}")
-        if not 0 <= warmup < 1:
-            raise ConfigError(f"optim.warmup={warmup} must lie in [0, 1): the fraction of steps warming up")
-        if patience < 0 or not 0 < factor < 1:
-            raise ConfigError(f"optim.patience={patience}; allowed: >= 0 and optim.factor={factor} in (0, 1)")
-        if lr <= 0:
-            raise ConfigError(f"optim.lr={lr}; allowed: > 0")
         self.model, self.system, self.dt, self.integrator = model, system, dt, integrator
-        self.lr, self.weight_decay, self.scheduler_name, self.warmup = lr, weight_decay, scheduler, warmup
-        self.patience, self.factor = patience, factor
+        self.optimizer = optimizer or partial(torch.optim.AdamW, lr=1e-3, weight_decay=1e-2)
+        self.scheduler = scheduler
         self.objective, self.regulariser, self.horizon = objective, regulariser, horizon
         self.output_dir = Path(output_dir) if output_dir else None
         self.test_metrics: dict[str, float] = {}
@@ -127,7 +118,7 @@ class DynamicsModule(pl.LightningModule):
         if not torch.isfinite(loss):
             raise DivergenceError(
                 f"training diverged: loss is {loss.item()} at epoch {self.current_epoch}, step "
-                f"{self.global_step}; {self._kept_checkpoint()}; allowed: a lower optim.lr (or a larger model.mass_eps / model.damping where the model has one)")
+                f"{self.global_step}; {self._kept_checkpoint()}; allowed: a lower optimizer.lr (or a larger model.mass_eps / model.damping where the model has one)")
         return loss
 
     def _kept_checkpoint(self) -> str:
@@ -242,26 +233,25 @@ class DynamicsModule(pl.LightningModule):
         return f"{model} on {self.system.name} ({self.model.chart} chart)"
 
     def configure_optimizers(self):
-        """AdamW at ``lr``, optionally scheduled per optimiser step over the whole run.
+        """The ``optimizer`` partial on the parameters, and the ``scheduler`` partial on it (if any).
 
-        ``cosine``: linear warm-up from 0 over the first ``warmup`` fraction of steps, then cosine
-        decay to 0. ``onecycle``: torch's ``OneCycleLR`` peaking at ``lr`` after ``warmup`` of the
-        steps (0: its default 0.3), momentum cycled. The step count is Lightning's estimate for
-        ``max_epochs``; a run stopped by ``max_time`` or ``max_steps`` ends before the decay does.
-        ``plateau``: ``ReduceLROnPlateau`` on ``val/loss`` each epoch (``patience``, ``factor``).
+        A scheduler that takes ``total_steps`` gets Lightning's estimate for ``max_epochs`` and steps per
+        optimiser step (a run stopped by ``max_time`` or ``max_steps`` ends before its decay does);
+        ``ReduceLROnPlateau`` steps each epoch on ``val/loss``; any other scheduler each epoch.
         """
-        opt = torch.optim.AdamW(self.parameters(), lr=self.lr, weight_decay=self.weight_decay)
-        if self.scheduler_name is None:
+        opt = self.optimizer(self.parameters())
+        if self.scheduler is None:
             return opt
-        if self.scheduler_name == "plateau":  # on the validation loss, every epoch (Santos et al. §7)
-            sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, patience=self.patience, factor=self.factor)
+        if takes_total_steps(self.scheduler):
+            sched = self.scheduler(opt, total_steps=max(1, int(self.trainer.estimated_stepping_batches)))
+            return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+        sched = self.scheduler(opt)
+        if isinstance(sched, torch.optim.lr_scheduler.ReduceLROnPlateau):
             return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "monitor": "val/loss"}}
-        total = max(1, int(self.trainer.estimated_stepping_batches))
-        if self.scheduler_name == "onecycle":
-            sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=self.lr, total_steps=total,
-                                                        pct_start=self.warmup or 0.3)
-        else:
-            warm = int(self.warmup * total)
-            sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda step: (step + 1) / warm if step < warm else
-                                                      0.5 * (1 + math.cos(math.pi * (step - warm) / max(1, total - warm))))
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched}}
+
+
+def takes_total_steps(scheduler: Callable[..., Any]) -> bool:
+    """Whether a scheduler (class or partial of one) takes ``total_steps`` (per-step schedules)."""
+    func = scheduler.func if isinstance(scheduler, partial) else scheduler
+    return "total_steps" in inspect.signature(func).parameters

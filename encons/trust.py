@@ -3,7 +3,7 @@
 A target is trusted when it matches :func:`trusted_targets` (Hydra's rule: an exact name, or a
 package prefix ending in ``.*``), and it resolves to an object defined in the package it names: an
 alias such as ``encons.api.os.system`` (a module reached by attribute) is refused. The list is
-encons, Lightning, Optuna's pruners and samplers, and ``ENCONS_TRUSTED_TARGETS`` as the process
+encons, Lightning, torch's optimisers and schedulers, Optuna's pruners and samplers, and ``ENCONS_TRUSTED_TARGETS`` as the process
 environment holds it; a config file cannot widen it (see ``encons.cli``).
 """
 
@@ -18,7 +18,7 @@ from typing import Any, Iterator
 
 from encons.errors import ConfigError
 
-TRUSTED_TARGETS = ("encons.*", "lightning.pytorch.*", "optuna.pruners.*", "optuna.samplers.*")
+TRUSTED_TARGETS = ("encons.*", "lightning.pytorch.*", "torch.optim.*", "optuna.pruners.*", "optuna.samplers.*")
 TRUST_VARIABLE = "ENCONS_TRUSTED_TARGETS"
 
 

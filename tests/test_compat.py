@@ -19,9 +19,9 @@ def test_torchdiffeq_methods_and_which_are_fixed_step():
 def test_optuna_sweeper_parses_a_search_space():
     import optuna
 
-    space, fixed, fixed_overrides = compat.optuna_search_space(["optim.lr=tag(log, interval(1e-4, 1e-2))",
+    space, fixed, fixed_overrides = compat.optuna_search_space(["optimizer.lr=tag(log, interval(1e-4, 1e-2))",
                                                                 "seed=3", "model=choice(hnn, node)"])
-    assert isinstance(space["optim.lr"], optuna.distributions.FloatDistribution) and space["optim.lr"].log
+    assert isinstance(space["optimizer.lr"], optuna.distributions.FloatDistribution) and space["optimizer.lr"].log
     assert isinstance(space["model"], optuna.distributions.CategoricalDistribution)
     assert fixed == {"seed": "3"} and fixed_overrides == []
 

@@ -59,7 +59,7 @@ def test_constructor_errors_are_one_line(tmp_path, overrides, key):
     (["data.n_train=2.5"], "data.n_train=2.5", "int"),
     (["data.noise=[1]"], "data.noise=[1]", "float"),
     (["regulariser=hamiltonian", "regulariser.weight=abc"], "regulariser.weight='abc'", "float"),
-    (["optim.lr=fast"], "optim.lr='fast'", "float"),
+    (["optimizer.lr=fast"], "optimizer.lr='fast'", "number"),
     (["horizon=1.5"], "horizon=1.5", "int"),
     (["system=pendulum1", "system.n_links=2.5"], "system.n_links=2.5", "int"),
     (["model.hidden=[1,2]"], "model.hidden=[1, 2]", "int"),
@@ -172,8 +172,8 @@ def test_cache_files_are_group_readable_and_orphans_of_dead_writers_go(tmp_path)
     (["-m", "sweeps=optuna", "hydra.sweeper.n_trials=0"], "hydra.sweeper.n_trials=0"),
     (["-m", "sweeps=optuna", "sweeps.storage=mysql://u@localhost/x"], "sweeps.storage='mysql://u@localhost/x'"),
     (["-m", "seed=-1"], "seed=-1"),
-    (["-m", "sweeps=optuna", "seed=-1", "optim.lr=tag(log,interval(1e-4,1e-2))"], "hydra.sweeper.sampler.seed=-1"),
-    (["-m", "sweeps=optuna", "hydra.sweeper.n_trials=2", "data.n_train=-1", "optim.lr=tag(log,interval(1e-4,1e-2))"],
+    (["-m", "sweeps=optuna", "seed=-1", "optimizer.lr=tag(log,interval(1e-4,1e-2))"], "hydra.sweeper.sampler.seed=-1"),
+    (["-m", "sweeps=optuna", "hydra.sweeper.n_trials=2", "data.n_train=-1", "optimizer.lr=tag(log,interval(1e-4,1e-2))"],
      "first: ConfigError: data.n_train=-1"),
     (["trainer.accelerator=tpu"], "trainer.accelerator=tpu"),
     (["seed=["], "seed=["),
@@ -188,8 +188,8 @@ def test_cli_ends_with_the_one_line(cli, tmp_path, args, key):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("args, key", [
-    (["optim.lr=-1"], "optim.lr=-1"),
-    (["-m", "sweeps=optuna", "hydra.sweeper.n_trials=2", "data.n_train=-1", "optim.lr=tag(log,interval(1e-4,1e-2))"],
+    (["optimizer.lr=-1"], "optimizer.lr=-1"),
+    (["-m", "sweeps=optuna", "hydra.sweeper.n_trials=2", "data.n_train=-1", "optimizer.lr=tag(log,interval(1e-4,1e-2))"],
      "first: ConfigError: data.n_train=-1"),
 ])
 def test_a_real_cli_process_exits_2_with_the_one_line_last(tmp_path, args, key):
@@ -204,7 +204,7 @@ def test_a_real_cli_process_exits_2_with_the_one_line_last(tmp_path, args, key):
 def test_a_sweep_dir_without_sweeps_dir_creates_the_study_folder(tmp_path):
     proc = run_cli("-m", "sweeps=optuna", "debug=fast", "hydra.sweeper.n_trials=1", "trainer.max_epochs=1",
                    f"hydra.sweep.dir={tmp_path / 'elsewhere'}", f"sweeps.dir={tmp_path / 'new' / 'study'}",
-                   "optim.lr=tag(log,interval(1e-4,1e-2))", cwd=tmp_path, env={"ENCONS_ROOT": str(tmp_path)})
+                   "optimizer.lr=tag(log,interval(1e-4,1e-2))", cwd=tmp_path, env={"ENCONS_ROOT": str(tmp_path)})
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert (tmp_path / "new" / "study" / "optuna.db").is_file()
 
@@ -217,8 +217,9 @@ def test_a_sweep_dir_without_sweeps_dir_creates_the_study_folder(tmp_path):
     (["data.noise=-1"], "data.noise=-1"),
     (["data.n_val=-1"], "data.n_val=-1"),
     (["data.n_val=0"], "data.n_val=0"),
-    (["optim.weight_decay=-1"], "optim.weight_decay=-1"),
-    (["optim.factor=2"], "optim.factor=2"),
+    (["optimizer.weight_decay=-1"], "optimizer.weight_decay=-1"),
+    (["scheduler=plateau", "scheduler.factor=2"], "scheduler.factor=2"),
+    (["scheduler=cosine", "scheduler.warmup=1.5"], "scheduler.warmup=1.5"),
     (["integrator=dopri5", "integrator.rtol=-1"], "integrator.rtol=-1"),
     (["integrator=dopri5", "integrator.atol=0"], "integrator.atol=0"),
     (["regulariser=hamiltonian", "regulariser.weight=nan"], "regulariser.weight=nan"),

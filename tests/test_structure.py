@@ -90,3 +90,23 @@ def test_request_of_a_config_without_hydra_is_empty():
     from omegaconf import OmegaConf
 
     assert Request.of(OmegaConf.create({"model": {}})) == Request()
+
+
+def test_a_users_optimizer_and_scheduler_from_a_searchpath_yaml_train(tmp_path):
+    """``optimizer`` and ``scheduler`` are ``_partial_`` configs: a user's YAML swaps them, no code."""
+    import torch
+
+    for group, name, text in [("optimizer", "sgd", "_target_: torch.optim.SGD\n_partial_: true\nlr: 0.01\nmomentum: 0.9\n"),
+                              ("scheduler", "halving", "_target_: torch.optim.lr_scheduler.StepLR\n_partial_: true\n"
+                                                       "step_size: 1\ngamma: 0.5\n")]:
+        (tmp_path / "myconf" / group).mkdir(parents=True)
+        (tmp_path / "myconf" / group / f"{name}.yaml").write_text(text)
+    cfg = encons.compose("debug=fast", "logger=none", "model=node", "system=pendulum1",
+                         f"hydra.searchpath=[file://{tmp_path / 'myconf'}]", "optimizer=sgd", "scheduler=halving",
+                         output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    run = encons.train(cfg)
+    optimizer = run.module.trainer.optimizers[0]
+    assert type(optimizer) is torch.optim.SGD and optimizer.defaults["momentum"] == 0.9
+    epochs = cfg.trainer.max_epochs
+    assert optimizer.param_groups[0]["lr"] == pytest.approx(0.01 * 0.5 ** epochs)   # stepped once an epoch
+    assert run.metrics["test/traj_rel_err"] > 0
