@@ -19,6 +19,7 @@ from typing import Callable
 import torch
 from torch import Tensor, nn
 
+from encons import threads
 from encons.models.networks import mlp
 from encons.regularisers import field_jacobian, hamiltonian_violation
 
@@ -55,10 +56,9 @@ def main() -> None:
     parser.add_argument("--hidden", type=int, default=200)
     parser.add_argument("--depth", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=10)
-    parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.threads' policy)")
     args = parser.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    threads.apply(args.threads)
     torch.manual_seed(0)
     print(f"batch {args.batch}, MLP {args.depth} × {args.hidden} softplus, {torch.get_num_threads()} thread(s); "
           "ms per call (fastest of {args.repeats}, process CPU time)".replace("{args.repeats}", str(args.repeats)))

@@ -43,16 +43,14 @@ def fastest(fn, steps: int) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--steps", type=int, default=5)
-    parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.threads' policy)")
     args = parser.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
     print(f"{'system':<24}{'model':<26}{'train frames/s':>15}{'rollout frames/s':>18}")
     with tempfile.TemporaryDirectory() as tmp:
         generated = set()
         for system, model, extra in RUNS:
             cfg = api.compose(f"system={system}", f"model={model}", "logger=none", *extra,
-                              output_dir=f"{tmp}/run", cache_dir=f"{tmp}/cache")
+                              f"threads={args.threads or 'null'}", output_dir=f"{tmp}/run", cache_dir=f"{tmp}/cache")
             data, module = api.build(cfg)
             if system not in generated:  # again, timed, into a fresh cache file
                 generated.add(system)

@@ -40,6 +40,7 @@ from typing import Callable
 import torch
 from torch import Tensor
 
+from encons import threads
 from encons.api import catalogue, compose
 from encons.build import build_model, build_system
 from encons.data.simulate import sample_trajectories, simulate
@@ -250,11 +251,10 @@ def main() -> None:
     parser.add_argument("--chunk", type=int, default=5)
     parser.add_argument("--hidden", type=int, default=256)
     parser.add_argument("--depth", type=int, default=3)
-    parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.threads' policy)")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/speed.csv"))
     args = parser.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    threads.apply(args.threads)
     if args.compile:  # an empty inductor cache: the compile time a fresh machine pays
         os.environ["TORCHINDUCTOR_CACHE_DIR"] = tempfile.mkdtemp(prefix="encons-inductor-")
     warnings.filterwarnings("ignore", message=r"hydra\.utils\.instantiate\(\) resolved")  # Hydra's, on every build

@@ -17,6 +17,7 @@ import time
 
 import torch
 
+from encons import threads
 from encons.data.simulate import simulate
 from encons.models.symo import E2ESyMo, SyMo
 from encons.module import DynamicsModule
@@ -53,10 +54,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--steps", type=int, default=5)
     parser.add_argument("--batch", type=int, default=512)
-    parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.threads' policy)")
     args = parser.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    threads.apply(args.threads)
     print(f"{'system':<18}{'model':<10}{'wall ms':>9}{'cpu ms':>9}{'ratio':>7}  Newton iterations")
     for name, (cls, dt, hidden) in SYSTEMS.items():
         system = cls()

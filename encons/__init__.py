@@ -7,11 +7,12 @@ The public surface (``encons.api``), imported on first use so ``import encons`` 
     run = encons.load(run_dir)     # a run folder or a .ckpt (checkpoints carry their config)
     encons.evaluate(run)           # test metrics, figures under <run>/evaluation
     encons.rollout(run.model, start, t, run.module.integrator)
+    encons.score_control(run)      # swing-up controller from the model, scored beside the oracle
 """
 
 from importlib import metadata
 
-__all__ = ["Run", "build", "catalogue", "compose", "evaluate", "load", "rollout", "train"]
+__all__ = ["Run", "build", "catalogue", "compose", "evaluate", "load", "rollout", "score_control", "train"]
 
 try:
     __version__ = metadata.version("encons")
@@ -20,6 +21,10 @@ except metadata.PackageNotFoundError:  # a source tree that is not installed
 
 
 def __getattr__(name: str):
+    if name == "score_control":
+        from encons.control import score_control
+
+        return score_control
     if name in __all__:
         from encons import api
 

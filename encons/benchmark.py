@@ -25,6 +25,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from encons.errors import ConfigError, EnconsError
+from encons.io import write_json, write_yaml
 from encons.paths import config_dir
 
 
@@ -70,7 +71,7 @@ def expand(cfg: DictConfig) -> list[Run]:
     if not entries:
         raise ConfigError("profile has no runs: give systems and models, runs or n_train")
     return [Run(system, label, seed, [f"system={system}", *ovr, *c["common"], *per_system.get(system, []),
-                                     f"seed={seed}", *c["train"]], n, paper)
+                                     f"seed={seed}", f"threads={json.dumps(c['threads'])}", *c["train"]], n, paper)
             for system, label, ovr, n, paper in entries for seed in c["seeds"]]
 
 
@@ -79,8 +80,9 @@ def finished(run: Run, out: Path) -> Path:
     return out / "runs" / run.id / "result.json"
 
 
-def run_one(run: Run, out: Path, cache_dir: str | None) -> dict:
-    """Train and test ``run`` (``encons.runs.train``); write and return its result row."""
+def run_one(run: Run, out: Path, cache_dir: str | None, control: bool = False) -> dict:
+    """Train and test ``run`` (``encons.runs.train``; with ``control`` also score its controller beside the
+    oracle, ``encons.control``: ``test/control/*``, ``test/oracle/*``); write and return its result row."""
     from encons import runs
     from encons.build import compose
 
@@ -91,17 +93,19 @@ def run_one(run: Run, out: Path, cache_dir: str | None) -> dict:
     resume_or_clear(cfg, run_dir / "checkpoints")
     started = time.perf_counter()
     try:
-        results, error = runs.train(cfg, summary=False).metrics, ""
+        trained = runs.train(cfg, summary=False)
+        results, error, wall = dict(trained.metrics), "", time.perf_counter() - started  # training time only
+        if control:
+            from encons.control import score_control
+
+            results.update({f"test/{k}": v for k, v in score_control(trained).items()})
     except EnconsError as err:
-        results, error = {}, str(err)
+        results, error, wall = {}, str(err), time.perf_counter() - started
     row = {"system": run.system, "model": run.label, "seed": run.seed, "n_train": cfg.data.n_train,
            "data_efficiency": run.n_train is not None, "run_dir": str(run_dir), "error": error,
-           "wall_time_s": time.perf_counter() - started, "overrides": " ".join(run.overrides),
+           "wall_time_s": wall, "overrides": " ".join(run.overrides),
            **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))}}
-    run_dir.mkdir(parents=True, exist_ok=True)
-    tmp = done.with_suffix(".tmp")
-    tmp.write_text(json.dumps(row, indent=1))
-    tmp.replace(done)  # atomic: a run killed before this line is rerun
+    write_json(done, row, indent=1)  # atomic: a run killed before it is rerun
     return row
 
 
@@ -125,7 +129,8 @@ def resume_or_clear(cfg: DictConfig, checkpoints: Path) -> None:
 
 def result_line(row: dict) -> str:
     """The headline of a finished run: its test errors and wall time (every metric: its result.json)."""
-    keys = ("test/traj_rel_err", "test/geom_rel_err", "test/energy_abs_err", "test/diverged")
+    keys = ("test/traj_rel_err", "test/geom_rel_err", "test/energy_abs_err", "test/diverged",
+            "test/control/success_rate", "test/oracle/success_rate")
     shown = [f"{k.removeprefix('test/')} {row[k]:.3g}" for k in keys if k in row]
     return ", ".join(shown + [f"{row['wall_time_s']:.0f} s"])
 
@@ -137,13 +142,8 @@ def run_profile(cfg: DictConfig) -> Path:
 
     runs = expand(cfg)
     out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "benchmark.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(plain(cfg))))
+    write_yaml(out / "benchmark.yaml", plain(cfg))
     cache_dir = cfg.get("cache_dir")
-    if cfg.get("threads"):
-        import torch
-
-        torch.set_num_threads(int(cfg.threads))
     todo = [run for run in runs if not finished(run, out).is_file()]
     progress = Progress(len(runs), "benchmark run", work=len(todo))  # the ETA counts runs still to train
     for run in runs:
@@ -151,7 +151,7 @@ def run_profile(cfg: DictConfig) -> Path:
             progress.start(f"{run.id}: finished before, skipped", work=0)
             continue
         progress.start(run.id)
-        row = run_one(run, out, cache_dir)
+        row = run_one(run, out, cache_dir, bool(cfg.get("control")))
         if row["error"]:
             print(f"{run.id} failed: {row['error']}", file=sys.stderr)
         else:

@@ -192,6 +192,7 @@ def build(cfg: DictConfig, request: Request | None = None) -> tuple[TrajectoryDa
     """
     import lightning.pytorch as pl
 
+    from encons import threads
     from encons.config import check_config, objective_of
     from encons.data.datamodule import TrajectoryDataModule
     from encons.module import DynamicsModule
@@ -199,7 +200,8 @@ def build(cfg: DictConfig, request: Request | None = None) -> tuple[TrajectoryDa
     request = Request.of(cfg) if request is None else request
     _route_lightning_logs()
     trust.check_targets(OmegaConf.to_container(run_config(cfg)))
-    check_config(cfg)
+    check_config(cfg, request)
+    threads.apply(cfg.get("threads"))  # before the data are simulated
     pl.seed_everything(cfg.seed, workers=True, verbose=False)
     system = build_system(cfg, request)
     observation = build_observation(cfg, system, request)

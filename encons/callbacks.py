@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import shutil
 from pathlib import Path
@@ -17,6 +16,7 @@ from encons import checkpoints, metrics, plots
 from encons.data.simulate import simulate
 from encons.errors import ConfigError
 from encons.integrators import rollout
+from encons.io import write_json
 
 log = logging.getLogger(__name__)
 
@@ -86,7 +86,7 @@ class SantosMetrics(pl.Callback):
         for logger in trainer.loggers:
             logger.log_metrics({f"test/{k}": v for k, v in results.items()})
         if module.output_dir is not None and trainer.is_global_zero:
-            (module.output_dir / "test_metrics.json").write_text(json.dumps(module.test_metrics, indent=2))
+            write_json(module.output_dir / "test_metrics.json", module.test_metrics)
 
     @staticmethod
     def one_step_mse(module: pl.LightningModule, arrays: dict[str, Tensor]) -> float:

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from encons import trust
 from encons.errors import ConfigError
@@ -143,8 +143,25 @@ def check_folders(cfg: DictConfig) -> None:
             raise ConfigError(f"{key}={str(folder)!r} is not writable; allowed: a writable folder")
 
 
-def check_config(cfg: DictConfig) -> None:
+def apply_presets(cfg: DictConfig, request: Request) -> None:
+    """Drop the keys a preset set for any model (``preset_keys``, e.g. ``debug=fast``'s ``model.hidden``)
+    from a node whose ``_target_``'s constructor does not take them; a key also set on the command line stays
+    (and is refused where the node is built)."""
+    for full in cfg.get("preset_keys") or ():
+        node_key, _, name = str(full).rpartition(".")
+        node = OmegaConf.select(cfg, node_key)
+        target = trust.locate(str(node.get("_target_", "")), node_key) if isinstance(node, DictConfig) and name in node else None
+        if target is None or full in request.overridden():
+            continue
+        params = inspect.signature(target).parameters
+        if name not in params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+            with open_dict(node):
+                del node[name]
+
+
+def check_config(cfg: DictConfig, request: Request) -> None:
     """Reject types, sizes, budgets and folders that cannot work, naming the key and what is allowed."""
+    apply_presets(cfg, request)
     from encons.data.datamodule import TrajectoryDataModule
     from encons.integrators import Integrator
 

@@ -3,6 +3,8 @@ Hydra's own composition and run-folder errors) into that line on stderr with exi
 
 from __future__ import annotations
 
+import errno
+import os
 import re
 import sys
 from collections.abc import Iterator
@@ -29,6 +31,10 @@ class DivergenceError(EnconsError):
     """Training produced a non-finite loss."""
 
 
+class WriteError(EnconsError):
+    """A file could not be written (full, read-only or unwritable disk); the earlier file is kept."""
+
+
 class SweepError(EnconsError):
     """A sweep stopped because more of its trials failed than it allows."""
 
@@ -49,6 +55,13 @@ def one_line_errors() -> Iterator[None]:
     except (FileExistsError, NotADirectoryError, PermissionError) as err:  # e.g. Hydra creating hydra.run.dir
         print(f"encons: error: {err.filename!r}: {err.strerror}; allowed: a writable folder for hydra.run.dir, "
               f"hydra.sweep.dir and paths.*", file=sys.stderr)
+        sys.exit(2)
+    except OSError as err:  # a full or read-only disk under a writer encons does not own (Hydra's, a logger's)
+        if err.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EROFS):
+            raise
+        where = f"folder={os.path.dirname(err.filename)!r}: cannot write {os.path.basename(err.filename)}" \
+            if isinstance(err.filename, str) else "a write failed"
+        print(f"encons: error: {where} ({err.strerror}); allowed: a writable folder with free space", file=sys.stderr)
         sys.exit(2)
 
 

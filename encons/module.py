@@ -17,14 +17,12 @@ validation and test compare decoded frames with the true ones (pixel MSE, frames
 from __future__ import annotations
 
 import inspect
-import json
 import logging
 from functools import partial
 from pathlib import Path
 from typing import Any, Callable
 
 import lightning.pytorch as pl
-import numpy as np
 import torch
 from torch import Tensor
 from torch.optim import Optimizer
@@ -32,6 +30,7 @@ from torch.optim import Optimizer
 from encons import checkpoints, metrics, plots
 from encons.errors import ConfigError, DivergenceError
 from encons.integrators import Integrator, rollout, state_derivative
+from encons.io import save_npz, write_json
 from encons.models.base import DynamicsModel
 from encons.models.observation import Observation
 from encons.systems.base import System
@@ -178,8 +177,7 @@ class DynamicsModule(pl.LightningModule):
         log.info("%s", metrics.curves_table(self.times(true.shape[1], true), curves))
         self.log_dict({f"test/{k}": v for k, v in self.test_metrics.items()}, sync_dist=True)
         if self.output_dir is not None and self.trainer.is_global_zero:
-            self.output_dir.mkdir(parents=True, exist_ok=True)
-            (self.output_dir / "test_metrics.json").write_text(json.dumps(self.test_metrics, indent=2))
+            write_json(self.output_dir / "test_metrics.json", self.test_metrics)
             figures = plots.mse_figure(self.times(true.shape[1], true).cpu(), curves, self.output_dir / "figures",
                                        title=self.run_title())
             curves = {"t": self.times(true.shape[1], true).cpu().numpy(),
@@ -187,7 +185,7 @@ class DynamicsModule(pl.LightningModule):
                       **{f"{k}_{name}": v.cpu().numpy() for name, c in curves.items() for k, v in c.items()}}
             if energies:
                 curves["energy_err"] = metrics.energy_abs_error(*energies).cpu().numpy()
-            np.savez(self.output_dir / "test_curves.npz", **curves)
+            save_npz(self.output_dir / "test_curves.npz", **curves)
             figures += plots.test_figures(self.times(true.shape[1], true).cpu(), pred_c.cpu(), true_c.cpu(),
                                          [e.cpu() for e in energies] if energies else None,
                                          self.output_dir / "figures", title=self.run_title())
@@ -211,9 +209,8 @@ class DynamicsModule(pl.LightningModule):
         self.log_dict({f"test/{k}": v for k, v in self.test_metrics.items()}, sync_dist=True)
         if self.output_dir is None or not self.trainer.is_global_zero:
             return
-        self.output_dir.mkdir(parents=True, exist_ok=True)
-        (self.output_dir / "test_metrics.json").write_text(json.dumps(self.test_metrics, indent=2))
-        np.savez(self.output_dir / "test_curves.npz", t=t.numpy(), pixel_mse=mse.cpu().numpy(),
+        write_json(self.output_dir / "test_metrics.json", self.test_metrics)
+        save_npz(self.output_dir / "test_curves.npz", t=t.numpy(), pixel_mse=mse.cpu().numpy(),
                  rel_err=metrics.relative_error(frames.flatten(2), x.flatten(2)).cpu().numpy(),
                  latent_pred=pred.cpu().numpy(), latent_encoded=states.cpu().numpy())
         out, title = self.output_dir / "figures", self.run_title()

@@ -12,6 +12,7 @@ import torch  # noqa: E402
 from torch import Tensor  # noqa: E402
 
 from encons import metrics  # noqa: E402
+from encons.io import save_figure  # noqa: E402
 
 
 TIME = "time t [s]"
@@ -41,7 +42,6 @@ def test_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] |
                  title: str, n_show: int = 3) -> list[Path]:
     """Rollout vs truth (every coordinate, positions and velocities), relative error vs time and
     (if known) energy error vs time; states are in the system's common chart."""
-    out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     names = coordinate_names(true.shape[-1])
     n, shown = true.shape[-1] // 2, min(n_show, true.shape[0])
@@ -151,9 +151,10 @@ def _curve_keys(row: dict) -> list[str]:
 def _save(fig, path: Path, layout: bool = True) -> Path:
     if layout:
         fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    try:
+        return save_figure(fig, path, dpi=110)
+    finally:
+        plt.close(fig)
 
 
 def log_figures(logger, paths: list[Path]) -> None:
@@ -212,7 +213,6 @@ def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], out_dir: Path, t
     """State MSE and (if known) energy MSE against time of the model and the baselines on the test
     windows (Xiao et al. Figs. 3 and 5; curves from ``metrics.long_rollout_errors``), from the first step
     (at t = 0 every rollout starts on the truth): ``mse_vs_time.png``."""
-    out_dir.mkdir(parents=True, exist_ok=True)
     keys = list(curves["model"])
     labels = {"state_mse": "state MSE, common chart [(units of s)²]", "energy_mse": "energy MSE [J²]"}
     fig, axes = plt.subplots(1, len(keys), figsize=(6 * len(keys), 4), squeeze=False)
@@ -235,7 +235,6 @@ DATA_TIME = "time t [the data's time unit]"
 def pixel_mse_figure(t: Tensor, mse: Tensor, out_dir: Path, title: str) -> list[Path]:
     """Pixel MSE (N, T) of decoded predictions against the true frames over time, median and 2.5–97.5 %
     band over test videos, with the mean (``pixel_mse.png``)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
     fig, ax = plt.subplots(figsize=(6.5, 4))
     _band(ax, t, mse.clamp_min(1e-12), PIXEL_MSE)
     ax.plot(t, mse.mean(0), "k--", lw=1, label="mean over test videos")
@@ -249,7 +248,6 @@ def latent_phase_figure(pred: Tensor, encoded: Tensor, out_dir: Path, title: str
     """Lim & Kasim Fig. 4: latent rollouts (N, T, d) of a few test videos in their phase plane — for
     d = 2 the latent (z₁, z₂) itself, else its first two principal components over the encoded test
     states — with the encoder's states of the true frames (``latent_phase.png``)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
     d = pred.shape[-1]
     if d == 2:
         project, names = (lambda z: z), ("latent z₁ (position-like) [–]", "latent z₂ (velocity-like) [–]")
@@ -276,7 +274,6 @@ def latent_phase_figure(pred: Tensor, encoded: Tensor, out_dir: Path, title: str
 def frames_figure(t: Tensor, pred: Tensor, true: Tensor, out_dir: Path, title: str, n_times: int = 6) -> list[Path]:
     """Lim & Kasim Figs. 5–6: true (top) and predicted (bottom) frames of the first test video at
     ``n_times`` times from 0 to the end (``frames.png``)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
     picks = torch.linspace(0, len(t) - 1, n_times).round().long().tolist()
     fig, axes = plt.subplots(2, n_times, figsize=(1.6 * n_times, 3.8), squeeze=False)
     for col, k in enumerate(picks):
@@ -291,3 +288,66 @@ def frames_figure(t: Tensor, pred: Tensor, true: Tensor, out_dir: Path, title: s
                 ax.set_xlabel(f"t = {t[k]:.0f}")
     fig.suptitle(f"{title}\ntest video 0: true vs predicted frames (grey level = pixel intensity, 0–1)", fontsize=9)
     return [_save(fig, out_dir / "frames.png")]
+
+
+def control_figures(t: Tensor, learned: tuple[Tensor, Tensor], oracle: tuple[Tensor, Tensor],
+                    t_up: tuple[Tensor, Tensor], energy, error, system, out_dir: Path, title: str,
+                    n_show: int = 6) -> list[Path]:
+    """Closed loops of the controller built from a learned model beside the same controller built from the
+    true model (``encons.control``), on the true system: phase portrait of the (pole) angle, true energy
+    and input against time for ``n_show`` starts, and the fraction of starts held upright against time.
+
+    ``energy`` and ``error`` are the true plant's E(s) and s − s* (angles wrapped)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    angle = system.n - 1                                    # the (pole) angle: last coordinate
+    unit = "N·m" if system.n == 1 else "N"
+    shown = min(n_show, t_up[0].shape[0])
+    colours = plt.cm.tab10(range(shown))
+    labels = ("controller from the learned model", "same controller from the true model (oracle)")
+    paths = []
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5), sharex=True, sharey=True)
+    for ax, (states, _), label in zip(axes, (learned, oracle), labels):
+        x = error(states[:shown])
+        theta = x[..., angle].clone()
+        theta[:, 1:][(theta[:, 1:] - theta[:, :-1]).abs() > torch.pi] = torch.nan  # no line across ±π
+        for k in range(shown):
+            ax.plot(theta[k], x[k, :, system.n + angle], color=colours[k], lw=1, label=f"start {k}")
+            ax.plot(x[k, 0, angle], x[k, 0, system.n + angle], "o", color=colours[k], ms=4)
+        ax.plot(0, 0, "k*", ms=10, label="upright")
+        ax.set_title(label, fontsize=9)
+        ax.set_xlabel("angle from upright θ [rad]")
+    axes[0].set_ylabel("angular velocity θ̇ [rad/s]")
+    axes[1].legend(fontsize=7, loc="upper right", title="● start", title_fontsize=7)
+    fig.suptitle(f"{title}\nphase portrait on the true system")
+    paths.append(_save(fig, out_dir / "control_phase.png"))
+
+    fig, axes = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
+    target = energy(torch.zeros(1, 2 * system.n, dtype=torch.float64))[0]
+    for (states, inputs), style, label in zip((learned, oracle), ("-", "--"), labels):
+        e = energy(states[:shown])
+        for k in range(shown):
+            axes[0].plot(t, e[k], style, color=colours[k], lw=1, label=label if k == 0 else None)
+            axes[1].step(t[:-1], inputs[k, :, 0], style, where="post", color=colours[k], lw=1,
+                         label=label if k == 0 else None)
+    axes[0].axhline(target, color="k", lw=0.8, ls=":", label="upright energy (true)")
+    for bound in (system.u_max, -system.u_max):
+        axes[1].axhline(bound, color="k", lw=0.8, ls=":", label="input limit ±u_max" if bound > 0 else None)
+    axes[0].set_ylabel("true energy E [J]")
+    axes[1].set_ylabel(f"input u [{unit}]")
+    axes[1].set_xlabel(TIME)
+    axes[0].legend(fontsize=7)
+    axes[1].legend(fontsize=7)
+    fig.suptitle(f"{title}\nenergy and input, {shown} starts (one colour each)")
+    paths.append(_save(fig, out_dir / "control_energy_input.png"))
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for times, label in zip(t_up, labels):
+        ax.plot(t, (times[:, None] <= t[None, :]).double().mean(0), label=label)
+    ax.set_xlabel(TIME)
+    ax.set_ylabel("fraction of starts upright from t on [–]")
+    ax.set_ylim(-0.02, 1.02)
+    ax.legend(fontsize=7)
+    ax.set_title(f"{title}\nheld upright (tolerance kept to the end)", fontsize=9)
+    paths.append(_save(fig, out_dir / "control_success.png"))
+    return paths

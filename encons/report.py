@@ -30,6 +30,7 @@ from rich.console import Console
 from rich.table import Table
 
 from encons.errors import ConfigError, EnconsError
+from encons.io import atomic_open, write_text
 
 
 def print_summary(title: str, results: dict[str, float], output_dir: Path, note: str = "",
@@ -41,7 +42,7 @@ def print_summary(title: str, results: dict[str, float], output_dir: Path, note:
     table.add_column("metric")
     table.add_column("value", justify="right")
     for key in sorted(results):
-        if key.startswith(("val/", "test/", "best/")) or key in ("wall_time_s", "best_epoch"):
+        if key.startswith(("val/", "test/", "best/")) or key in ("wall_time_s", "threads", "best_epoch"):
             table.add_row(key, f"{results[key]:.4g}")
     out = Console(record=True) if console else Console(record=True, file=io.StringIO())
     out.print(table)
@@ -104,7 +105,7 @@ def published(out: Path) -> dict[str, dict]:
 
 def write_csv(path: Path, rows: list[dict]) -> None:
     keys = list(dict.fromkeys(k for row in rows for k in row))
-    with path.open("w", newline="") as f:
+    with atomic_open(path, "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=keys)
         writer.writeheader()
         writer.writerows(rows)
@@ -112,7 +113,9 @@ def write_csv(path: Path, rows: list[dict]) -> None:
 
 HEADLINE = ("wall_time_s", "test/diverged", "test/traj_rel_err", "test/geom_rel_err", "test/energy_rmse_median",
             "test/state_mse_final", "test/energy_mse_final", "test/baseline_constant/state_mse_final",
-            "test/baseline_linear_ode/state_mse_final", "test/pixel_mse_final", "test/pixel_mse_final_median")
+            "test/baseline_linear_ode/state_mse_final", "test/pixel_mse_final", "test/pixel_mse_final_median",
+            "test/control/success_rate", "test/oracle/success_rate", "test/control/time_to_upright_s",
+            "test/oracle/time_to_upright_s", "test/control/effort", "test/oracle/effort", "test/control/pred_rmse")
 
 
 def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", headline: bool = False) -> str:
@@ -153,8 +156,8 @@ def write_report(out: str | Path) -> list[Path]:
     write_csv(out / "summary.csv", [{**e, **{f"paper {m}": v for m, v in
                                             paper.get(f"{e['system']}/{e['model']}", {}).items()}}
                                     for e in summary])
-    (out / "summary.md").write_text(f"# {out.name}\n\n" + markdown(summary, paper, source, headline=True)
-                                    + "\n## Every metric\n\n" + markdown(summary, paper, source))
+    write_text(out / "summary.md", f"# {out.name}\n\n" + markdown(summary, paper, source, headline=True)
+               + "\n## Every metric\n\n" + markdown(summary, paper, source))
     grid = [r for r in rows if not r.get("data_efficiency") and not r.get("error")]
     grid_summary = [e for e in summary if not e["data_efficiency"]]
     files = [out / "results.csv", out / "summary.csv", out / "summary.md"]
@@ -224,7 +227,7 @@ def write_sweep_report(out: str | Path) -> list[Path]:
     keys, rows = sweep_rows(out)
     write_csv(out / "sweep.csv", rows)
     text = sweep_markdown(keys, rows)
-    (out / "sweep.md").write_text(f"# {out.name}\n\n" + text)
+    write_text(out / "sweep.md", f"# {out.name}\n\n" + text)
     Console(width=200).print(text, markup=False)
     return [out / "sweep.csv", out / "sweep.md"]
 

@@ -68,6 +68,8 @@ def train(cfg: DictConfig, summary: bool = True, request: Request | None = None)
 
 
 def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
+    import torch
+
     from encons.report import print_summary
 
     started = time.perf_counter()
@@ -100,6 +102,7 @@ def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
     finally:
         _finish_wandb(loggers)
     results["wall_time_s"] = time.perf_counter() - started
+    results["threads"] = float(torch.get_num_threads())  # what wall_time_s ran on (encons.threads)
     if trainer.is_global_zero:
         print_summary(module.run_title(), results, run_dir, note=_which(tested, results), console=summary)
     return Run(module, data, config, run_dir, tested, results)

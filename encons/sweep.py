@@ -16,8 +16,6 @@ import csv
 import io
 import logging
 import math
-import os
-import tempfile
 import warnings
 from pathlib import Path
 
@@ -35,6 +33,7 @@ from sqlalchemy.exc import NoSuchModuleError, OperationalError
 
 from encons.compat import job_exception, optuna_search_space
 from encons.errors import ConfigError, SweepError, one_line_errors
+from encons.io import save_figure, write_text, write_yaml
 
 log = logging.getLogger(__name__)
 TRIAL_KEY = "sweeps.trial"  # the job's config key that receives the trial number
@@ -73,7 +72,9 @@ class OptunaSweeper(Sweeper):
         for name in fixed:
             space.pop(name, None)
         sweep_dir = Path(self.config.hydra.sweep.dir)
-        sweep_dir.mkdir(parents=True, exist_ok=True)
+        for folder in (sweep_dir, OmegaConf.select(self.config, "sweeps.dir")):  # the sweep's own output folders
+            if folder is not None:
+                Path(folder).mkdir(parents=True, exist_ok=True)
         study = open_study(self.storage, self.study_name, self.direction)
         study.sampler = self._sampler(len(study.trials))
         study.set_user_attr("optimized_metric", str(self.config.get("optimized_metric", "objective")))
@@ -120,11 +121,15 @@ class OptunaSweeper(Sweeper):
 
 
 def check_storage(storage: str) -> optuna.storages.BaseStorage:
-    """The Optuna storage of a URL; an SQLite file's folder is created first, and a storage whose
-    database driver is missing, or that cannot be opened, is one ``ConfigError`` naming the fix."""
+    """The Optuna storage of a URL. An SQLite file's folder must exist (it is never created), and a
+    storage whose database driver is missing, or that cannot be opened, is one ``ConfigError`` naming the fix."""
     url = make_url(storage)
     if url.get_backend_name() == "sqlite" and url.database not in (None, "", ":memory:"):
-        Path(url.database).parent.mkdir(parents=True, exist_ok=True)
+        folder = Path(url.database).parent
+        if not folder.is_dir():
+            raise ConfigError(f"sweeps.storage={storage!r}: folder {str(folder)!r} does not exist; allowed: "
+                              f"sqlite:///PATH in an existing folder or in sweeps.dir (created as the sweep's own), "
+                              f"or a database URL")
     try:
         return optuna.storages.get_storage(storage)
     except (ImportError, NoSuchModuleError) as err:
@@ -201,8 +206,7 @@ def report(study: optuna.Study, out_dir: Path) -> None:
     writer = csv.DictWriter(table, ["number", "state", "value", "duration_s", "last_step", *names, "fail_reason"])
     writer.writeheader()
     writer.writerows(rows)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    _atomic_write(out_dir / "trials.csv", table.getvalue())
+    write_text(out_dir / "trials.csv", table.getvalue())
     states = [t.state for t in trials]
     counts = ", ".join(f"{s.name.lower()} {states.count(s)}" for s in TrialState if states.count(s))
     complete = [t for t in trials if t.state == TrialState.COMPLETE]
@@ -212,20 +216,12 @@ def report(study: optuna.Study, out_dir: Path) -> None:
     best = study.best_trial
     results = {"study": study.study_name, "best_trial": best.number, "best_value": best.value,
                "best_params": best.params}
-    _atomic_write(out_dir / "optimization_results.yaml", OmegaConf.to_yaml(results))
+    write_yaml(out_dir / "optimization_results.yaml", results)
     _save_figures(study, out_dir, plot_importance=len(complete) > 1 and len(names) > 0)
     print(f"study {study.study_name}: {len(trials)} trials ({counts})\n"
           f"best trial {best.number}: value {best.value:.6g}\n"
           f"best params: {' '.join(f'{k}={v}' for k, v in best.params.items())}\n"
           f"table and figures: {out_dir}")
-
-
-def _atomic_write(path: Path, data: str | bytes) -> None:
-    """Several workers may report into one folder: write a temporary sibling, then rename it."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(fd, "wb") as f:
-        f.write(data.encode() if isinstance(data, str) else data)
-    os.replace(tmp, path)
 
 
 def _save_figures(study: optuna.Study, out_dir: Path, plot_importance: bool) -> None:
@@ -248,10 +244,10 @@ def _save_figures(study: optuna.Study, out_dir: Path, plot_importance: bool) -> 
                 log.warning("no %s figure: %s", name, err)
                 continue
             fig.tight_layout()
-            png = io.BytesIO()
-            fig.savefig(png, format="png")
-            plt.close(fig)
-            _atomic_write(out_dir / f"{name}.png", png.getvalue())
+            try:
+                save_figure(fig, out_dir / f"{name}.png")
+            finally:
+                plt.close(fig)
 
 
 def main() -> None:

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import torch
 
+from encons import io as atomic
 from encons.build import compose
 from encons.data import store
 from encons.errors import ConfigError, DataError, EnconsError
@@ -154,9 +155,9 @@ def test_a_damaged_cache_is_rebuilt_and_said(tmp_path, caplog):
 
 def test_cache_files_are_group_readable_and_orphans_of_dead_writers_go(tmp_path):
     t = torch.arange(3, dtype=torch.float64)
-    dead = tmp_path / f"x.{store._host()}.999999999.abc{store.TMP_SUFFIX}"
-    other_host = tmp_path / f"x.elsewhere.1.abc{store.TMP_SUFFIX}"
-    live = tmp_path / f"x.{store._host()}.{os.getpid()}.abc{store.TMP_SUFFIX}"
+    dead = tmp_path / f"x.{atomic._host()}.999999999.abc{atomic.TMP_SUFFIX}"
+    other_host = tmp_path / f"x.elsewhere.1.abc{atomic.TMP_SUFFIX}"
+    live = tmp_path / f"x.{atomic._host()}.{os.getpid()}.abc{atomic.TMP_SUFFIX}"
     for f in (dead, other_host, live):
         f.write_bytes(b"")
     store.save(tmp_path / "x.npz", t, {"train": torch.zeros(1, 3, 2), "test": torch.zeros(1, 3, 2)}, "angle")

@@ -13,8 +13,10 @@ system takes inputs; ``obs`` (B, T, H, W), frames of the same times, when the sy
 ds/dt, the true field at the clean simulated states (the authors' protocol), or central differences
 of the observed states for loaded data (second order, one-sided at trajectory ends; so q̈ comes from
 the recorded q̇).
-A loaded file holding one long recording is cut by time as ``encons.data.recording`` says
-(options ``recording``: ``test_fraction``, ``val_fraction``, ``angles``, ``gap``).
+A loaded recording (``.npz`` or delimited text, one or several trials) is cut by time as
+``encons.data.recording`` says (options ``recording``: ``encons.data.recording.OPTIONS``).
+An epoch is one pass over the training trajectories, ceil(n_train / batch_size) optimiser steps (logged
+at setup): with a small file that may be one step, so budget such runs with ``trainer.max_steps``.
 """
 
 from __future__ import annotations
@@ -194,6 +196,11 @@ class TrajectoryDataModule(pl.LightningDataModule):
                 raise DataError(f"data file {str(source)!r} leaves no {name} trajectories (train holds "
                                 f"{splits['train'].shape[0] + splits['val'].shape[0]} in all, 1 in 10 held out for "
                                 f"validation); allowed: >= 2 train trajectories, or a 'val' array")
+
+        n_train = self.arrays["train"]["states"].shape[0]
+        log.info("train: %d trajectories in batches of %d: %d optimiser step(s) per epoch%s", n_train,
+                 self.batch_size, -(-n_train // self.batch_size),
+                 " (a file: budget training with trainer.max_steps)" if self.path is not None else "")
 
     @property
     def states(self) -> dict[str, Tensor]:

@@ -1,8 +1,9 @@
 """A system known only through a user's trajectory file: one chart, no true physics.
 
-The file holds split trajectories (``encons.data.store``) or one long recording, which the data
-module cuts by time (``encons.data.recording``). Energy metrics and physics-structured models that
-need constraints are unavailable; the error metrics are computed in the file's chart.
+The file holds split trajectories (``encons.data.store``) or a recording (``.npz`` or delimited
+text), which the data module cuts by time (``encons.data.recording``). Energy metrics and
+physics-structured models that need constraints are unavailable; the error metrics are computed in
+the file's chart.
 """
 
 from __future__ import annotations
@@ -17,15 +18,16 @@ from encons.systems.base import System
 
 
 class FileSystem(System):
-    """Dimensions and chart read from an ``.npz`` file: split trajectories (``encons.data.store``) or a
-    recording (``encons.data.recording``)."""
+    """Dimensions and chart read from a file: split trajectories (``encons.data.store``) or a
+    recording (``encons.data.recording``; a text one read through ``columns`` and ``delimiter``)."""
 
     known_physics = False
 
-    def __init__(self, path: str, chart: str | None = None):
+    def __init__(self, path: str, chart: str | None = None, columns: dict | None = None,
+                 delimiter: str | None = None):
         self.name = "from_file"
         if is_recording(path):
-            self.n, file_chart, self.n_controls = describe(path)
+            self.n, file_chart, self.n_controls = describe(path, columns, delimiter)
         else:
             t, splits, file_chart = store.load(path)
             self.n = splits["train"].shape[-1] // 2

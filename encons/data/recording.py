@@ -1,32 +1,46 @@
-"""One long measured recording, cut into train / validation / test trajectories (``system=from_file``).
+"""Measured recordings, cut into train / validation / test trajectories (``system=from_file``).
 
-A recording file is an ``.npz`` with
+A recording is an ``.npz`` with
 
-    t       (T,)     increasing times, one step dt apart except where samples were dropped
+    t       (T,)     increasing times (per trial), one step dt apart except where samples were dropped
     states  (T, 2n)  states (q, q̇) at those times
     chart   string   optional, e.g. "angle" (default)
     u       (T, m)   optional inputs per sample (``u[k]`` acts from t_k to t_{k+1})
+    trial   (T,)     optional trial label per sample (several recordings in one file)
 
-How it is cut (``load_recording``):
+or a delimited text file (``.csv``: commas, ``.tsv``: tabs, else whitespace, or ``delimiter``; ``#``
+starts a comment) read through ``columns``, a mapping {t: COL, q: [COL, ...], qdot: [COL, ...],
+trial: COL (optional), u: [COL, ...] (optional)}; COL is a header name (the first row is then the
+header) or a 0-based column index (every row is then data). Cells are unquoted numbers, except the
+trial column, whose labels may be any text.
 
-1. dt is the median step. A step longer than ``gap`` × dt (dropped samples) is a gap: it splits
-   the recording into unbroken stretches; any other step must equal dt to 1e-6 (else refused).
+How it is cut (``load_recording``), for each trial on its own (a file without trials is one trial):
+
+1. A step longer than ``gap`` × the median step (dropped samples) is a gap: it splits the trial
+   into unbroken stretches; dt is the mean of the steps within ``jitter`` of the median. Any other step must lie within dt · (1 ± ``jitter``)
+   (default 1e-3 relative: float32 time stamps of a long recording jitter by ~1e-4..1e-3); its
+   samples are then taken as dt apart. A step beyond that is refused in one line, or with
+   ``resample`` each stretch is linearly interpolated onto the grid t_0 + k dt (inputs held).
 2. Coordinates marked in ``angles`` are unwrapped inside each stretch (``numpy.unwrap``: each
    step taken as the one of least magnitude, so |Δq| < π per sample is assumed), so that wrapped
    recordings (angles in [−π, π)) and unwrapped ones give continuous trajectories.
-3. By time: the last ``test_fraction`` of the span [t_0, t_end] is the test set, the
-   ``val_fraction`` before it validation, the rest training; a boundary splits a stretch too.
-4. Each piece is cut into consecutive trajectories of ``n_steps + 1`` samples (``test_steps + 1``
-   for test), neighbours sharing their boundary sample, so every step (k, k+1) inside a piece is
-   in exactly one trajectory; the samples after a piece's last whole trajectory are unused
-   (logged). Training windows of ``data.chunk_len`` are drawn inside these trajectories, never
-   across a gap or a split boundary.
+3. By time, per trial: the last ``test_fraction`` of the trial's span is its test part, the
+   ``val_fraction`` before it validation, the rest training; a boundary splits a stretch too. So
+   every trial contributes to every split, and no trial's test part is seen in training.
+4. Each piece is cut into consecutive trajectories of ``n_steps + 1`` samples, neighbours sharing
+   their boundary sample, so every step (k, k+1) inside a piece is in exactly one trajectory. Test
+   windows of ``test_steps + 1`` samples start every ``test_stride`` samples (default ``test_steps``:
+   consecutive; a smaller stride gives more, overlapping, hence correlated windows). Samples after
+   a piece's last whole trajectory are unused. The log says, per trial, where each split begins and
+   how many trajectories it gave. Training windows of ``data.chunk_len`` are drawn inside these
+   trajectories, never across a gap, a split boundary or a trial.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -34,12 +48,20 @@ import torch
 from torch import Tensor
 
 from encons.errors import ConfigError, DataError
+from encons.io import save_npz
 
 log = logging.getLogger(__name__)
 
+OPTIONS = {"test_fraction": 0.2, "val_fraction": 0.1, "angles": None, "gap": 1.5, "jitter": 1e-3,
+           "resample": False, "test_stride": None, "columns": None, "delimiter": None}
+COLUMN_KEYS = ("t", "q", "qdot", "trial", "u")
+SPLITS = ("train", "val", "test")
+
 
 def is_recording(path: str | Path) -> bool:
-    """Whether ``path`` is an ``.npz`` holding a recording (a ``states`` key) rather than split trajectories."""
+    """Whether ``path`` is a recording: a text file, or an ``.npz`` with ``states`` (not split trajectories)."""
+    if Path(path).suffix != ".npz":
+        return True
     try:
         with np.load(path, allow_pickle=False) as f:
             return "states" in f.files and "train" not in f.files
@@ -72,15 +94,25 @@ def _angles(angles: bool | list[bool] | None, n: int) -> list[bool]:
     return list(angles)
 
 
-def describe(path: str | Path) -> tuple[int, str | None, int]:
+def describe(path: str | Path, columns: dict | None = None, delimiter: str | None = None) -> tuple[int, str | None, int]:
     """The coordinate count n, the chart (or None) and the input width m of a recording file."""
-    t, states, chart, u = _read(Path(path))
+    t, states, chart, u, _ = _read(Path(path), columns, delimiter)
     return states.shape[1] // 2, chart, 0 if u is None else u.shape[1]
 
 
-def _read(path: Path) -> tuple[np.ndarray, np.ndarray, str | None, np.ndarray | None]:
-    with np.load(path, allow_pickle=False) as f:
-        arrays = {k: f[k] for k in f.files}
+def _read(path: Path, columns: dict | None, delimiter: str | None
+          ) -> tuple[np.ndarray, np.ndarray, str | None, np.ndarray | None, np.ndarray | None]:
+    """Times, states, chart, inputs and trial labels (or None) of a recording, checked."""
+    if not path.is_file():
+        raise DataError(f"recording {str(path)!r} does not exist; allowed: an existing .npz or text file")
+    if path.suffix == ".npz":
+        with np.load(path, allow_pickle=False) as f:
+            arrays = {k: f[k] for k in f.files}
+        chart = str(arrays["chart"]) if "chart" in arrays else None
+        trial = arrays.get("trial")
+    else:
+        arrays, trial = _read_text(path, columns, delimiter)
+        chart = None
     missing = [k for k in ("t", "states") if k not in arrays]
     if missing:
         raise DataError(f"recording {str(path)!r} lacks {missing}; allowed: t (T,) and states (T, 2n)")
@@ -90,16 +122,78 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray, str | None, np.ndarray | 
                         f"t (T,) with T >= 3 and states (T, 2n) states (q, q̇)")
     if u is not None and (u.ndim != 2 or len(u) != len(t)):
         raise DataError(f"recording {str(path)!r}: u has shape {u.shape}; allowed: ({len(t)}, m) inputs per sample")
+    if trial is not None and np.shape(trial) != t.shape:
+        raise DataError(f"recording {str(path)!r}: trial has shape {np.shape(trial)}; allowed: ({len(t)},), "
+                        f"a label per sample")
     for name, arr in (("t", t), ("states", states), ("u", u)):
         if arr is not None and not np.isfinite(arr).all():
             raise DataError(f"recording {str(path)!r}: '{name}' contains NaN or inf; allowed: finite values "
                             f"(drop a bad sample with its time: the gap is handled)")
-    if not (np.diff(t) > 0).all():
-        raise DataError(f"recording {str(path)!r}: 't' is not increasing; allowed: increasing times")
-    return t, states, (str(arrays["chart"]) if "chart" in arrays else None), u
+    return t, states, chart, u, trial
 
 
-OPTIONS = {"test_fraction": 0.2, "val_fraction": 0.1, "angles": None, "gap": 1.5}
+def _read_text(path: Path, columns: dict | None, delimiter: str | None) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+    """The arrays t, states (q then q̇) and u of a delimited text recording, and its trial column."""
+    allowed = ("a mapping {t: COL, q: [COL, ...], qdot: [COL, ...], trial: COL, u: [COL, ...]} "
+               "(trial and u optional), COL a header name or a 0-based column index")
+    if not isinstance(columns, Mapping) or not all(k in columns for k in ("t", "q", "qdot")):
+        raise ConfigError(f"data.recording.columns={columns!r} for the text recording {str(path)!r}; allowed: {allowed}")
+    unknown = sorted(set(columns) - set(COLUMN_KEYS))
+    if unknown:
+        raise ConfigError(f"data.recording.columns.{unknown[0]} is not a column key; allowed: {', '.join(COLUMN_KEYS)}")
+    as_list = {k: ([] if v is None else [v] if isinstance(v, (str, int)) else list(v)) for k, v in columns.items()}
+    if len(as_list["q"]) != len(as_list["qdot"]) or not as_list["q"] or len(as_list["t"]) != 1 or len(as_list.get("trial", [])) > 1:
+        raise ConfigError(f"data.recording.columns={columns!r}; allowed: one t column, as many qdot as q columns "
+                          f"(at least one), at most one trial column")
+    cols = [c for v in as_list.values() for c in v]
+    by_name = all(isinstance(c, str) for c in cols)
+    if not by_name and not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in cols):
+        raise ConfigError(f"data.recording.columns={columns!r}: mixes names and indices; allowed: all header "
+                          f"names, or all 0-based indices")
+    if delimiter is None:
+        delimiter = {".csv": ",", ".tsv": "\t"}.get(path.suffix)
+    try:
+        rows = np.loadtxt(path, dtype=str, delimiter=delimiter, comments="#", ndmin=2,
+                          **({"quotechar": '"'} if delimiter is not None else {}))
+    except ValueError as err:
+        raise DataError(f"recording {str(path)!r} is not a table ({str(err).splitlines()[0]}); allowed: rows "
+                        f"with the same number of delimited cells (data.recording.delimiter)") from None
+    rows = np.char.strip(rows)
+    if by_name:
+        header, rows = list(rows[0]), rows[1:]
+        absent = [c for c in cols if c not in header]
+        if absent:
+            raise DataError(f"recording {str(path)!r} has no column {absent[0]!r}; allowed: its header, "
+                            f"{', '.join(header)}")
+        index = {c: header.index(c) for c in cols}
+    else:
+        if max(cols) >= rows.shape[1]:
+            raise DataError(f"recording {str(path)!r} has {rows.shape[1]} columns, not {max(cols) + 1}; allowed: "
+                            f"indices 0..{rows.shape[1] - 1}")
+        index = {c: c for c in cols}
+
+    def numbers(names: list) -> np.ndarray:
+        cells = rows[:, [index[c] for c in names]]
+        try:
+            return cells.astype(np.float64)
+        except ValueError:
+            bad = next((r, c) for r in range(len(cells)) for c in range(len(names)) if not _is_number(cells[r, c]))
+            raise DataError(f"recording {str(path)!r}: column {names[bad[1]]!r}, data row {bad[0] + 1} holds "
+                            f"{str(cells[bad])!r}; allowed: a number") from None
+
+    arrays = {"t": numbers(as_list["t"])[:, 0], "states": numbers(as_list["q"] + as_list["qdot"])}
+    if as_list.get("u"):
+        arrays["u"] = numbers(as_list["u"])
+    trial = rows[:, index[as_list["trial"][0]]] if as_list.get("trial") else None
+    return arrays, trial
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+        return True
+    except ValueError:
+        return False
 
 
 def load_recording(path: str | Path, n_steps: int, test_steps: int, options: dict | None = None,
@@ -112,53 +206,97 @@ def load_recording(path: str | Path, n_steps: int, test_steps: int, options: dic
     if unknown:
         raise ConfigError(f"data.recording.{unknown[0]} is not an option; allowed: {', '.join(OPTIONS)}")
     opts = {**OPTIONS, **(options or {})}
-    test_fraction, val_fraction, angles, gap = (opts[k] for k in OPTIONS)
+    test_fraction, val_fraction, gap, jitter = (opts[k] for k in ("test_fraction", "val_fraction", "gap", "jitter"))
+    stride = opts["test_stride"] if opts["test_stride"] is not None else test_steps
     if not (0 < test_fraction < 1 and 0 < val_fraction < 1 and test_fraction + val_fraction < 1):
         raise ConfigError(f"data.recording.test_fraction={test_fraction}, val_fraction={val_fraction}; allowed: "
                           f"both in (0, 1) with a sum < 1")
     if not gap > 1:
         raise ConfigError(f"data.recording.gap={gap}; allowed: > 1 (steps longer than gap × dt split the recording)")
-    t, states, chart, u = _read(path)
+    if not 0 <= jitter < gap - 1:
+        raise ConfigError(f"data.recording.jitter={jitter}; allowed: [0, gap - 1 = {gap - 1:g}) (a relative "
+                          f"deviation of a step from dt)")
+    if not (isinstance(stride, int) and stride >= 1):
+        raise ConfigError(f"data.recording.test_stride={stride}; allowed: null (= data.test_steps) or an integer >= 1")
+    t, states, chart, u, trial = _read(path, opts["columns"], opts["delimiter"])
     if n_controls and (u is None or u.shape[1] != n_controls):
         raise DataError(f"recording {str(path)!r} holds no inputs u of width {n_controls}; allowed: u ({len(t)}, {n_controls})")
-    steps = np.diff(t)
-    dt = float(np.median(steps))
-    broken = steps > gap * dt
-    if not np.allclose(steps[~broken], dt, rtol=1e-6, atol=0):
-        worst = steps[~broken][np.argmax(np.abs(steps[~broken] - dt))]
-        raise DataError(f"recording {str(path)!r}: a step of {worst:.6g} beside dt = {dt:.6g} (the median); allowed: "
-                        f"steps of dt, or gaps longer than data.recording.gap={gap} × dt")
-    mask = _angles(angles, states.shape[1] // 2)
-    cuts = np.concatenate([[0], np.flatnonzero(broken) + 1, [len(t)]])
-    states_t = torch.from_numpy(states)
-    stretches = [unwrap(states_t[a:b], mask) for a, b in zip(cuts[:-1], cuts[1:])]
-    unwrapped = torch.cat(stretches)  # row k: sample k
-    span = t[-1] - t[0]
-    bounds = {"train": (-np.inf, t[0] + (1 - test_fraction - val_fraction) * span),
-              "val": (t[0] + (1 - test_fraction - val_fraction) * span, t[0] + (1 - test_fraction) * span),
-              "test": (t[0] + (1 - test_fraction) * span, np.inf)}
-    splits, inputs, unused = {}, {}, {}
-    for name, (lo, hi) in bounds.items():
-        length = (test_steps if name == "test" else n_steps) + 1
-        index, unused[name] = [], 0
+    labels, first, code, sizes = np.unique(trial if trial is not None else np.zeros(len(t), int), return_index=True,
+                                           return_inverse=True, return_counts=True)
+    rows_of = np.split(np.argsort(code, kind="stable"), np.cumsum(sizes)[:-1])   # each trial's rows, in file order
+    appearance = np.argsort(first)                                               # trials in order of appearance
+    labels, rows_of = labels[appearance], [rows_of[k] for k in appearance]
+    for label, rows in zip(labels, rows_of):
+        if len(rows) < 2 or not (np.diff(t[rows]) > 0).all():
+            raise DataError(f"recording {str(path)!r}: 't' is not increasing" + (f" in trial {label}" if trial is not None
+                            else "") + "; allowed: increasing times (per trial), at least 2 samples each")
+    steps_of = [np.diff(t[rows]) for rows in rows_of]
+    steps = np.concatenate(steps_of)
+    median = float(np.median(steps))
+    regular = steps <= gap * median
+    dt = float(steps[np.abs(steps / median - 1) <= jitter].mean())   # unbiased by rounded stamps, unlike the median
+    deviation = np.abs(steps[regular] / dt - 1)
+    worst = float(deviation.max())
+    if worst > jitter and not opts["resample"]:
+        step = steps[regular][np.argmax(deviation)]
+        raise DataError(f"recording {str(path)!r}: a step of {step:.6g} beside dt = {dt:.6g} is "
+                        f"{worst:.2g} off; allowed: steps within data.recording.jitter={jitter:g} of dt, gaps longer "
+                        f"than data.recording.gap={gap} × the median step, or data.recording.resample=true (interpolate onto dt)")
+    mask = _angles(opts["angles"], states.shape[1] // 2)
+    pieces = {name: [] for name in SPLITS}             # per split: (states, inputs) of every trajectory
+    lines = []
+    for label, rows, trial_steps in zip(labels, rows_of, steps_of):
+        cuts = np.concatenate([[0], np.flatnonzero(trial_steps > gap * median) + 1, [len(rows)]])
+        t0, span = t[rows[0]], t[rows[-1]] - t[rows[0]]
+        bounds = [t0 + (1 - test_fraction - val_fraction) * span, t0 + (1 - test_fraction) * span]
+        counts = dict.fromkeys(SPLITS, 0)
         for a, b in zip(cuts[:-1], cuts[1:]):
-            inside = np.flatnonzero((t[a:b] >= lo) & (t[a:b] < hi)) + a
-            count = (len(inside) - 1) // (length - 1) if len(inside) else 0
-            index += [inside[0] + i * (length - 1) + np.arange(length) for i in range(count)]
-            unused[name] += len(inside) - (count * (length - 1) + 1 if count else 0)
-        if not index:
-            raise DataError(f"recording {str(path)!r}: its {name} part holds no unbroken stretch of {length} samples; "
-                            f"allowed: a smaller data.{'test_steps' if name == 'test' else 'n_steps'} or a larger "
-                            f"share of it (data.recording.test_fraction, val_fraction) or a longer recording")
-        rows = torch.from_numpy(np.stack(index))
-        splits[name] = unwrapped[rows]
-        if n_controls:
-            inputs[name] = torch.from_numpy(u)[rows]
-    log.info("recording %s: %d samples, dt %.6g, %d gap(s) -> %d stretch(es); trajectories train/val/test %d/%d/%d "
-             "of %d/%d/%d samples; %d/%d/%d samples unused (stretch ends)", path.name, len(t), dt, int(broken.sum()),
-             len(stretches), *(splits[k].shape[0] for k in bounds), n_steps + 1, n_steps + 1, test_steps + 1,
-             *unused.values())
+            times, s, inputs = _stretch(t[rows[a:b]], states[rows[a:b]], None if u is None else u[rows[a:b]],
+                                        mask, dt, bool(opts["resample"]))
+            part = np.searchsorted(bounds, times, side="right")            # 0 train, 1 val, 2 test
+            for k, name in enumerate(SPLITS):
+                inside = np.flatnonzero(part == k)
+                length = (test_steps if name == "test" else n_steps) + 1
+                every = stride if name == "test" else length - 1
+                count = (len(inside) - length) // every + 1 if len(inside) >= length else 0
+                if count:
+                    index = inside[0] + every * np.arange(count)[:, None] + np.arange(length)
+                    pieces[name].append((s[index], None if inputs is None else inputs[index]))
+                counts[name] += count
+        lines.append(f"{'trial ' + str(label) + ': ' if trial is not None else ''}t {t0:.6g}..{t[rows[-1]]:.6g}, "
+                     f"{len(rows)} samples, {len(cuts) - 2} gap(s); train t < {bounds[0]:.6g}: {counts['train']}, "
+                     f"val t < {bounds[1]:.6g}: {counts['val']}, test: {counts['test']}")
+    for name in SPLITS:
+        if not pieces[name]:
+            raise DataError(f"recording {str(path)!r}: its {name} part holds no unbroken stretch of "
+                            f"{(test_steps if name == 'test' else n_steps) + 1} samples; allowed: a smaller "
+                            f"data.{'test_steps' if name == 'test' else 'n_steps'} or a larger share of it "
+                            f"(data.recording.test_fraction, val_fraction) or a longer recording")
+    splits = {name: torch.from_numpy(np.concatenate([p[0] for p in pieces[name]])) for name in SPLITS}
+    inputs = ({name: torch.from_numpy(np.concatenate([p[1] for p in pieces[name]])) for name in SPLITS}
+              if n_controls else {})
+    log.info("recording %s: %d sample(s) in %d trial(s), dt %.6g (steps off dt by up to %.2g relative%s; "
+             "data.recording.jitter=%g); split by time within each trial into trajectories of %d samples "
+             "(test: %d, starting every %d samples)%s", path.name, len(t), len(labels), dt, worst,
+             ", resampled" if worst > jitter else "", jitter, n_steps + 1, test_steps + 1, stride,
+             "".join("\n  " + line for line in lines[:10])
+             + (f"\n  ... and {len(lines) - 10} more trial(s)" if len(lines) > 10 else ""))
+    log.info("recording %s: trajectories train/val/test %d/%d/%d", path.name, *(len(splits[k]) for k in SPLITS))
     return torch.arange(n_steps + 1, dtype=torch.float64) * dt, splits, chart, inputs
+
+
+def _stretch(times: np.ndarray, states: np.ndarray, u: np.ndarray | None, mask: list[bool], dt: float,
+             resample: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """One unbroken stretch with angles unwrapped; with ``resample``, interpolated onto t_0 + k dt
+    (states linearly, inputs held from the last sample at or before each grid time)."""
+    states = unwrap(torch.from_numpy(states), mask).numpy()
+    if not resample:
+        return times, states, u
+    grid = times[0] + dt * np.arange(int(math.floor((times[-1] - times[0]) / dt * (1 + 1e-9))) + 1)
+    states = np.stack([np.interp(grid, times, column) for column in states.T], -1)
+    if u is not None:
+        u = u[np.clip(np.searchsorted(times, grid, side="right") - 1, 0, len(times) - 1)]
+    return grid, states, u
 
 
 def write_example(path: str | Path, duration: float = 60.0, dt: float = 0.02,
@@ -177,10 +315,7 @@ def write_example(path: str | Path, duration: float = 60.0, dt: float = 0.02,
     keep = torch.ones(len(t), dtype=torch.bool)
     for first, count in dropped:
         keep[first:first + count] = False
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path, t=t[keep].numpy(), states=wrap(states[keep], [True, True]).numpy(), chart="angle")
-    return path
+    return save_npz(path, t=t[keep].numpy(), states=wrap(states[keep], [True, True]).numpy(), chart="angle")
 
 
 if __name__ == "__main__":

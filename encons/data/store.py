@@ -15,9 +15,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import socket
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -25,9 +22,9 @@ import torch
 from torch import Tensor
 
 from encons.errors import DataError
+from encons.io import save_npz
 
 SPLITS = ("train", "val", "test")
-TMP_SUFFIX = ".npz.tmp"
 
 
 def config_hash(config: dict) -> str:
@@ -37,48 +34,11 @@ def config_hash(config: dict) -> str:
 
 def save(path: Path, t: Tensor, splits: dict[str, Tensor], chart: str,
          inputs: dict[str, Tensor] | None = None, observations: dict[str, Tensor] | None = None) -> None:
-    """Write trajectories (and their inputs and frames per split, if any) atomically: a temporary
-    file in the same folder, then rename."""
+    """Write trajectories (and their inputs and frames per split, if any) atomically (``encons.io``)."""
     arrays = {k: v.numpy() for k, v in splits.items()}
     arrays.update({f"u_{k}": v.numpy() for k, v in (inputs or {}).items()})
     arrays.update({f"obs_{k}": v.numpy() for k, v in (observations or {}).items()})
-    path.parent.mkdir(parents=True, exist_ok=True)
-    clean_orphans(path.parent)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f"{path.stem}.{_host()}.{os.getpid()}.",
-                               suffix=TMP_SUFFIX)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, t=t.numpy(), chart=np.array(chart), **arrays)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # like any other output (mkstemp makes it 0600): a shared cache works
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def _host() -> str:
-    return socket.gethostname().replace(".", "-")
-
-
-def clean_orphans(folder: Path) -> list[Path]:
-    """Remove temporary files left in ``folder`` by killed writers of this host (their process is gone);
-    other hosts' and live writers' files are left alone. Returns what was removed."""
-    removed = []
-    host = _host()
-    for tmp in folder.glob(f"*{TMP_SUFFIX}"):
-        parts = tmp.name.split(".")
-        if len(parts) < 5 or parts[-5] != host or not parts[-4].isdigit():
-            continue
-        try:
-            os.kill(int(parts[-4]), 0)
-        except ProcessLookupError:
-            tmp.unlink(missing_ok=True)
-            removed.append(tmp)
-        except PermissionError:  # alive, another user's
-            pass
-    return removed
+    save_npz(path, t=t.numpy(), chart=np.array(chart), **arrays)
 
 
 def load(path: str | Path) -> tuple[Tensor, dict[str, Tensor], str | None]:

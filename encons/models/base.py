@@ -20,6 +20,7 @@ from typing import Callable, ClassVar, Iterator
 import torch
 from torch import Tensor, nn
 
+from encons.errors import ConfigError
 from encons.systems.base import System
 
 
@@ -39,7 +40,12 @@ class DynamicsModel(nn.Module):
     history: ClassVar[int] = 1                  # data states a rollout starts from
     objectives: ClassVar[tuple[str, ...]] = ("rollout", "derivative")  # supported; the first is the default
 
-    def __init__(self, system: System, chart: str | None = None):
+    def __init__(self, system: System | None = None, chart: str | None = None):
+        if not hasattr(system, "check_chart"):  # a subclass's super().__init__() without the system encons passed it
+            cls = type(self)
+            raise ConfigError(f"model._target_={cls.__module__}.{cls.__qualname__}: its __init__ calls "
+                              f"super().__init__() with system={system!r}; allowed: super().__init__(system, chart), "
+                              f"passing on the system encons gives the constructor as system=")
         super().__init__()
         self.chart = chart or self.default_chart or system.base_chart
         system.check_chart(self.chart)

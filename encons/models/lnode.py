@@ -9,6 +9,8 @@ held over each data step. M = L Lᵀ through a Cholesky factor, the system's ang
 
 from __future__ import annotations
 
+from typing import Callable
+
 import torch
 from torch import Tensor
 from torch.func import grad, jvp
@@ -34,15 +36,22 @@ class LNode(DynamicsModel):
         self.register_buffer("input_matrix", input_matrix(system), persistent=False)
 
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
-        q, qd = split_state(s)
+        return forced_euler_lagrange(self.mass, self.potential, self.input_matrix, s, u)
 
-        def lagrangian(qi: Tensor) -> tuple[Tensor, tuple[Tensor, Tensor]]:
-            mass, mass_dot = jvp(self.mass, (qi,), (qd,))  # M and Ṁ = dM/dt along q̇ from one jvp
-            kinetic = 0.5 * (qd * (mass @ qd.unsqueeze(-1)).squeeze(-1)).sum(-1)
-            return (kinetic - self.potential(qi)).sum(), (mass, mass_dot)
 
-        dl_dq, (mass, mass_dot) = grad(lagrangian, has_aux=True)(q)
-        rhs = dl_dq - (mass_dot @ qd.unsqueeze(-1)).squeeze(-1)
-        if u is not None:
-            rhs = rhs + u.to(s) @ self.input_matrix.T
-        return torch.cat([qd, torch.linalg.solve_ex(mass, rhs)[0]], -1)  # singular (diverged): nan, not an exception
+def forced_euler_lagrange(mass: Callable[[Tensor], Tensor], potential: Callable[[Tensor], Tensor],
+                          input_matrix: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
+    """ds/dt of eq. (4) for any M(q) (``mass``), V(q) (``potential``) and B (``input_matrix``): L-NODE's
+    field, and the continuous Euler–Lagrange equations of SyMo's learned M and V (``encons.control``)."""
+    q, qd = split_state(s)
+
+    def lagrangian(qi: Tensor) -> tuple[Tensor, tuple[Tensor, Tensor]]:
+        m, m_dot = jvp(mass, (qi,), (qd,))  # M and Ṁ = dM/dt along q̇ from one jvp
+        kinetic = 0.5 * (qd * (m @ qd.unsqueeze(-1)).squeeze(-1)).sum(-1)
+        return (kinetic - potential(qi)).sum(), (m, m_dot)
+
+    dl_dq, (m, m_dot) = grad(lagrangian, has_aux=True)(q)
+    rhs = dl_dq - (m_dot @ qd.unsqueeze(-1)).squeeze(-1)
+    if u is not None:
+        rhs = rhs + u.to(s) @ input_matrix.T
+    return torch.cat([qd, torch.linalg.solve_ex(m, rhs)[0]], -1)  # singular (diverged): nan, not an exception

@@ -1,0 +1,117 @@
+"""Atomic writes: a disk that fills half-way through a write keeps the earlier file, leaves no
+partial file, and ends in one ``WriteError`` naming the folder."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from encons import io as atomic
+from encons.errors import WriteError
+
+
+class _FillingFile:
+    """A file on a disk with ``room`` bytes left: the write that crosses it writes what fits, then
+    raises ENOSPC, as ``write(2)`` on a full disk does."""
+
+    def __init__(self, f, room: int):
+        self._f, self._room = f, room
+
+    def write(self, data):
+        if len(data) > self._room:
+            self._f.write(data[: self._room])
+            self._room = 0
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        self._room -= len(data)
+        return self._f.write(data)
+
+    def __getattr__(self, name):
+        return getattr(self._f, name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self._f.close()
+
+
+@pytest.fixture
+def full_disk(monkeypatch):
+    """``full_disk(room)``: from now on every file ``encons.io`` opens fills after ``room`` bytes."""
+    real = os.fdopen
+
+    def fill(room: int) -> None:
+        monkeypatch.setattr(atomic.os, "fdopen", lambda fd, *a, **k: _FillingFile(real(fd, *a, **k), room))
+
+    return fill
+
+
+def _checkpoint(path, epoch):
+    from encons.checkpoint_io import AtomicCheckpointIO
+
+    AtomicCheckpointIO().save_checkpoint({"epoch": epoch, "state_dict": {"w": torch.full((2000,), float(epoch))}}, path)
+
+
+def _report(path, value):
+    from encons.report import write_csv
+
+    write_csv(path, [{"model": "hnn", "test/traj_rel_err": value}] * 200)
+
+
+def _figure(path, value):
+    from encons import plots
+
+    fig, ax = plots.plt.subplots()
+    ax.plot(np.arange(100) * value)
+    plots._save(fig, path)
+
+
+WRITERS = {  # name: (file, write(path, version), read(path) -> what a reader sees)
+    "checkpoint": ("last.ckpt", _checkpoint, lambda p: torch.load(p, weights_only=True)["epoch"]),
+    "metrics": ("test_metrics.json", lambda p, v: atomic.write_json(p, {"traj_rel_err": [v] * 500}),
+                lambda p: json.loads(p.read_text())["traj_rel_err"][0]),
+    "curves": ("test_curves.npz", lambda p, v: atomic.save_npz(p, rel_err=np.full(3000, float(v))),
+               lambda p: float(np.load(p)["rel_err"][0])),
+    "report": ("summary.csv", _report, lambda p: p.read_text().splitlines()[1]),
+    "figure": ("rollout.png", _figure, lambda p: p.read_bytes()),
+}
+
+
+@pytest.mark.parametrize("name", WRITERS)
+def test_a_write_that_fills_the_disk_keeps_the_earlier_file(tmp_path, full_disk, name):
+    file, write, read = WRITERS[name]
+    path = tmp_path / "out" / file
+    write(path, 1)
+    before = read(path)
+    full_disk(room=512)
+    with pytest.raises(WriteError) as caught:
+        write(path, 2)
+    line = str(caught.value)
+    assert "\n" not in line and f"folder={str(path.parent)!r}" in line and "No space left on device" in line
+    assert read(path) == before  # the earlier file, whole
+    assert sorted(p.name for p in path.parent.iterdir()) == [file]  # no partial file, no temporary
+
+
+def test_a_killed_writers_temporary_is_removed_by_the_next_write(tmp_path):
+    host = atomic._host()
+    dead = tmp_path / f".x.json.{host}.999999999.abc{atomic.TMP_SUFFIX}"
+    live = tmp_path / f".x.json.{host}.{os.getpid()}.abc{atomic.TMP_SUFFIX}"
+    for f in (dead, live):
+        f.write_bytes(b"part")
+    atomic.write_json(tmp_path / "x.json", {})
+    assert not dead.exists() and live.exists()
+
+
+def test_a_read_only_folder_is_one_line(tmp_path, monkeypatch):
+    def read_only(*args, **kwargs):
+        raise OSError(errno.EROFS, os.strerror(errno.EROFS))
+
+    monkeypatch.setattr(atomic.tempfile, "mkstemp", read_only)
+    with pytest.raises(WriteError, match=r"folder=.*: cannot write x\.json \(Read-only file system\); allowed: "):
+        atomic.write_json(tmp_path / "x.json", {})
+    assert not (tmp_path / "x.json").exists()

@@ -1,0 +1,117 @@
+"""A lab's recordings: delimited text read through a column mapping, float32 time-stamp jitter up to
+``data.recording.jitter`` (refused or resampled beyond it), several trials in one file kept apart
+and each split by time, a stride for test windows, and the log lines that say how splits were formed."""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from encons.data.datamodule import TrajectoryDataModule
+from encons.data.recording import load_recording
+from encons.errors import ConfigError, DataError
+from encons.data.from_file import FileSystem
+
+DT = 0.01
+COLUMNS = {"t": "time", "q": ["theta"], "qdot": ["omega"], "trial": "run"}
+
+
+def two_trial_csv(path, seconds=4.0, start=100.0, trials=("A", "B")):
+    """A CSV of two trials on one clock, stamps stored as float32 (jitter ~1e-4..8e-4 relative at
+    t ≈ 100 s); theta is the exact float64 time plus 1000 per trial index, so a window shows where it came from."""
+    lines = ["# bench rig 3, 100 Hz", "time,theta,omega,run"]
+    for k, label in enumerate(trials):
+        t = start + k * (seconds + 1.0) + DT * np.arange(round(seconds / DT) + 1)
+        stamps = t.astype(np.float32)
+        lines += [f"{s!r},{1000 * k + x!r},0.5,{label}" for s, x in zip(stamps.tolist(), t.tolist())]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_two_trial_csv_with_jittered_stamps_keeps_trials_apart_and_splits_each_by_time(tmp_path, caplog):
+    path = two_trial_csv(tmp_path / "rig.csv")
+    stamps = np.loadtxt(path, delimiter=",", skiprows=2, usecols=0)
+    steps = np.diff(stamps[:401])
+    assert 1e-6 < np.abs(steps / DT - 1).max() < 1e-3          # jitter beyond float64 rounding, inside the default
+    with caplog.at_level(logging.INFO, logger="encons"):
+        t, splits, chart, _ = load_recording(path, n_steps=10, test_steps=20, options={"columns": COLUMNS})
+    torch.testing.assert_close(t, torch.arange(11, dtype=torch.float64) * DT)
+    theta = {k: v[..., 0] for k, v in splits.items()}
+    for name, q in theta.items():
+        trial = (q >= 500).long()
+        assert bool((trial == trial[:, :1]).all()), f"a {name} window crosses trials"
+        assert set(trial[:, 0].tolist()) == {0, 1}, f"{name} lacks a trial"          # each trial in each split
+        torch.testing.assert_close(q.diff(dim=-1), torch.full_like(q[:, 1:], DT))     # consecutive samples
+    for k in (0, 1):                                           # per trial: train before val before test
+        of = {name: q[(q[:, 0] >= 500) == bool(k)] for name, q in theta.items()}
+        begin = 100.0 + k * 5.0 + 1000 * k
+        assert of["train"].min() == pytest.approx(begin) and of["train"].max() <= begin + 0.7 * 4.0
+        assert begin + 0.7 * 4.0 - DT < of["val"].min() and of["val"].max() <= begin + 0.8 * 4.0
+        assert begin + 0.8 * 4.0 - DT < of["test"].min() and of["test"].max() <= begin + 4.0 + 1e-9
+    assert "2 trial(s)" in caplog.text and "trial A: t 100..104" in caplog.text and "trial B: t 105..109" in caplog.text
+    assert "train t < 102.8: 27, val t < 103.2: 4, test: 3" in caplog.text
+
+
+def test_the_cli_trains_on_a_csv_recording(tmp_path, train_run, caplog):
+    path = two_trial_csv(tmp_path / "rig.csv")
+    with caplog.at_level(logging.INFO, logger="encons"):
+        m = train_run(["system=from_file", f"system.path={path}", "model=node", "data.n_steps=10",
+                       "data.test_steps=20", "data.recording.columns={t: time, q: [theta], qdot: [omega], trial: run}"])
+    assert math.isfinite(m["test/traj_rel_err"])
+    assert "optimiser step(s) per epoch (a file: budget training with trainer.max_steps)" in caplog.text
+
+
+def test_steps_beyond_the_jitter_tolerance_are_refused_or_resampled(tmp_path):
+    t = np.arange(60) * 0.1
+    t[30:] += 0.003                                            # one step 3 % long
+    states = np.stack([t, np.ones_like(t)], -1)               # q = t: linear, so interpolation is exact
+    np.savez(tmp_path / "rec.npz", t=t, states=states)
+    with pytest.raises(DataError, match=r"a step of 0.103 beside dt = 0.1 is 0.03 off; allowed: steps "
+                                        r"within data.recording.jitter=0.001 of dt.*data.recording.resample=true"):
+        load_recording(tmp_path / "rec.npz", 4, 4, {})
+    load_recording(tmp_path / "rec.npz", 4, 4, {"jitter": 0.05})  # a looser tolerance accepts it
+    _, splits, _, _ = load_recording(tmp_path / "rec.npz", 4, 4, {"resample": True})
+    q = torch.cat([splits[k][..., 0].flatten() for k in splits])
+    assert float((q / 0.1 - torch.round(q / 0.1)).abs().max()) < 1e-9  # on the grid t_0 + k dt
+    with pytest.raises(ConfigError, match=r"data.recording.jitter=0.6; allowed: \[0, gap - 1 = 0.5\)"):
+        load_recording(tmp_path / "rec.npz", 4, 4, {"jitter": 0.6})
+
+
+def test_a_test_stride_gives_overlapping_test_windows(tmp_path):
+    t = np.arange(200) * DT
+    np.savez(tmp_path / "rec.npz", t=t, states=np.stack([np.arange(200.0), np.zeros(200)], -1))
+    _, plain, _, _ = load_recording(tmp_path / "rec.npz", 5, 10, {})
+    _, strided, _, _ = load_recording(tmp_path / "rec.npz", 5, 10, {"test_stride": 2})
+    assert plain["test"][:, 0, 0].tolist() == [160.0, 170.0, 180.0]       # t >= 0.8 · 1.99: samples 160..199
+    assert strided["test"][:, 0, 0].tolist() == [160.0 + 2 * k for k in range(15)]
+    with pytest.raises(ConfigError, match=r"data.recording.test_stride=0; allowed: null"):
+        load_recording(tmp_path / "rec.npz", 5, 10, {"test_stride": 0})
+
+
+def test_text_recording_errors_are_one_line(tmp_path):
+    path = two_trial_csv(tmp_path / "rig.csv")
+    with pytest.raises(ConfigError, match=r"data.recording.columns=None for the text recording .*; allowed: a mapping"):
+        load_recording(path, 4, 4, {})
+    with pytest.raises(DataError, match=r"has no column 'angle'; allowed: its header, time, theta, omega, run"):
+        load_recording(path, 4, 4, {"columns": {**COLUMNS, "q": ["angle"]}})
+    with pytest.raises(DataError, match=r"column 'run', data row 1 holds 'A'; allowed: a number"):
+        load_recording(path, 4, 4, {"columns": {**COLUMNS, "q": ["run"]}})
+    with pytest.raises(ConfigError, match=r"mixes names and indices"):
+        load_recording(path, 4, 4, {"columns": {**COLUMNS, "q": [1]}})
+    (tmp_path / "plain.txt").write_text("\n".join(f"{k * DT} {k} 0" for k in range(50)))
+    _, splits, _, _ = load_recording(tmp_path / "plain.txt", 4, 4, {"columns": {"t": 0, "q": [1], "qdot": [2]}})
+    assert splits["train"][0, :, 0].tolist() == [0.0, 1.0, 2.0, 3.0, 4.0]
+    assert FileSystem(str(tmp_path / "plain.txt"), columns={"t": 0, "q": [1], "qdot": [2]}).n == 1
+
+
+def test_a_recording_data_module_logs_the_steps_per_epoch(tmp_path, caplog):
+    path = two_trial_csv(tmp_path / "rig.csv")
+    data = TrajectoryDataModule(FileSystem(str(path), columns=COLUMNS), "angle", path=str(path), n_steps=10,
+                                test_steps=20, chunk_len=3, batch_size=8, recording={"columns": COLUMNS})
+    with caplog.at_level(logging.INFO, logger="encons"):
+        data.setup()
+    assert "train: 54 trajectories in batches of 8: 7 optimiser step(s) per epoch" in caplog.text
