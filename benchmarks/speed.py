@@ -1,5 +1,5 @@
 """Speed of one training step per model, against the bare floor of its derivative order and
-against a straightforward implementation of the same model (``make bench``; issue 11).
+against a straightforward implementation of the same model (``make bench``).
 
 A step is what ``DynamicsModule`` does per batch: roll out 200 windows of 5 states with RK4
 (4 steps, 16 field evaluations), L1 loss, backward, AdamW step, 3 × 256 Softplus networks

@@ -53,8 +53,9 @@ class RunConfigInCheckpoints(pl.Callback):
 class SantosMetrics(pl.Callback):
     """The metrics of Santos, Ekal & Ventura §7, added to the test metrics (``test/…``) after testing.
 
-    - ``mse_train`` / ``mse_test``: one-step configuration MSE, each state k ≥ 2 of every train / test
-      trajectory predicted from the ``history`` states before it (the same targets for every model);
+    - ``mse_train`` / ``mse_test``: one-step configuration MSE, each state k ≥ max(2, ``history``) of every
+      train / test trajectory predicted from the ``history`` states before it (the same targets for every
+      model of history 1 or 2);
     - ``mse_integration``: configuration MSE of ``n_trajectories`` unforced (u = 0) initial conditions
       rolled out ``steps`` steps of the data dt from their first ``history`` true states;
     - ``energy_mse_integration``: per-trajectory MSE of the true energy along those rollouts against the
@@ -91,10 +92,10 @@ class SantosMetrics(pl.Callback):
     @staticmethod
     def one_step_mse(module: pl.LightningModule, arrays: dict[str, Tensor]) -> float:
         states, u, history, n = arrays["states"], arrays.get("u"), module.model.history, module.model.n
-        windows = states.unfold(1, history + 1, 1)[:, 2 - history:].movedim(-1, -2).flatten(0, 1)
+        windows = one_step_windows(states, history)
         batch = {"states": windows.to(module.device)}
         if u is not None:
-            batch["u"] = u.unfold(1, history + 1, 1)[:, 2 - history:].movedim(-1, -2).flatten(0, 1).to(module.device)
+            batch["u"] = one_step_windows(u, history).to(module.device)
         pred = module.predict(batch)[:, -1, :n]
         return metrics.configuration_mse(pred.double().cpu(), windows[:, -1, :n].double()).item()
 
@@ -122,8 +123,7 @@ class SantosMetrics(pl.Callback):
 
     @staticmethod
     def figure(module, t: Tensor, pred: Tensor, true: Tensor, energy_pred: Tensor, energy_true: Tensor) -> None:
-        plt = plots.plt
-        fig, (ax_q, ax_e) = plt.subplots(1, 2, figsize=(10, 3.8))
+        fig, (ax_q, ax_e) = plots.subplots(1, 2, figsize=(10, 3.8))
         for d in range(module.model.n):
             line, = ax_q.plot(t, true[0, :, d], lw=1.4, label=f"q{d + 1} truth")
             ax_q.plot(t, pred[0, :, d], "--", color=line.get_color(), lw=1.1, label=f"q{d + 1} model")
@@ -140,3 +140,10 @@ class SantosMetrics(pl.Callback):
         fig.suptitle(module.run_title())
         path = plots._save(fig, module.output_dir / "figures" / "integration.png")
         plots.log_figures(module.logger, [path])
+
+
+def one_step_windows(values: Tensor, history: int) -> Tensor:
+    """The windows of ``history`` + 1 steps of ``values`` (N, T, d) whose last step k is ≥ max(2, history),
+    flattened over trajectories: (N · (T − max(2, history)), history + 1, d)."""
+    first = max(0, 2 - history)  # window s predicts step s + history
+    return values.unfold(1, history + 1, 1)[:, first:].movedim(-1, -2).flatten(0, 1)

@@ -225,9 +225,6 @@ def report(study: optuna.Study, out_dir: Path) -> None:
 
 
 def _save_figures(study: optuna.Study, out_dir: Path, plot_importance: bool) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from optuna.visualization import matplotlib as vis
 

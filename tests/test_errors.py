@@ -1,4 +1,4 @@
-"""Every bad input a user can give ends as one line naming the key, and faults are survived (issue 10).
+"""Every bad input a user can give ends as one line naming the key, and faults are survived.
 
 In-process cases check the error and its wording; a few run the CLI to check the whole path: exit
 code 2, no traceback, the one line last on stderr.

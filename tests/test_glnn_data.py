@@ -1,4 +1,4 @@
-"""Measured data for issue 14: one long recording with gaps and wrapped angles cut by time, the
+"""Measured data: one long recording with gaps and wrapped angles cut by time, the
 acceleration objective's q̈ estimate, and the two trivial baselines every report shows."""
 
 from __future__ import annotations

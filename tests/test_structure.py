@@ -110,3 +110,17 @@ def test_a_users_optimizer_and_scheduler_from_a_searchpath_yaml_train(tmp_path):
     epochs = cfg.trainer.max_epochs
     assert optimizer.param_groups[0]["lr"] == pytest.approx(0.01 * 0.5 ** epochs)   # stepped once an epoch
     assert run.metrics["test/traj_rel_err"] > 0
+
+
+@pytest.mark.parametrize("history, targets", [(1, [2, 3, 4, 5]), (2, [2, 3, 4, 5]), (3, [3, 4, 5]), (4, [4, 5])])
+def test_santos_one_step_targets_are_every_state_from_two_on_for_any_history(history, targets):
+    """The windows' last steps are the targets k ≥ max(2, history), each once (history 3 once kept only k = 5)."""
+    import torch
+
+    from encons.callbacks import one_step_windows
+
+    states = torch.arange(6.0).reshape(1, 6, 1)           # state k holds the value k
+    windows = one_step_windows(states, history)
+    assert windows.shape == (len(targets), history + 1, 1)
+    assert windows[:, -1, 0].tolist() == targets
+    assert torch.equal(windows[:, 0, 0], torch.tensor(targets, dtype=torch.float32) - history)

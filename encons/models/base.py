@@ -8,7 +8,7 @@ any model out: continuous fields through torchdiffeq, discrete models (``Discret
 own ``rollout``.
 
 What a model supports is declared by class attributes, checked once when a run is built
-(``encons.config.check_model``): ``discrete``, ``supports_controls``, ``needs_constraints``,
+(``encons.config.check_capabilities``): ``discrete``, ``supports_controls``, ``needs_constraints``,
 ``history`` and ``objectives``.
 """
 
