@@ -57,6 +57,7 @@ def expand(cfg: DictConfig) -> list[Run]:
     from encons.build import catalogue
 
     c = plain(cfg)
+    check_keys(c)
     for key, group in (("systems", "system"), ("models", "model")):
         if c[key] == "all" or c[key] == ["all"]:
             c[key] = catalogue(group)  # a model a system cannot serve fails with its one-line reason
@@ -65,7 +66,7 @@ def expand(cfg: DictConfig) -> list[Run]:
     entries += [(r["system"], r["label"], list(r["overrides"]), None, r.get("paper", {})) for r in c["runs"]]
     for n in c["n_train"]:
         if n < 1:
-            raise ConfigError(f"n_train={n} must be >= 1")
+            raise ConfigError(f"n_train={n}; allowed: training-set sizes >= 1")
         for m in c["n_train_models"] or c["models"]:
             entries.append((c["n_train_system"], m, [f"model={m}", f"data.n_train={n}"], n, {}))
     if not entries:
@@ -73,6 +74,20 @@ def expand(cfg: DictConfig) -> list[Run]:
     return [Run(system, label, seed, [f"system={system}", *ovr, *c["common"], *per_system.get(system, []),
                                      f"seed={seed}", f"threads={json.dumps(c['threads'])}", *c["train"]], n, paper)
             for system, label, ovr, n, paper in entries for seed in c["seeds"]]
+
+
+def check_keys(c: dict) -> None:
+    """Refuse seeds, threads and an output folder that cannot work, naming the key and what is allowed."""
+    seeds = c["seeds"]
+    if not isinstance(seeds, list) or not seeds or not all(
+            isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**32 for s in seeds):
+        raise ConfigError(f"seeds={seeds}; allowed: a non-empty list of integer seeds in 0..2**32-1, e.g. seeds=[0,1]")
+    threads = c.get("threads")
+    if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool) or threads < 1):
+        raise ConfigError(f"threads={threads!r}; allowed: an integer >= 1, or null (torch's default)")
+    blocking = next((p for p in (Path(c["out"]), *Path(c["out"]).parents) if p.exists() and not p.is_dir()), None)
+    if blocking is not None:
+        raise ConfigError(f"out={c['out']!r}: {str(blocking)!r} is a file; allowed: a folder for the runs and report")
 
 
 def finished(run: Run, out: Path) -> Path:
@@ -138,7 +153,7 @@ def result_line(row: dict) -> str:
 def run_profile(cfg: DictConfig) -> Path:
     """Run every run of ``cfg`` not yet finished under ``cfg.out``, then write the report there."""
     from encons.progress import Progress
-    from encons.report import write_report
+    from encons.report import load_rows, write_report
 
     runs = expand(cfg)
     out = Path(cfg.out)
@@ -158,6 +173,9 @@ def run_profile(cfg: DictConfig) -> Path:
             print(f"{run.id}: {result_line(row)}", file=sys.stderr, flush=True)
     progress.done()
     write_report(out)
+    errors = [row.get("error") for row in load_rows(out)]
+    if all(errors):
+        raise ConfigError(f"{errors[0]}; every one of the {len(errors)} benchmark runs failed (errors: {out / 'results.csv'})")
     return out
 
 

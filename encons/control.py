@@ -44,11 +44,8 @@ system (``SETTINGS``), tuned on the true model, not per learned model.
 from __future__ import annotations
 
 import copy
-import json
 import math
-import os
 import sys
-import tempfile
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -61,6 +58,7 @@ from torch.func import jacrev
 from torchdiffeq import odeint
 
 from encons.errors import ConfigError
+from encons.io import write_json
 from encons.systems.base import System, split_state
 from encons.systems.controlled import CartPole, ControlledMechanical, ControlledPendulum
 
@@ -295,19 +293,6 @@ def compare(run, starts: int = 100, seed: int = 0, duration: float | None = None
 def settings_record(settings: Settings) -> dict:
     """``settings`` as plain JSON values (an unbounded tolerance as null)."""
     return {**asdict(settings), "tolerance": [None if math.isinf(v) else v for v in settings.tolerance]}
-
-
-def write_json(path: Path, values: dict) -> None:
-    """``values`` as JSON at ``path``, atomically (a temporary file in the same folder, then rename)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(values, f, indent=1)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def score_control(run, starts: int = 100, seed: int = 0, duration: float | None = None,

@@ -62,10 +62,20 @@ def to_log_files(text: str, level: int = logging.INFO) -> None:
 
 def load_rows(out: Path) -> list[dict]:
     """The rows of the finished runs under ``out/runs`` (sorted by run folder)."""
+    allowed = "allowed: a benchmark's output folder (runs/*/result.json) or a Hydra multirun folder (multirun.yaml)"
+    if not out.is_dir():
+        raise ConfigError(f"folder={str(out)!r} {'is a file' if out.exists() else 'does not exist'}; {allowed}")
     files = sorted((out / "runs").glob("*/result.json"))
     if not files:
-        raise ConfigError(f"{str(out)!r} holds no finished benchmark runs (no runs/*/result.json)")
-    return [json.loads(f.read_text()) for f in files]
+        raise ConfigError(f"folder={str(out)!r} holds no finished benchmark runs (no runs/*/result.json); {allowed}")
+    rows = []
+    for f in files:
+        try:
+            rows.append(json.loads(f.read_text()))
+        except ValueError as err:
+            raise ConfigError(f"{str(f)!r} is not a result row ({err}); allowed: a result.json written by "
+                              f"encons.benchmark (delete it and rerun the benchmark to redo that run)") from None
+    return rows
 
 
 def summarise(rows: list[dict]) -> list[dict]:
@@ -164,7 +174,7 @@ def write_report(out: str | Path) -> list[Path]:
     if grid:
         files += plots.comparison_figures(grid, grid_summary, out)
         files += plots.energy_rmse_figure(grid_summary, paper, out)
-    efficiency = [e for e in summary if e["data_efficiency"]]
+    efficiency = [e for e in summary if e["data_efficiency"] and "test/traj_rel_err" in e]  # runs that finished
     if efficiency:
         files += plots.data_efficiency_figure(efficiency, out)
     Console(width=200).print(markdown(summary, paper, source, headline=True))
@@ -185,7 +195,8 @@ def sweep_rows(out: Path) -> tuple[list[str], list[dict]]:
 
     jobs = sorted(p.parent.parent for p in out.glob("**/.hydra/overrides.yaml") if p.parent.parent != out)
     if not jobs:
-        raise ConfigError(f"{str(out)!r} holds no jobs of a multirun (no */.hydra/overrides.yaml)")
+        raise ConfigError(f"folder={str(out)!r} holds no jobs of a multirun (no */.hydra/overrides.yaml); allowed: "
+                          f"the folder of a multirun (python -m encons.train -m ...) whose jobs started")
     given = [dict(o.split("=", 1) for o in yaml.safe_load((j / ".hydra" / "overrides.yaml").read_text()) or []
                   if "=" in o) for j in jobs]
     keys = [k for k in dict.fromkeys(k for g in given for k in g) if len({g.get(k) for g in given}) > 1]

@@ -20,6 +20,8 @@ import warnings
 from pathlib import Path
 
 import optuna
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.override_parser.types import IntervalSweep
 from hydra.core.plugins import Plugins
 from hydra.core.utils import JobReturn, JobStatus
 from hydra.plugins.sweeper import Sweeper
@@ -67,6 +69,7 @@ class OptunaSweeper(Sweeper):
             config=config, hydra_context=hydra_context, task_function=task_function)
 
     def sweep(self, arguments: list[str]) -> None:
+        check_search_space([f"{k}={v}" for k, v in self.params.items()] + list(arguments))
         space, fixed, fixed_overrides = optuna_search_space(
             [f"{k}={v}" for k, v in self.params.items()] + list(arguments))
         for name in fixed:
@@ -118,6 +121,15 @@ class OptunaSweeper(Sweeper):
             raise ConfigError(f"hydra.sweeper.sampler={config['_target_']} needs the search space up front; "
                               f"for a grid use Hydra's basic sweeper (see sweeps/model_grid.yaml)")
         return sampler
+
+
+def check_search_space(overrides: list[str]) -> None:
+    """Refuse an ``interval(low, high)`` whose bounds are reversed (Optuna's distribution would raise), naming the key."""
+    for override in OverridesParser.create().parse_overrides(overrides):
+        value = override.value()
+        if isinstance(value, IntervalSweep) and value.start > value.end:
+            raise ConfigError(f"{override.get_key_element()}={override.get_value_string()} has low {value.start} > "
+                              f"high {value.end}; allowed: interval(low, high) with low <= high")
 
 
 def check_storage(storage: str) -> optuna.storages.BaseStorage:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+from pathlib import Path
 
 import pytest
 
@@ -12,6 +13,7 @@ from encons.benchmark import expand
 from encons.build import compose
 from encons.cli import benchmark as main
 from encons.errors import ConfigError
+from encons.paths import config_dir
 from encons.report import write_report
 
 FIGURES = ("traj_rel_err.png", "rel_err_vs_time.png", "energy_err_vs_time.png", "energy_rmse.png",
@@ -84,5 +86,7 @@ def test_bad_command_line_is_one_line_exit_2(tmp_path, capsys, arg):
 def test_help_lists_the_profiles_and_trains_nothing(tmp_path, capsys):
     main(["--help", f"out={tmp_path}"])
     out = capsys.readouterr().out
-    assert "profiles: finzi, lim_kasim, pixels, quick, smoke, zhong" in out and "seeds:" in out
+    profiles = sorted(p.stem for p in (Path(config_dir()) / "profile").glob("*.yaml"))
+    assert {"finzi", "lim_kasim", "pixels", "quick", "smoke", "zhong"} <= set(profiles)
+    assert f"profiles: {', '.join(profiles)}" in out and "seeds:" in out
     assert not any(tmp_path.iterdir())

@@ -47,7 +47,8 @@ def load(path: str | Path) -> tuple[Tensor, dict[str, Tensor], str | None]:
     Returns the times, the state splits and the chart; ``load_inputs`` reads the inputs."""
     path = Path(path)
     if not path.is_file():
-        raise DataError(f"data file {str(path)!r} does not exist; allowed: an .npz file in system.path (README: Bring your own data)")
+        what = "is a folder" if path.is_dir() else "does not exist"
+        raise DataError(f"system.path={str(path)!r} {what}; allowed: an .npz file (README: Bring your own data)")
     try:
         with np.load(path, allow_pickle=False) as f:
             arrays = {k: f[k] for k in f.files}
