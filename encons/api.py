@@ -13,13 +13,15 @@ first use, not at import.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 from omegaconf import DictConfig
 
 from encons.build import build, build_trainer, catalogue
 from encons.build import compose as _compose
-from encons.runs import Run, evaluate, load, train
+from encons import runs
+from encons.runs import Run, evaluate, load
 
 __all__ = ["Run", "compose", "build", "build_trainer", "train", "load", "evaluate", "rollout", "catalogue"]
 
@@ -30,6 +32,12 @@ def __getattr__(name: str):  # ``rollout`` re-exported without importing torch a
 
         return rollout
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def train(cfg: DictConfig | str | Sequence[str], summary: bool = True) -> Run:
+    """Train a composed config, or the config ``compose`` makes of overrides (a string or a list of them).
+    See :func:`encons.runs.train`."""
+    return runs.train(cfg if isinstance(cfg, DictConfig) else compose(cfg), summary)
 
 
 def compose(*overrides: str, output_dir: str | Path | None = None, cache_dir: str | Path | None = None) -> DictConfig:

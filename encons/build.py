@@ -198,6 +198,10 @@ def build(cfg: DictConfig, request: Request | None = None) -> tuple[TrajectoryDa
     from encons.module import DynamicsModule
 
     request = Request.of(cfg) if request is None else request
+    task = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])
+    missing = sorted(OmegaConf.missing_keys(task), key=lambda k: not _is_unset(task, k))  # "???" before what refers to it
+    if missing:
+        raise ConfigError(f"{missing[0]} has no value; allowed: give it one ({missing[0]}=...)")
     _route_lightning_logs()
     trust.check_targets(OmegaConf.to_container(run_config(cfg)))
     check_config(cfg, request)
@@ -241,6 +245,12 @@ def build_optimizer(cfg: DictConfig, model: DynamicsModel, request: Request = Re
     probe = {"total_steps": 100} if takes_total_steps(scheduler) else {}
     instantiate_node(cfg, "scheduler", request, _partial_=False, optimizer=optimizer(model.parameters()), **probe)
     return optimizer, scheduler
+
+
+def _is_unset(cfg: DictConfig, key: str) -> bool:
+    """Whether ``key`` itself is ``???`` (not an interpolation of a key that is)."""
+    parent, _, leaf = key.rpartition(".")
+    return OmegaConf.is_missing(OmegaConf.select(cfg, parent) if parent else cfg, leaf)
 
 
 def _route_lightning_logs() -> None:

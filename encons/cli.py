@@ -4,6 +4,7 @@
     encons-evaluate / python -m encons.evaluate RUN_DIR|CKPT [ckpt=best|last|PATH] [overrides]
     encons-benchmark / python -m encons.benchmark [profile=NAME] [overrides]
     encons-report / python -m encons.report DIR
+    python -m encons.sweep STORAGE STUDY [OUT]
 
 Each wraps one library function in :func:`encons.errors.one_line_errors`: a user's error is one
 line on stderr and exit status 2; a bug keeps its traceback. Hydra's process-global state is read
@@ -107,6 +108,23 @@ def benchmark(argv: list[str] | None = None) -> None:
         return
     with one_line_errors():
         bench.run_profile(compose(args, config_name="benchmark"))
+
+
+def sweep_report(argv: list[str] | None = None) -> None:
+    """``python -m encons.sweep STORAGE STUDY [OUT]``: the report of a stored study, e.g. after
+    several workers shared it."""
+    import argparse
+    from pathlib import Path
+
+    from encons import sweep
+
+    parser = argparse.ArgumentParser(prog="python -m encons.sweep", description=sweep_report.__doc__)
+    parser.add_argument("storage", help="SQLAlchemy URL, e.g. sqlite:///multirun/NAME/optuna.db")
+    parser.add_argument("study")
+    parser.add_argument("out", nargs="?", default=".", help="folder for trials.csv and figures")
+    args = parser.parse_args(argv)
+    with one_line_errors():
+        sweep.report(sweep.load_study(args.storage, args.study), Path(args.out))
 
 
 def report(argv: list[str] | None = None) -> None:

@@ -160,7 +160,7 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
         cfg = OmegaConf.load(run_dir / "config.yaml")
     else:
         raise ConfigError(f"checkpoint {str(ckpt_file)!r} carries no config and has no config.yaml beside it")
-    cfg = OmegaConf.merge(cfg, OmegaConf.from_dotlist(list(overrides)))
+    cfg = OmegaConf.merge(cfg, _key_overrides(cfg, overrides))
     cfg.paths.output_dir = str(run_dir / "evaluation")
     cfg.logger, cfg.callbacks = None, None
     data, module = build(cfg)
@@ -171,6 +171,20 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
                           f"longer fit; allowed: overrides of data.*, horizon, integrator.*") from None
     module.eval()
     return Run(module, data, cfg, run_dir, ckpt_file)
+
+
+def _key_overrides(cfg: DictConfig, overrides: Iterable[str]) -> DictConfig:
+    """``key=value`` overrides of a saved run config; one that names a whole group (``model=hnn``) or is
+    not ``key=value`` is refused: a saved config has no groups left to choose from."""
+    overrides = list(overrides)
+    for item in overrides:
+        key, eq, _ = item.partition("=")
+        if not eq or not key:
+            raise ConfigError(f"{item!r} is not a key=value override; allowed: key=value (data.test_steps=400)")
+        if isinstance(OmegaConf.select(cfg, key.lstrip("+")), DictConfig):
+            raise ConfigError(f"{item}: {key} is a whole group of the saved run, which evaluation cannot swap; "
+                              f"allowed: overrides of its keys (data.test_steps=400, horizon=400, integrator.method=...)")
+    return OmegaConf.from_dotlist(overrides)
 
 
 def evaluate(run: Run | str | Path, overrides: Iterable[str] = (), ckpt: str = "best") -> dict[str, float]:

@@ -11,7 +11,6 @@ and the sweep goes on. Storage, pruner and search space are set in ``sweeps/optu
 
 from __future__ import annotations
 
-import argparse
 import csv
 import io
 import logging
@@ -34,7 +33,7 @@ from sqlalchemy.engine import make_url
 from sqlalchemy.exc import NoSuchModuleError, OperationalError
 
 from encons.compat import job_exception, optuna_search_space
-from encons.errors import ConfigError, SweepError, one_line_errors
+from encons.errors import ConfigError, SweepError
 from encons.io import save_figure, write_text, write_yaml
 
 log = logging.getLogger(__name__)
@@ -259,18 +258,6 @@ def _save_figures(study: optuna.Study, out_dir: Path, plot_importance: bool) -> 
                 plt.close(fig)
 
 
-def main() -> None:
-    """``python -m encons.sweep STORAGE STUDY [OUT]``: the report of a stored study, e.g. after
-    several workers shared it."""
-    parser = argparse.ArgumentParser(description=main.__doc__)
-    parser.add_argument("storage", help="SQLAlchemy URL, e.g. sqlite:///multirun/NAME/optuna.db")
-    parser.add_argument("study")
-    parser.add_argument("out", nargs="?", default=".", help="folder for trials.csv and figures")
-    args = parser.parse_args()
-    with one_line_errors():
-        report(load_study(args.storage, args.study), Path(args.out))
-
-
 def load_study(storage: str, study_name: str) -> optuna.Study:
     """The stored study ``study_name``; one that is not there is one line naming those that are."""
     store = check_storage(storage)
@@ -281,4 +268,6 @@ def load_study(storage: str, study_name: str) -> optuna.Study:
 
 
 if __name__ == "__main__":
-    main()
+    from encons.cli import sweep_report
+
+    sweep_report()

@@ -104,7 +104,8 @@ def _read(path: Path, columns: dict | None, delimiter: str | None
           ) -> tuple[np.ndarray, np.ndarray, str | None, np.ndarray | None, np.ndarray | None]:
     """Times, states, chart, inputs and trial labels (or None) of a recording, checked."""
     if not path.is_file():
-        raise DataError(f"recording {str(path)!r} does not exist; allowed: an existing .npz or text file")
+        what = "is a folder" if path.is_dir() else "does not exist"
+        raise DataError(f"system.path={str(path)!r} {what}; allowed: an existing .npz or text file (a recording)")
     if path.suffix == ".npz":
         with np.load(path, allow_pickle=False) as f:
             arrays = {k: f[k] for k in f.files}
