@@ -24,6 +24,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from encons import threads
 from encons.errors import ConfigError, EnconsError
 from encons.io import write_json, write_yaml
 from encons.paths import config_dir
@@ -82,9 +83,7 @@ def check_keys(c: dict) -> None:
     if not isinstance(seeds, list) or not seeds or not all(
             isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**32 for s in seeds):
         raise ConfigError(f"seeds={seeds}; allowed: a non-empty list of integer seeds in 0..2**32-1, e.g. seeds=[0,1]")
-    threads = c.get("threads")
-    if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool) or threads < 1):
-        raise ConfigError(f"threads={threads!r}; allowed: an integer >= 1, or null (torch's default)")
+    threads.choose(c.get("threads"))  # the thread policy refuses what it does not take, in its own words
     blocking = next((p for p in (Path(c["out"]), *Path(c["out"]).parents) if p.exists() and not p.is_dir()), None)
     if blocking is not None:
         raise ConfigError(f"out={c['out']!r}: {str(blocking)!r} is a file; allowed: a folder for the runs and report")

@@ -227,7 +227,7 @@ def build(cfg: DictConfig, request: Request | None = None) -> tuple[TrajectoryDa
     optimizer, scheduler = build_optimizer(cfg, model, request)
     module = DynamicsModule(model, system, data.dt, instantiate_node(cfg, "integrator", request), optimizer,
                             scheduler, objective=objective, regulariser=regulariser, observation=observation,
-                            horizon=cfg.horizon, output_dir=cfg.paths.output_dir)
+                            horizon=cfg.horizon, output_dir=cfg.paths.output_dir, model_name=cfg.get("model_name"))
     return data, module
 
 

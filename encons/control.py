@@ -37,8 +37,9 @@ the state stays within ``tolerance`` of upright (|θ| ≤ 0.1 rad, |θ̇| ≤ 0.
 the cart) until the end; t_up is the time to upright. Effort is ∫ u² dt over the horizon. The
 learned model's prediction error is the RMS one-step error ‖ŝ_{k+1} − s_{k+1}‖ (angles wrapped) of
 the model's own step (its training integrator, or its Newton step) from the closed-loop states and
-inputs of its own controller. Limits: |u| ≤ u_max is enforced by saturation; gains are fixed per
-system (``SETTINGS``), tuned on the true model, not per learned model.
+inputs of its own controller; ``linear_rel_err`` is ‖[A B] − [A B]_true‖_F / ‖[A B]_true‖_F of the
+linearisation at upright the LQR is built from. Limits: |u| ≤ u_max is enforced by saturation;
+gains are fixed per system (``SETTINGS``), tuned on the true model, not per learned model.
 """
 
 from __future__ import annotations
@@ -165,6 +166,7 @@ class SwingUp:
     def __init__(self, plant: Plant, system: ControlledMechanical, h: float):
         self.plant, self.u_max, self.settings = plant, system.u_max, SETTINGS[type(system)]
         a, b = linearise(plant, system.n_controls)
+        self.linear = torch.cat([a, b], -1)  # [A B] at upright
         weights = torch.diag(torch.tensor(self.settings.q_weights, dtype=torch.float64))
         self.gain, self.cost = lqr(a, b, weights, torch.eye(system.n_controls, dtype=torch.float64)
                                    * self.settings.r_weight, h)
@@ -280,12 +282,15 @@ def compare(run, starts: int = 100, seed: int = 0, duration: float | None = None
     steps = round(duration / h)
     init = system.sample_initial(starts, torch.Generator().manual_seed(seed))
     oracle_plant = true_plant(system)
-    learned = closed_loop(system, SwingUp(plant, system, h), init, h, steps)
-    oracle = closed_loop(system, SwingUp(oracle_plant, system, h), init, h, steps)
+    controllers = SwingUp(plant, system, h), SwingUp(oracle_plant, system, h)
+    learned = closed_loop(system, controllers[0], init, h, steps)
+    oracle = closed_loop(system, controllers[1], init, h, steps)
     learned_metrics, learned_up = score(oracle_plant, *learned, settings, h)
     oracle_metrics, oracle_up = score(oracle_plant, *oracle, settings, h)
     metrics = {f"control/{k}": v for k, v in learned_metrics.items()}
     metrics["control/pred_rmse"] = prediction_error(run, oracle_plant, *learned, h)
+    truth = controllers[1].linear
+    metrics["control/linear_rel_err"] = (torch.linalg.norm(controllers[0].linear - truth) / torch.linalg.norm(truth)).item()
     metrics.update({f"oracle/{k}": v for k, v in oracle_metrics.items()})
     return Outcome(torch.arange(steps + 1) * h, learned, oracle, (learned_up, oracle_up), metrics)
 
@@ -320,7 +325,7 @@ def score_control(run, starts: int = 100, seed: int = 0, duration: float | None 
                         f"control period {run.module.dt} s")
     for column in ("metric", "from the learned model", "from the true model (oracle)"):
         table.add_column(column, justify="left" if column == "metric" else "right")
-    for key in ("success_rate", "time_to_upright_s", "effort", "max_abs_u", "pred_rmse"):
+    for key in ("success_rate", "time_to_upright_s", "effort", "max_abs_u", "pred_rmse", "linear_rel_err"):
         cells = [outcome.metrics.get(f"{side}/{key}") for side in ("control", "oracle")]
         table.add_row(key, *["" if v is None else f"{v:.4g}" for v in cells])
     console = Console()

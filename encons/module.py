@@ -46,8 +46,10 @@ class DynamicsModule(pl.LightningModule):
     def __init__(self, model: DynamicsModel, system: System, dt: float, integrator: Integrator,
                  optimizer: Callable[..., Optimizer] | None = None, scheduler: Callable[..., Any] | None = None,
                  objective: str | None = None, regulariser: Regulariser | None = None,
-                 horizon: int = 4, output_dir: str | None = None, observation: Observation | None = None):
+                 horizon: int = 4, output_dir: str | None = None, observation: Observation | None = None,
+                 model_name: str | None = None):
         super().__init__()
+        self.model_name = model_name  # the model's config name (hnn_angle, not the class HNN) for titles
         objective = objective or model.objectives[0]
         self.observation = observation if observation is not None else Observation()
         if self.observation.objectives is not None and objective not in self.observation.objectives:
@@ -178,17 +180,21 @@ class DynamicsModule(pl.LightningModule):
         self.log_dict({f"test/{k}": v for k, v in self.test_metrics.items()}, sync_dist=True)
         if self.output_dir is not None and self.trainer.is_global_zero:
             write_json(self.output_dir / "test_metrics.json", self.test_metrics)
+            units = self.system.units(self.system.common_chart)
             figures = plots.mse_figure(self.times(true.shape[1], true).cpu(), curves, self.output_dir / "figures",
-                                       title=self.run_title())
+                                       title=self.run_title(), units=units)
             curves = {"t": self.times(true.shape[1], true).cpu().numpy(),
                       "rel_err": metrics.relative_error(pred_c, true_c).cpu().numpy(),
                       **{f"{k}_{name}": v.cpu().numpy() for name, c in curves.items() for k, v in c.items()}}
             if energies:
                 curves["energy_err"] = metrics.energy_abs_error(*energies).cpu().numpy()
             save_npz(self.output_dir / "test_curves.npz", **curves)
+            linear = metrics.fit_linear_ode(self.trainer.datamodule.states["train"].to(true), self.dt)
+            baseline = self.to_common(metrics.linear_ode_rollout(linear, true[:, 0], self.times(true.shape[1], true)))
             figures += plots.test_figures(self.times(true.shape[1], true).cpu(), pred_c.cpu(), true_c.cpu(),
                                          [e.cpu() for e in energies] if energies else None,
-                                         self.output_dir / "figures", title=self.run_title())
+                                         self.output_dir / "figures", title=self.run_title(), units=units,
+                                         baseline=baseline.cpu())
             plots.log_figures(self.logger, figures)
 
     def _test_observations(self, x: Tensor, states: Tensor, pred: Tensor) -> None:
@@ -221,7 +227,7 @@ class DynamicsModule(pl.LightningModule):
 
     def run_title(self) -> str:
         """Figure title: model (+ regulariser, e.g. ``NODE + C_H``) on system (chart or observation)."""
-        model = type(self.model).__name__
+        model = self.model_name or type(self.model).__name__
         if self.regulariser is not None:
             model += f" + {getattr(self.regulariser, 'label', type(self.regulariser).__name__)}"
         if not self.observation.identity:

@@ -32,6 +32,22 @@ def coordinate_names(width: int) -> list[str]:
     return [f"q{str(i + 1).translate(sub)}" for i in range(n)] + [f"q̇{str(i + 1).translate(sub)}" for i in range(n)]
 
 
+def colours(k: int) -> list:
+    """``k`` distinguishable colours: tab10 up to 10, tab20's dark then light halves up to 20, else evenly
+    spaced hues of ``turbo``."""
+    if k <= 10:
+        return [matplotlib.colormaps["tab10"](i) for i in range(k)]
+    if k <= 20:
+        return [matplotlib.colormaps["tab20"](2 * i if i < 10 else 2 * (i - 10) + 1) for i in range(k)]
+    return [matplotlib.colormaps["turbo"](i / (k - 1)) for i in range(k)]
+
+
+def unit_label(units: tuple[str, ...], rate: bool = False) -> str:
+    """``[rad]`` (``[rad/s]`` for rates) when every coordinate shares one unit, else ``[see legend]``."""
+    unique = set(units)
+    return f"[{next(iter(unique))}{'/s' if rate else ''}]" if len(unique) == 1 else "[see legend]"
+
+
 def _band(ax, t: Tensor, values: Tensor, ylabel: str) -> None:
     """Median over trajectories with the 2.5–97.5 percentile band, log scale."""
     lo, med, hi = torch.quantile(values.double(), torch.tensor([0.025, 0.5, 0.975], dtype=torch.float64), dim=0)
@@ -44,25 +60,45 @@ def _band(ax, t: Tensor, values: Tensor, ylabel: str) -> None:
 
 
 def test_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] | None, out_dir: Path,
-                 title: str, n_show: int = 3) -> list[Path]:
-    """Rollout vs truth (every coordinate, positions and velocities), relative error vs time and
-    (if known) energy error vs time; states are in the system's common chart."""
+                 title: str, units: tuple[str, ...] | None = None, baseline: Tensor | None = None) -> list[Path]:
+    """Rollout vs truth (every coordinate, positions and velocities) of three test trajectories — the
+    best, median and worst by relative error summed over the rollout, each labelled so — with the
+    linear-ODE ``baseline``'s rollout if given; relative error vs time and (if known) energy error vs
+    time. States are in the system's common chart, whose coordinate ``units`` label the axes
+    (default: unitless)."""
+    from matplotlib.lines import Line2D
+
     paths = []
     names = coordinate_names(true.shape[-1])
-    n, shown = true.shape[-1] // 2, min(n_show, true.shape[0])
-    fig, axes = subplots(2, shown, figsize=(5 * shown, 6.5), squeeze=False, sharex=True)
-    for k in range(shown):
-        for row, (part, ylabel) in enumerate(((slice(0, n), "position q, common chart [m]"), (slice(n, 2 * n), "velocity q̇, common chart [m/s]"))):
-            ax = axes[row, k]
-            for d in range(part.start, part.stop):
-                line, = ax.plot(t, true[k, :, d], lw=1.5, label=names[d])
-                ax.plot(t, pred[k, :, d], "--", color=line.get_color(), lw=1.2)
-            ax.set_ylabel(ylabel)
-            ax.legend(fontsize=7, ncol=max(1, n // 4), title="solid: truth, dashed: model", title_fontsize=7)
-        axes[0, k].set_title(f"test trajectory {k}", fontsize=9)
-        axes[1, k].set_xlabel(TIME)
+    n = true.shape[-1] // 2
+    units = tuple(units) if units is not None else ("–",) * n
+    score = metrics.relative_error(pred, true).nan_to_num(float("inf")).sum(-1)
+    order = torch.argsort(score).tolist()
+    picks = dict.fromkeys([order[0], order[len(order) // 2], order[-1]])      # best, median, worst (distinct)
+    tags = {order[0]: "best", order[len(order) // 2]: "median", order[-1]: "worst"}
+    palette = colours(n)
+    fig, axes = subplots(2, len(picks), figsize=(4.6 * len(picks) + 1.9, 6.5), squeeze=False, sharex=True)
+    for col, k in enumerate(picks):
+        for row, rate in enumerate((False, True)):
+            ax = axes[row, col]
+            for d in range(n):
+                idx = d + n * rate
+                ax.plot(t, true[k, :, idx], lw=1.5, color=palette[d])
+                ax.plot(t, pred[k, :, idx], "--", color=palette[d], lw=1.2)
+                if baseline is not None:
+                    ax.plot(t, baseline[k, :, idx], ":", color=palette[d], lw=1.0)
+            ax.set_ylabel(f"{'velocity q̇' if rate else 'position q'} {unit_label(units, rate)}")
+        axes[0, col].set_title(f"test trajectory {k} ({tags[k]} of {len(order)} by relative error)", fontsize=9)
+        axes[1, col].set_xlabel(TIME)
+    handles = [Line2D([], [], color=palette[d], lw=2, label=f"{names[d]} [{units[d]}], {names[d + n]} [{units[d]}/s]")
+               for d in range(n)]
+    handles += [Line2D([], [], color="k", lw=1.5, label="truth"), Line2D([], [], color="k", ls="--", lw=1.2, label="model")]
+    if baseline is not None:
+        handles.append(Line2D([], [], color="k", ls=":", lw=1.0, label="linear-ODE baseline"))
+    fig.legend(handles=handles, loc="center right", fontsize=7, title="common chart", title_fontsize=8)
     fig.suptitle(title)
-    paths.append(_save(fig, out_dir / "rollout.png"))
+    fig.tight_layout(rect=(0, 0, 1 - 1.9 / fig.get_figwidth(), 1))
+    paths.append(_save(fig, out_dir / "rollout.png", layout=False))
 
     fig, ax = subplots(figsize=(6, 4))
     _band(ax, t[1:], metrics.relative_error(pred, true)[:, 1:], REL_ERR)
@@ -75,6 +111,23 @@ def test_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] |
         ax.set_title(f"{title}\nabsolute error in true energy", fontsize=9)
         paths.append(_save(fig, out_dir / "energy_error.png"))
     return paths
+
+
+def plain_log_ticks(axis, values=None) -> None:
+    """Readable ticks on a log ``axis``: at ``values`` if given, else at 1, 2 and 5 per decade (1 only
+    over more than three decades; evenly spaced within one), as plain numbers (0.05, 200), no minor labels."""
+    from matplotlib import ticker
+
+    if values is not None:
+        axis.set_major_locator(ticker.FixedLocator(sorted(values)))
+    else:
+        axis.axes.autoscale_view()
+        low, high = axis.get_view_interval()
+        span = high / max(low, 1e-300)
+        axis.set_major_locator(ticker.LogLocator(base=10, subs=(1.0,) if span > 1e3 else (1.0, 2.0, 5.0))
+                               if span > 10 else ticker.MaxNLocator(nbins=6))
+    axis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+    axis.set_minor_formatter(ticker.NullFormatter())
 
 
 def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, horizon: int = 4) -> list[Path]:
@@ -105,6 +158,7 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
                     fmt="o", capsize=3, label="geometric mean over test trajectories and seeds,\nbars: ± 1 std of log₁₀")
         ax.set_xticks(range(len(models)), models, rotation=60, ha="right", rotation_mode="anchor")
         ax.set_yscale("log")
+        plain_log_ticks(ax.yaxis)
         ax.set_title(system)
         ax.set_xlabel("model")
         ax.set_ylabel(f"trajectory relative error, Σ over t ≤ {horizon} steps [–]")
@@ -193,36 +247,88 @@ def energy_rmse_figure(summary: list[dict], paper: dict[str, dict], out_dir: Pat
     return [_save(fig, out_dir / "energy_rmse.png")]
 
 
+def control_success_figure(summary: list[dict], out_dir: Path) -> list[Path]:
+    """Swing-up success rate per model (``encons.control``, mean ± std over seeds) beside the same
+    controller built from the true model (oracle), one panel per system."""
+    entries = [e for e in summary if "test/control/success_rate" in e]
+    systems = list(dict.fromkeys(e["system"] for e in entries))
+    if not systems:
+        return []
+    fig, axes = subplots(1, len(systems), figsize=(4.5 * len(systems), 4), squeeze=False, sharey=True)
+    for ax, system in zip(axes[0], systems):
+        rows = [e for e in entries if e["system"] == system]
+        x = torch.arange(len(rows), dtype=torch.float64)
+        for offset, side, label in ((-0.2, "control", "controller from the learned model"),
+                                    (0.2, "oracle", "same controller from the true model")):
+            ax.bar(x + offset, [e[f"test/{side}/success_rate"] for e in rows], width=0.4,
+                   yerr=[e.get(f"test/{side}/success_rate_sd", 0.0) for e in rows], capsize=3, label=label)
+        ax.set_xticks(x.tolist(), [e["model"] for e in rows])
+        ax.set_ylim(0, 1.3)
+        ax.set_yticks([0, 0.2, 0.4, 0.6, 0.8, 1.0])
+        ax.set_title(system)
+        ax.set_xlabel("model")
+        ax.legend(fontsize=7, loc="upper center")
+    axes[0, 0].set_ylabel("success rate (held upright) [–]")
+    return [_save(fig, out_dir / "control_success_rate.png")]
+
+
 def data_efficiency_figure(summary: list[dict], out_dir: Path) -> list[Path]:
     """Zhong et al. Fig. 5: test trajectory relative error against the number of training
-    trajectories, one line per model (mean over seeds, bars: std over seeds)."""
-    fig, ax = subplots(figsize=(6, 4))
+    trajectories, one line per model (mean over seeds). Bars: ± 1 std over seeds where a point has
+    two or more seeds, else ± 1 std over test trajectories (cut at the axis where it reaches below 0)."""
+    import numpy as np
+
+    fig, ax = subplots(figsize=(6.5, 4.2))
+    sizes, seeds = set(), min(e.get("runs", 1) for e in summary)
     for model in dict.fromkeys(e["model"] for e in summary):
         rows = sorted((e for e in summary if e["model"] == model and "test/traj_rel_err" in e),
                       key=lambda e: e["n_train"])
-        ax.errorbar([e["n_train"] for e in rows], [e["test/traj_rel_err"] for e in rows],
-                    yerr=[e["test/traj_rel_err_sd"] for e in rows], marker="o", capsize=3, label=model)
+        mean = np.array([e["test/traj_rel_err"] for e in rows])
+        spread = np.array([e["test/traj_rel_err_sd"] if seeds >= 2 else e.get("test/traj_rel_err_std", 0.0)
+                           for e in rows])
+        ax.errorbar([e["n_train"] for e in rows], mean, yerr=[np.minimum(spread, 0.95 * mean), spread],
+                    marker="o", capsize=3, label=model)
+        sizes.update(e["n_train"] for e in rows)
     ax.set_xscale("log")
     ax.set_yscale("log")
+    plain_log_ticks(ax.xaxis, sizes)
+    plain_log_ticks(ax.yaxis)
     ax.set_xlabel("training trajectories")
-    ax.set_ylabel("trajectory relative error (T = 4)")
-    ax.set_title(f"data efficiency on {summary[0]['system']}")
+    ax.set_ylabel("trajectory relative error (T = 4) [–]")
+    ax.set_title(f"data efficiency on {summary[0]['system']}\nmean over {seeds} seed(s); bars: ± 1 std over "
+                 + ("seeds" if seeds >= 2 else "test trajectories"), fontsize=9)
     ax.legend(fontsize=7)
     return [_save(fig, out_dir / "data_efficiency.png")]
 
 
-def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], out_dir: Path, title: str) -> list[Path]:
+def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], out_dir: Path, title: str,
+               units: tuple[str, ...] | None = None) -> list[Path]:
     """State MSE and (if known) energy MSE against time of the model and the baselines on the test
     windows (Xiao et al. Figs. 3 and 5; curves from ``metrics.long_rollout_errors``), from the first step
-    (at t = 0 every rollout starts on the truth): ``mse_vs_time.png``."""
+    (at t = 0 every rollout starts on the truth): ``mse_vs_time.png``. The axis spans the curves within
+    1e6 of the model's range; a curve wholly below it (the constant predictor's energy error, ~1e-14:
+    no motion keeps the energy of s₀) is named in the legend with its largest value instead."""
     keys = list(curves["model"])
-    labels = {"state_mse": "state MSE, common chart [(units of s)²]", "energy_mse": "energy MSE [J²]"}
+    state_unit = "–" if units is None else "/".join(sorted(set(units)))
+    labels = {"state_mse": f"state MSE, mean over q [{state_unit}]² and q̇ [{state_unit}/s]²",
+              "energy_mse": "energy MSE [J²]"}
     fig, axes = subplots(1, len(keys), figsize=(6 * len(keys), 4), squeeze=False)
     for ax, key in zip(axes[0], keys):
+        model = curves["model"][key][1:]
+        finite = model[torch.isfinite(model) & (model > 0)]
+        floor = float(finite.min()) * 1e-6 if finite.numel() else 1e-16
         for name, c in curves.items():
-            ax.plot(t[1:], c[key][1:].clamp_min(1e-16), label=name.removeprefix("baseline_").replace("_", " "),
+            values = c[key][1:]
+            label = name.removeprefix("baseline_").replace("_", " ")
+            if name != "model" and float(values.max()) < floor:
+                label += f" (below the axis: ≤ {float(values.max()):.1g})"
+            ax.plot(t[1:], values.clamp_min(floor / 10), label=label,
                     lw=1.8 if name == "model" else 1.1, ls="-" if name == "model" else "--")
         ax.set_yscale("log")
+        every = torch.cat([c[key][1:] for c in curves.values()])
+        every = every[torch.isfinite(every) & (every >= floor)]
+        if every.numel():
+            ax.set_ylim(float(every.min()) / 2, float(every.max()) * 2)
         ax.set_xlabel(TIME)
         ax.set_ylabel(labels[key])
         ax.legend(title="mean over test windows", fontsize=8)

@@ -61,7 +61,8 @@ def to_log_files(text: str, level: int = logging.INFO) -> None:
 
 
 def load_rows(out: Path) -> list[dict]:
-    """The rows of the finished runs under ``out/runs`` (sorted by run folder)."""
+    """The rows of the finished runs under ``out/runs`` (sorted by run folder), each ``run_dir`` the folder
+    its ``result.json`` lies in now (a moved or committed results folder still finds its curves)."""
     allowed = "allowed: a benchmark's output folder (runs/*/result.json) or a Hydra multirun folder (multirun.yaml)"
     if not out.is_dir():
         raise ConfigError(f"folder={str(out)!r} {'is a file' if out.exists() else 'does not exist'}; {allowed}")
@@ -71,7 +72,7 @@ def load_rows(out: Path) -> list[dict]:
     rows = []
     for f in files:
         try:
-            rows.append(json.loads(f.read_text()))
+            rows.append({**json.loads(f.read_text()), "run_dir": str(f.parent)})
         except ValueError as err:
             raise ConfigError(f"{str(f)!r} is not a result row ({err}); allowed: a result.json written by "
                               f"encons.benchmark (delete it and rerun the benchmark to redo that run)") from None
@@ -174,6 +175,7 @@ def write_report(out: str | Path) -> list[Path]:
     if grid:
         files += plots.comparison_figures(grid, grid_summary, out)
         files += plots.energy_rmse_figure(grid_summary, paper, out)
+        files += plots.control_success_figure(grid_summary, out)
     efficiency = [e for e in summary if e["data_efficiency"] and "test/traj_rel_err" in e]  # runs that finished
     if efficiency:
         files += plots.data_efficiency_figure(efficiency, out)

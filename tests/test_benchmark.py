@@ -27,7 +27,8 @@ def test_smoke_profile_writes_report_and_resumes(tmp_path, capsys):
         rows = list(csv.DictReader(f))
     assert len(rows) == 6 and not any(r["error"] for r in rows)
     assert all(float(r["test/traj_rel_err"]) > 0 for r in rows)
-    assert len(list(cache.iterdir())) == 2  # n_train 8 and 16 (the grid runs share the n16 data)
+    assert len({(r["system"], r["model"], r["n_train"]) for r in rows}) == 6  # no configuration trained twice
+    assert len(list(cache.iterdir())) == 3  # n_train 4, 8 and the grid runs' 16
     md = (out / "summary.md").read_text()
     assert "| pendulum1 | hnn | 16 |" in md and "traj_rel_err" in md
     for name in ("summary.csv", *FIGURES):

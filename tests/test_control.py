@@ -116,6 +116,7 @@ def test_control_command_scores_a_tiny_trained_run(model, system, tmp_path, caps
         assert f"control/{key}" in saved and f"oracle/{key}" in saved
     assert 0 <= saved["control/success_rate"] <= 1 and saved["control/max_abs_u"] <= 2.0 + 1e-12
     assert np.isfinite(saved["control/pred_rmse"]) and saved["control/pred_rmse"] > 0
+    assert 0 < saved["control/linear_rel_err"] < np.inf
     for name in ("control_phase", "control_energy_input", "control_success"):
         assert (out / f"{name}.png").stat().st_size > 10_000
     printed = capsys.readouterr().out
@@ -168,3 +169,4 @@ def test_control_profile_reports_the_controller_beside_the_oracle(tmp_path):
                                                            "control" / "control_phase.png").is_file()
     headline = (out / "summary.md").read_text().split("## Every metric")[0]
     assert "control/success_rate" in headline and "oracle/success_rate" in headline
+    assert (out / "control_success_rate.png").stat().st_size > 10_000

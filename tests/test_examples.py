@@ -43,7 +43,7 @@ def test_the_example_system_and_model_train_through_the_cli_with_debug_fast(exam
     assert proc.returncode == 0, proc.stderr[-2000:]
     metrics = json.loads((example_project / "run" / "test_metrics.json").read_text())
     assert metrics["traj_rel_err"] > 0 and "energy_abs_err" in metrics     # the system's own energy is scored
-    assert "LinearNewton on duffing" in proc.stdout
+    assert "linear_newton on duffing" in proc.stdout
 
 
 def test_a_preset_key_set_on_the_command_line_is_still_refused(example_project, cli):

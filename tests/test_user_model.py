@@ -56,7 +56,7 @@ def test_user_model_trains_through_the_cli(user_project):
     assert proc.returncode == 0, proc.stderr[-2000:]
     metrics = json.loads((root / "run" / "test_metrics.json").read_text())
     assert metrics["traj_rel_err"] > 0
-    assert "Linear on pendulum1" in proc.stdout
+    assert "linear on pendulum1" in proc.stdout
 
     untrusted = run_cli(*args[:-1], f"hydra.run.dir={root / 'run2'}", cwd=root, env=env)
     assert untrusted.returncode == 2 and "Traceback" not in untrusted.stderr

@@ -40,6 +40,9 @@ class FileSystem(System):
         self.check_chart(chart)
         return self.n
 
+    def units(self, chart: str) -> tuple[str, ...]:
+        return ("file unit",) * self.n
+
     def _unknown(self, *_: object) -> Tensor:
         raise NotImplementedError("a system loaded from a file has no known physics")
 

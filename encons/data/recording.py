@@ -105,7 +105,8 @@ def _read(path: Path, columns: dict | None, delimiter: str | None
     """Times, states, chart, inputs and trial labels (or None) of a recording, checked."""
     if not path.is_file():
         what = "is a folder" if path.is_dir() else "does not exist"
-        raise DataError(f"system.path={str(path)!r} {what}; allowed: an existing .npz or text file (a recording)")
+        raise DataError(f"system.path={str(path)!r} {what}; allowed: an .npz or delimited text file "
+                        "(README: Bring your own data)")
     if path.suffix == ".npz":
         with np.load(path, allow_pickle=False) as f:
             arrays = {k: f[k] for k in f.files}

@@ -109,6 +109,11 @@ class System(abc.ABC):
         """Inputs (n, m) held constant over each of ``n`` trajectories, float64; None without inputs."""
         return None
 
+    def units(self, chart: str) -> tuple[str, ...]:
+        """The unit of each coordinate q in ``chart`` (its rate's: that per second), for figure axes.
+        Default: rad in the angle chart (generalised coordinates of pendulums), m in the Cartesian one."""
+        return ("rad" if chart == "angle" else "m",) * self.coord_dim(chart)
+
     def field(self, s: Tensor, chart: str, u: Tensor | None = None) -> Tensor:
         """``vector_field``, passing ``u`` only when there are inputs."""
         return self.vector_field(s, chart) if u is None else self.vector_field(s, chart, u)

@@ -52,6 +52,9 @@ class ControlledMechanical(Mechanical):
     def n(self) -> int:
         return len(self.angles)
 
+    def units(self, chart: str) -> tuple[str, ...]:
+        return tuple("rad" if angle else "m" for angle in self.angles)
+
     @abc.abstractmethod
     def input_matrix(self) -> Tensor:
         """B (n, m): the generalised force of input u is B u."""

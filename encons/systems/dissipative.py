@@ -62,6 +62,9 @@ class DampedOscillator(DissipativeMechanical):
         self.name = "damped_oscillator"
         self.m, self.k, self.a = float(mass), float(k), float(a)
 
+    def units(self, chart: str) -> tuple[str, ...]:
+        return ("m",)
+
     def mass_matrix(self, q: Tensor) -> Tensor:
         return torch.full((*q.shape, 1), self.m, dtype=q.dtype, device=q.device)
 

@@ -29,6 +29,9 @@ class MassSpring(System):
         self.check_chart(chart)
         return 1
 
+    def units(self, chart: str) -> tuple[str, ...]:
+        return ("m",)
+
     def mass_matrix(self, q: Tensor) -> Tensor:
         return torch.full((*q.shape, 1), self.m, dtype=q.dtype, device=q.device)
 

@@ -1,7 +1,7 @@
 """The undamped Duffing oscillator, a user's own system: q̈ = −α q − β q³.
 
 One chart, ``angle`` (encons' name for generalised coordinates; here q is a displacement in m, so
-``units`` says so); energy E = ½ q̇² + ½ α q² + ¼ β q⁴ per unit mass.
+``units`` says so: the default is rad); energy E = ½ q̇² + ½ α q² + ¼ β q⁴ per unit mass.
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ class Duffing(System):
 
     charts = ("angle",)               # the first chart is where trajectories are simulated
     common_chart = "angle"            # where metrics compare models
-    units = ("m", "m/s")              # of q and q̇, for figure axes
 
     def __init__(self, alpha: float = 1.0, beta: float = 0.5, amplitude: float = 1.5):
         if alpha <= 0 or beta < 0 or amplitude <= 0:
@@ -30,6 +29,9 @@ class Duffing(System):
     def coord_dim(self, chart: str) -> int:
         self.check_chart(chart)
         return 1
+
+    def units(self, chart: str) -> tuple[str, ...]:
+        return ("m",)                                            # of q (q̇: m/s), for figure axes
 
     def vector_field(self, s: Tensor, chart: str) -> Tensor:
         self.check_chart(chart)

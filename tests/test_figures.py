@@ -1,0 +1,92 @@
+"""Figures a reader can read: distinct colours per coordinate, one legend, units from the system, a
+labelled choice of test trajectories, the model's config name, an MSE axis not stretched by a ~1e-14
+baseline, and plain log ticks."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from encons import plots
+from encons.systems.controlled import CartPole
+from encons.systems.mass_spring import MassSpring
+from encons.systems.pendulum import NPendulum
+
+
+@pytest.fixture
+def saved(monkeypatch):
+    """The figures ``plots`` saves, by file name, inspected before they are closed."""
+    figures = {}
+    original = plots._save
+
+    def keep(fig, path, layout=True):
+        figures[path.name] = fig
+        axes = [(ax.get_ylabel(), ax.get_title(), ax.get_legend() is not None, ax.get_ylim(),
+                 [t.get_text() for t in ax.get_yticklabels()], [t.get_text() for t in ax.get_xticklabels()],
+                 [line.get_label() for line in ax.get_lines()]) for ax in fig.axes]
+        figures[path.name] = {"legends": len(fig.legends), "axes": axes,
+                              "legend_labels": [t.get_text() for lg in fig.legends for t in lg.get_texts()]}
+        return original(fig, path, layout)
+
+    monkeypatch.setattr(plots, "_save", keep)
+    return figures
+
+
+def test_colours_are_distinct_for_twelve_and_more_coordinates():
+    for k in (3, 12, 20, 30):
+        assert len({tuple(round(c, 3) for c in colour) for colour in plots.colours(k)}) == k
+
+
+def test_rollout_figure_one_legend_units_and_a_labelled_choice(tmp_path, saved):
+    t = torch.arange(11) * 0.1
+    true = torch.randn(7, 11, 24)
+    pred = true + torch.linspace(0.01, 1.0, 7)[:, None, None]       # trajectory 0 best, 6 worst
+    plots.test_figures(t, pred, true, None, tmp_path, "hnn_angle on gyroscope", units=("rad",) * 12,
+                       baseline=true * 0.5)
+    fig = saved["rollout.png"]
+    assert fig["legends"] == 1 and not any(has_legend for _, _, has_legend, *_ in fig["axes"])
+    labels = fig["legend_labels"]
+    assert "q₁₂ [rad], q̇₁₂ [rad/s]" in labels and "linear-ODE baseline" in labels and "model" in labels
+    ylabels = {ylabel for ylabel, *_ in fig["axes"]}
+    assert ylabels == {"position q [rad]", "velocity q̇ [rad/s]"}
+    titles = [title for _, title, *_ in fig["axes"] if title]
+    assert titles == ["test trajectory 0 (best of 7 by relative error)", "test trajectory 3 (median of 7 by "
+                      "relative error)", "test trajectory 6 (worst of 7 by relative error)"]
+
+
+def test_units_come_from_the_system():
+    assert NPendulum(2).units("angle") == ("rad", "rad") and NPendulum(2).units("cartesian") == ("m",) * 4
+    assert CartPole().units("angle") == ("m", "rad") and MassSpring().units("angle") == ("m",)
+    assert plots.unit_label(("m", "rad")) == "[see legend]" and plots.unit_label(("rad",), rate=True) == "[rad/s]"
+
+
+def test_mse_axis_is_not_stretched_by_a_constant_baseline_energy_error(tmp_path, saved):
+    t = torch.arange(21) * 0.1
+    rising = torch.logspace(-3, 0, 21)
+    curves = {"model": {"state_mse": rising, "energy_mse": rising},
+              "baseline_constant": {"state_mse": rising * 3, "energy_mse": torch.full((21,), 1e-14)},
+              "baseline_linear_ode": {"state_mse": rising * 2, "energy_mse": rising * 5}}
+    plots.mse_figure(t, curves, tmp_path, "node on pendulum", units=("rad",))
+    (state_label, _, _, state_lim, *_), (_, _, _, energy_lim, _, _, energy_lines) = saved["mse_vs_time.png"]["axes"]
+    assert state_label == "state MSE, mean over q [rad]² and q̇ [rad/s]²"
+    assert energy_lim[0] > 1e-5 and energy_lim[1] / energy_lim[0] < 1e5          # not 14 decades
+    assert "constant (below the axis: ≤ 1e-14)" in energy_lines
+
+
+def test_data_efficiency_ticks_are_the_sizes_and_bars_are_drawn(tmp_path, saved):
+    summary = [{"system": "pendulum2", "model": m, "n_train": n, "runs": 1, "test/traj_rel_err": e,
+                "test/traj_rel_err_sd": 0.0, "test/traj_rel_err_std": e / 2}
+               for m in ("hnn", "node") for n, e in ((10, 1.28), (100, 0.5), (1000, 0.2))]
+    plots.data_efficiency_figure(summary, tmp_path)
+    (_, title, _, _, yticks, xticks, _), = saved["data_efficiency.png"]["axes"]
+    assert [x for x in xticks if x] == ["10", "100", "1000"] and "×" not in "".join(yticks)
+    assert "bars: ± 1 std over test trajectories" in title
+
+
+def test_the_run_title_names_the_models_config(tmp_path):
+    from encons import api
+
+    cfg = api.compose("debug=fast", "model=hnn_angle", "system=pendulum1", output_dir=tmp_path / "run",
+                      cache_dir=tmp_path / "cache")
+    assert api.run_config(cfg).model_name == "hnn_angle"
+    assert api.build(cfg)[1].run_title() == "hnn_angle on pendulum1 (angle chart)"   # not the class, HNN
