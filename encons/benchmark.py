@@ -31,7 +31,7 @@ from encons.paths import config_dir
 
 
 @dataclass
-class Run:
+class PlannedRun:
     """One training run of a benchmark: ``label`` is the model column of the tables."""
 
     system: str
@@ -53,7 +53,7 @@ def plain(cfg: DictConfig) -> dict:
             for k in cfg if k != "hydra"}
 
 
-def expand(cfg: DictConfig) -> list[Run]:
+def expand(cfg: DictConfig) -> list[PlannedRun]:
     """Every run of the profile: grid, listed runs and data-efficiency runs, times seeds."""
     from encons.build import catalogue
 
@@ -72,8 +72,8 @@ def expand(cfg: DictConfig) -> list[Run]:
             entries.append((c["n_train_system"], m, [f"model={m}", f"data.n_train={n}"], n, {}))
     if not entries:
         raise ConfigError("profile has no runs: give systems and models, runs or n_train")
-    return [Run(system, label, seed, [f"system={system}", *ovr, *c["common"], *per_system.get(system, []),
-                                     f"seed={seed}", f"threads={json.dumps(c['threads'])}", *c["train"]], n, paper)
+    return [PlannedRun(system, label, seed, [f"system={system}", *ovr, *c["common"], *per_system.get(system, []),
+                                            f"seed={seed}", f"threads={json.dumps(c['threads'])}", *c["train"]], n, paper)
             for system, label, ovr, n, paper in entries for seed in c["seeds"]]
 
 
@@ -89,12 +89,12 @@ def check_keys(c: dict) -> None:
         raise ConfigError(f"out={c['out']!r}: {str(blocking)!r} is a file; allowed: a folder for the runs and report")
 
 
-def finished(run: Run, out: Path) -> Path:
+def finished(run: PlannedRun, out: Path) -> Path:
     """Where ``run`` leaves its result row; the run is finished when the file exists."""
     return out / "runs" / run.id / "result.json"
 
 
-def run_one(run: Run, out: Path, cache_dir: str | None, control: bool = False) -> dict:
+def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = False) -> dict:
     """Train and test ``run`` (``encons.runs.train``; with ``control`` also score its controller beside the
     oracle, ``encons.control``: ``test/control/*``, ``test/oracle/*``); write and return its result row."""
     from encons import runs
@@ -150,7 +150,7 @@ def result_line(row: dict) -> str:
 
 
 def run_profile(cfg: DictConfig) -> Path:
-    """Run every run of ``cfg`` not yet finished under ``cfg.out``, then write the report there."""
+    """PlannedRun every run of ``cfg`` not yet finished under ``cfg.out``, then write the report there."""
     from encons.progress import Progress
     from encons.report import load_rows, write_report
 

@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from encons.data.datamodule import TrajectoryDataModule
     from encons.models.base import DynamicsModel
     from encons.models.observation import Observation
-    from encons.module import DynamicsModule
+    from encons.module import TrainingModule
     from encons.systems.base import System
 
 
@@ -184,7 +184,7 @@ def build_model(cfg: DictConfig, system: System, observation: Observation | None
     return model
 
 
-def build(cfg: DictConfig, request: Request | None = None) -> tuple[TrajectoryDataModule, DynamicsModule]:
+def build(cfg: DictConfig, request: Request | None = None) -> tuple[TrajectoryDataModule, TrainingModule]:
     """System → data → model → LightningModule from a composed config, seeded by ``cfg.seed``.
 
     Every ``_target_`` is checked against the trust list before anything is imported, then the
@@ -195,7 +195,7 @@ def build(cfg: DictConfig, request: Request | None = None) -> tuple[TrajectoryDa
     from encons import threads
     from encons.config import check_config, objective_of
     from encons.data.datamodule import TrajectoryDataModule
-    from encons.module import DynamicsModule
+    from encons.module import TrainingModule
 
     request = Request.of(cfg) if request is None else request
     task = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])
@@ -225,7 +225,7 @@ def build(cfg: DictConfig, request: Request | None = None) -> tuple[TrajectoryDa
                           f"allowed: 1..{test_steps}")
     regulariser = instantiate_node(cfg, "regulariser", request) if cfg.get("regulariser") else None
     optimizer, scheduler = build_optimizer(cfg, model, request)
-    module = DynamicsModule(model, system, data.dt, instantiate_node(cfg, "integrator", request), optimizer,
+    module = TrainingModule(model, system, data.dt, instantiate_node(cfg, "integrator", request), optimizer,
                             scheduler, objective=objective, regulariser=regulariser, observation=observation,
                             horizon=cfg.horizon, output_dir=cfg.paths.output_dir, model_name=cfg.get("model_name"))
     return data, module

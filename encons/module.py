@@ -40,7 +40,7 @@ Regulariser = Callable[[DynamicsModel, Tensor, Tensor | None], Tensor]
 Batch = dict[str, Tensor]
 
 
-class DynamicsModule(pl.LightningModule):
+class TrainingModule(pl.LightningModule):
     """Trains ``model`` on windows of ``system`` trajectories sampled every ``dt``."""
 
     def __init__(self, model: DynamicsModel, system: System, dt: float, integrator: Integrator,
@@ -69,7 +69,7 @@ class DynamicsModule(pl.LightningModule):
     def times(self, length: int, like: Tensor) -> Tensor:
         return torch.arange(length, dtype=like.dtype, device=like.device) * self.dt
 
-    def encode(self, batch: Batch) -> tuple[Tensor, Tensor]:
+    def observe(self, batch: Batch) -> tuple[Tensor, Tensor]:
         """The observations of a batch (its ``observation.key`` entry) and the states they encode to."""
         x = batch[self.observation.key]
         return x, self.observation.encode(x)
@@ -77,7 +77,7 @@ class DynamicsModule(pl.LightningModule):
     def predict(self, batch: Batch, states: Tensor | None = None) -> Tensor:
         """Roll out from the first state (``history`` states) of each window's (encoded) states over the
         window's length T: (N, T, 2n)."""
-        x, states = (batch[self.observation.key], states) if states is not None else self.encode(batch)
+        x, states = (batch[self.observation.key], states) if states is not None else self.observe(batch)
         history = self.model.history
         start = states[:, 0] if history == 1 else states[:, :history]
         return rollout(self.model, start, self.times(x.shape[1], states), self.integrator, batch.get("u"))
@@ -91,7 +91,7 @@ class DynamicsModule(pl.LightningModule):
 
     def loss(self, batch: Batch) -> Tensor:
         """The objective on a batch of windows (see the module docstring)."""
-        x, states = self.encode(batch)
+        x, states = self.observe(batch)
         u = batch.get("u")
         if self.objective == "rollout":
             return self.rollout_loss(x, states, self.predict(batch, states))
@@ -111,7 +111,7 @@ class DynamicsModule(pl.LightningModule):
         self.log("train/loss", loss, prog_bar=True, batch_size=size)
         if self.regulariser is not None:  # at the (encoded) states, detached: it shapes the field, not the encoder
             with torch.no_grad():
-                points = self.encode(batch)[1]
+                points = self.observe(batch)[1]
             u = None if u is None else u[:, : points.shape[1]]
             penalty = self.regulariser(self.model, points.flatten(0, 1), None if u is None else u.flatten(0, 1))
             self.log("train/regulariser", penalty, batch_size=size)
@@ -142,7 +142,7 @@ class DynamicsModule(pl.LightningModule):
         return self.observation.decode(pred).flatten(2), x.flatten(2)
 
     def validation_step(self, batch: Batch, batch_idx: int) -> None:
-        x, states = self.encode(batch)
+        x, states = self.observe(batch)
         pred = self.predict(batch, states)
         tre = metrics.trajectory_relative_error(*self.compared(x, pred), self.horizon)
         size = states.shape[0]
@@ -150,7 +150,7 @@ class DynamicsModule(pl.LightningModule):
         self.log("val/traj_rel_err", tre.mean(), prog_bar=True, batch_size=size, sync_dist=True)
 
     def test_step(self, batch: Batch, batch_idx: int) -> None:
-        x, states = self.encode(batch)
+        x, states = self.observe(batch)
         pred = self.predict(batch, states)
         kept = (x, pred) if self.observation.identity else (x, states, pred)
         self._test_batches.append(tuple(p.detach() for p in kept))
@@ -191,7 +191,7 @@ class DynamicsModule(pl.LightningModule):
             save_npz(self.output_dir / "test_curves.npz", **curves)
             linear = metrics.fit_linear_ode(self.trainer.datamodule.states["train"].to(true), self.dt)
             baseline = self.to_common(metrics.linear_ode_rollout(linear, true[:, 0], self.times(true.shape[1], true)))
-            figures += plots.test_figures(self.times(true.shape[1], true).cpu(), pred_c.cpu(), true_c.cpu(),
+            figures += plots.rollout_figures(self.times(true.shape[1], true).cpu(), pred_c.cpu(), true_c.cpu(),
                                          [e.cpu() for e in energies] if energies else None,
                                          self.output_dir / "figures", title=self.run_title(), units=units,
                                          baseline=baseline.cpu())

@@ -59,7 +59,7 @@ def _band(ax, t: Tensor, values: Tensor, ylabel: str) -> None:
     ax.legend()
 
 
-def test_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] | None, out_dir: Path,
+def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] | None, out_dir: Path,
                  title: str, units: tuple[str, ...] | None = None, baseline: Tensor | None = None) -> list[Path]:
     """Rollout vs truth (every coordinate, positions and velocities) of three test trajectories — the
     best, median and worst by relative error summed over the rollout, each labelled so — with the

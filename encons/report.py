@@ -79,7 +79,7 @@ def load_rows(out: Path) -> list[dict]:
     return rows
 
 
-def summarise(rows: list[dict]) -> list[dict]:
+def seed_summary(rows: list[dict]) -> list[dict]:
     """Mean and std over seeds of every metric per (system, model, n_train), in first-seen order."""
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for row in rows:
@@ -158,7 +158,7 @@ def write_report(out: str | Path) -> list[Path]:
 
     out = Path(out)
     rows = load_rows(out)
-    summary = summarise(rows)
+    summary = seed_summary(rows)
     paper = published(out)
     source = ""
     if (out / "benchmark.yaml").is_file():

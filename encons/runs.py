@@ -21,14 +21,14 @@ from encons.errors import ConfigError
 
 if TYPE_CHECKING:
     from encons.data.datamodule import TrajectoryDataModule
-    from encons.module import DynamicsModule
+    from encons.module import TrainingModule
 
 
 @dataclass
 class Run:
     """A trained or loaded run: the module (holding the weights of ``checkpoint``), its data and config."""
 
-    module: DynamicsModule
+    module: TrainingModule
     data: TrajectoryDataModule
     config: DictConfig
     run_dir: Path

@@ -4,16 +4,10 @@ the key or file, with no traceback; the API raises encons' own error types. Run 
 
 from __future__ import annotations
 
-import contextlib
-import io
-import logging
-import sys
-from types import SimpleNamespace
-
 import pytest
-from hydra.core.global_hydra import GlobalHydra
 
 from encons.errors import EnconsError
+from tests.helpers import in_process
 
 # placeholders: {tmp} this test's folder, {file} a plain file in it, {empty} an empty folder in it,
 # {run} a finished tiny training run, {ckpt} its best checkpoint, {bad_ckpt} a truncated checkpoint
@@ -131,27 +125,6 @@ def places(tmp_path, finished_run):
             "run": str(finished_run.run_dir), "ckpt": str(finished_run.checkpoint), "bad_ckpt": str(bad)}
 
 
-def _main(module: str, argv: list[str], monkeypatch) -> SimpleNamespace:
-    """``python -m module ARGV`` in this process (its ``encons.cli`` function) -> exit code and output."""
-    from encons import cli
-
-    entry = {"encons.train": cli.train, "encons.evaluate": cli.evaluate, "encons.benchmark": cli.benchmark,
-             "encons.report": cli.report, "encons.sweep": cli.sweep_report}[module]
-    monkeypatch.setattr(sys, "argv", [module, *argv])
-    root = logging.getLogger()
-    handlers, level = root.handlers[:], root.level  # Hydra's job logging replaces them
-    out, err, code = io.StringIO(), io.StringIO(), 0
-    try:
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            entry()
-    except SystemExit as stop:
-        code = stop.code
-    finally:
-        GlobalHydra.instance().clear()
-        root.handlers[:], root.level = handlers, level
-    return SimpleNamespace(returncode=code, stdout=out.getvalue(), stderr=err.getvalue())
-
-
 def _assert_one_line(proc, key: str) -> None:
     assert proc.returncode not in (0, None) and "Traceback" not in proc.stderr, proc.stderr[-3000:]
     last = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else ""
@@ -161,7 +134,7 @@ def _assert_one_line(proc, key: str) -> None:
 @pytest.mark.parametrize("args, key", _cases(TRAIN, [" ".join(a) for a, _ in TRAIN]))
 def test_train_cli(places, tmp_path, monkeypatch, args, key):
     monkeypatch.chdir(tmp_path)
-    proc = _main("encons.train", ["debug=fast", *(a.format(**places) for a in args),
+    proc = in_process("encons.train", ["debug=fast", *(a.format(**places) for a in args),
                                   f"hydra.run.dir={tmp_path / 'run'}", f"hydra.sweep.dir={tmp_path / 'multi'}"],
                  monkeypatch)
     _assert_one_line(proc, key.format(**places))
@@ -170,7 +143,7 @@ def test_train_cli(places, tmp_path, monkeypatch, args, key):
 @pytest.mark.parametrize("module, argv, key", _cases(OTHER, [f"{m} {' '.join(a)}" for m, a, _ in OTHER]))
 def test_other_cli(places, tmp_path, monkeypatch, module, argv, key):
     monkeypatch.chdir(tmp_path)
-    _assert_one_line(_main(module, [a.format(**places) for a in argv], monkeypatch), key.format(**places))
+    _assert_one_line(in_process(module, [a.format(**places) for a in argv], monkeypatch), key.format(**places))
 
 
 def _api_cases():

@@ -97,10 +97,10 @@ def test_a_file_without_training_trajectories_is_refused(tmp_path):
 # class 4: checkpoints
 def test_divergence_without_a_checkpoint_says_so(train_run, monkeypatch):
     from encons.errors import DivergenceError
-    from encons.module import DynamicsModule
+    from encons.module import TrainingModule
 
-    loss = DynamicsModule.loss
-    monkeypatch.setattr(DynamicsModule, "loss", lambda self, batch: loss(self, batch) * float("nan"))
+    loss = TrainingModule.loss
+    monkeypatch.setattr(TrainingModule, "loss", lambda self, batch: loss(self, batch) * float("nan"))
     with pytest.raises(DivergenceError, match="no checkpoint was written") as err:
         train_run(["model=node", "system=pendulum1"], name="nan0")
     assert "resume with ckpt_path=last" not in str(err.value)
