@@ -1,12 +1,8 @@
 """The one LightningModule that trains any model on any system.
 
-Objectives: ``rollout`` (Zhong et al. §4.1: L1 loss summed over a window rolled out from its
-first state, or first ``model.history`` states), ``derivative`` (Lim & Kasim eq. (2): squared
-error of the field against the state derivatives the data module pairs with the states),
-``acceleration`` (Xiao et al. §3: the same on the q̈ half only) or
-``residual`` (the squared norm of a discrete model's own residual, e.g. SyMo's DEL equations).
-A model lists the objectives it supports in ``objectives``. An optional regulariser adds a
-weighted penalty. Batches are dicts (see ``encons.data.datamodule``): ``states`` and, where
+The objective is one of ``encons.objectives`` (rollout, derivative, acceleration, residual), chosen
+among those the model lists in ``objectives``. An optional regulariser adds a weighted penalty;
+optimiser and scheduler are the ``_partial_`` configs of ``conf/optimizer`` and ``conf/scheduler``. Batches are dicts (see ``encons.data.datamodule``): ``states`` and, where
 present, inputs ``u``, ``rates`` and frames ``obs``.
 The ``observation`` (``encons.models.observation``) maps the batch entry it reads to the states the
 model rolls out, and adds its own loss terms: the identity by default; with an autoencoder the
@@ -29,10 +25,11 @@ from torch.optim import Optimizer
 
 from encons import checkpoints, metrics, plots
 from encons.errors import ConfigError, DivergenceError
-from encons.integrators import Integrator, rollout, state_derivative
+from encons.integrators import Integrator, rollout
 from encons.io import save_npz, write_json
 from encons.models.base import DynamicsModel
 from encons.models.observation import Observation
+from encons.objectives import OBJECTIVES
 from encons.systems.base import System
 
 log = logging.getLogger(__name__)
@@ -90,20 +87,8 @@ class TrainingModule(pl.LightningModule):
         return self.system.to_chart(states, self.model.chart, self.system.common_chart)
 
     def loss(self, batch: Batch) -> Tensor:
-        """The objective on a batch of windows (see the module docstring)."""
-        x, states = self.observe(batch)
-        u = batch.get("u")
-        if self.objective == "rollout":
-            return self.rollout_loss(x, states, self.predict(batch, states))
-        if self.objective == "residual":
-            return (self.model.residual(states, self.times(states.shape[1], states), u) ** 2).sum(-1).mean()
-        if "rates" not in batch:
-            raise ConfigError(f"objective={self.objective} needs batches with rates; allowed: a data module built "
-                              f"with objective='{self.objective}' (data.objective: ${{objective}})")
-        error = state_derivative(self.model, states, u) - batch["rates"]
-        if self.objective == "acceleration":  # q̈ only
-            error = error[..., error.shape[-1] // 2:]
-        return (error**2).sum(-1).mean()
+        """The run's objective (``encons.objectives``) on a batch of windows."""
+        return OBJECTIVES[self.objective](self, batch)
 
     def training_step(self, batch: Batch, batch_idx: int) -> Tensor:
         u, size = batch.get("u"), len(batch["states"])

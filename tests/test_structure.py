@@ -23,7 +23,7 @@ LAYERS = [
     ["models"],
     ["regularisers", "metrics"],
     ["plots"],
-    ["module", "callbacks"],
+    ["objectives", "module", "callbacks"],
     ["config"],
     ["build"],
     ["runs", "control", "report", "benchmark"],
@@ -124,3 +124,13 @@ def test_santos_one_step_targets_are_every_state_from_two_on_for_any_history(his
     assert windows.shape == (len(targets), history + 1, 1)
     assert windows[:, -1, 0].tolist() == targets
     assert torch.equal(windows[:, 0, 0], torch.tensor(targets, dtype=torch.float32) - history)
+
+
+def test_every_objective_a_model_declares_is_registered():
+    from encons.build import catalogue
+    from encons.objectives import OBJECTIVES
+    from encons.trust import locate
+
+    declared = {o for name in catalogue("model")
+                for o in locate(compose([f"model={name}"], ".").model._target_).objectives}
+    assert declared == set(OBJECTIVES)
