@@ -227,8 +227,17 @@ def build(cfg: DictConfig, request: Request | None = None) -> tuple[TrajectoryDa
     optimizer, scheduler = build_optimizer(cfg, model, request)
     module = TrainingModule(model, system, data.dt, instantiate_node(cfg, "integrator", request), optimizer,
                             scheduler, objective=objective, regulariser=regulariser, observation=observation,
-                            horizon=cfg.horizon, output_dir=cfg.paths.output_dir, model_name=cfg.get("model_name"))
+                            horizon=cfg.horizon, output_dir=cfg.paths.output_dir, model_name=cfg.get("model_name"),
+                            evaluation=build_evaluation(cfg, request))
     return data, module
+
+
+def build_evaluation(cfg: DictConfig, request: Request = Request()):
+    """The run's ``evaluation`` node as an ``encons.evaluation.Evaluation`` (how test rollouts are
+    integrated); a config saved before the node existed gets the default."""
+    from encons.evaluation import Evaluation
+
+    return instantiate_node(cfg, "evaluation", request) if cfg.get("evaluation") else Evaluation()
 
 
 def build_optimizer(cfg: DictConfig, model: DynamicsModel, request: Request = Request()):

@@ -93,9 +93,10 @@ class SantosMetrics(pl.Callback):
     def one_step_mse(module: pl.LightningModule, arrays: dict[str, Tensor]) -> float:
         states, u, history, n = arrays["states"], arrays.get("u"), module.model.history, module.model.n
         windows = one_step_windows(states, history)
-        batch = {"states": windows.to(module.device)}
+        dtype = next(module.model.parameters()).dtype  # test states are float64, the model need not be
+        batch = {"states": windows.to(module.device, dtype)}
         if u is not None:
-            batch["u"] = one_step_windows(u, history).to(module.device)
+            batch["u"] = one_step_windows(u, history).to(module.device, dtype)
         pred = module.predict(batch)[:, -1, :n]
         return metrics.configuration_mse(pred.double().cpu(), windows[:, -1, :n].double()).item()
 

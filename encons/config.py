@@ -39,6 +39,8 @@ BOUNDS: dict[str, tuple[Any, str]] = {
     "scheduler.factor": ((lambda v: 0 < v < 1), "in (0, 1)"), "scheduler.warmup": ((lambda v: 0 <= v < 1), "in [0, 1)"),
     "scheduler.pct_start": ((lambda v: 0 < v < 1), "in (0, 1)"),
     "regulariser.weight": _at_least(0), "integrator.rtol": _POSITIVE, "integrator.atol": _POSITIVE,
+    "evaluation.rtol": _POSITIVE, "evaluation.atol": _POSITIVE, "evaluation.substeps": _COUNT,
+    "evaluation.vpt_threshold": _POSITIVE,
     "model.hidden": _COUNT, "model.depth": _COUNT, "trainer.gradient_clip_val": _at_least(0),
     "observation.latent": _at_least(2), "observation.stack": _COUNT, "observation.hidden": _COUNT,
     "observation.depth": _COUNT, "observation.weight_reconstruction": _at_least(0),

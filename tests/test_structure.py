@@ -21,7 +21,7 @@ LAYERS = [
     ["integrators"],
     ["data"],
     ["models"],
-    ["regularisers", "metrics"],
+    ["regularisers", "metrics", "evaluation"],
     ["plots"],
     ["objectives", "module", "callbacks"],
     ["config"],
