@@ -16,7 +16,6 @@ from encons import checkpoints, metrics, plots
 from encons.data.simulate import simulate
 from encons.errors import ConfigError
 from encons.integrators import rollout
-from encons.io import write_json
 
 log = logging.getLogger(__name__)
 
@@ -86,8 +85,6 @@ class SantosMetrics(pl.Callback):
         module.test_metrics.update(results)
         for logger in trainer.loggers:
             logger.log_metrics({f"test/{k}": v for k, v in results.items()})
-        if module.output_dir is not None and trainer.is_global_zero:
-            write_json(module.output_dir / "test_metrics.json", module.test_metrics)
 
     @staticmethod
     def one_step_mse(module: pl.LightningModule, arrays: dict[str, Tensor]) -> float:
@@ -139,7 +136,7 @@ class SantosMetrics(pl.Callback):
         ax_e.set_title("energy along the integration, trajectory 0", fontsize=9)
         ax_e.legend(fontsize=7)
         fig.suptitle(module.run_title())
-        path = plots._save(fig, module.output_dir / "figures" / "integration.png")
+        path = plots.save_png(fig, module.output_dir / "figures" / "integration.png")
         plots.log_figures(module.logger, [path])
 
 

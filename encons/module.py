@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 import lightning.pytorch as pl
+import numpy as np
 import torch
 from torch import Tensor
 from torch.optim import Optimizer
@@ -63,6 +64,7 @@ class TrainingModule(pl.LightningModule):
         self.evaluation = evaluation or Evaluation()  # test rollouts: their own integrator (encons.evaluation)
         self.output_dir = Path(output_dir) if output_dir else None
         self.test_metrics: dict[str, float] = {}
+        self.test_curves: dict[str, np.ndarray] = {}  # per-step curves of the last test, saved beside the metrics
         self._test_batches: list[tuple[Tensor, ...]] = []
 
     def times(self, length: int, like: Tensor) -> Tensor:
@@ -175,17 +177,15 @@ class TrainingModule(pl.LightningModule):
             self.test_metrics.update({f"oracle/{k}": v for k, v in floor.items()})
         log.info("%s", metrics.curves_table(self.times(true.shape[1], true), curves))
         self.log_dict({f"test/{k}": v for k, v in self.test_metrics.items()}, sync_dist=True)
+        self.test_curves = {"t": self.times(true.shape[1], true).cpu().numpy(),
+                            "rel_err": metrics.relative_error(pred_c, true_c).cpu().numpy(),
+                            **{f"{k}_{name}": v.cpu().numpy() for name, c in curves.items() for k, v in c.items()}}
+        if energies:
+            self.test_curves["energy_err"] = metrics.energy_abs_error(*energies).cpu().numpy()
         if self.output_dir is not None and self.trainer.is_global_zero:
-            write_json(self.output_dir / "test_metrics.json", self.test_metrics)
             units = self.system.units(self.system.common_chart)
             figures = plots.mse_figure(self.times(true.shape[1], true).cpu(), curves, self.output_dir / "figures",
                                        title=self.run_title(), units=units)
-            curves = {"t": self.times(true.shape[1], true).cpu().numpy(),
-                      "rel_err": metrics.relative_error(pred_c, true_c).cpu().numpy(),
-                      **{f"{k}_{name}": v.cpu().numpy() for name, c in curves.items() for k, v in c.items()}}
-            if energies:
-                curves["energy_err"] = metrics.energy_abs_error(*energies).cpu().numpy()
-            save_npz(self.output_dir / "test_curves.npz", **curves)
             linear = metrics.fit_linear_ode(self.trainer.datamodule.states["train"].to(true), self.dt)
             baseline = self.to_common(metrics.linear_ode_rollout(linear, true[:, 0], self.times(true.shape[1], true)))
             figures += plots.rollout_figures(self.times(true.shape[1], true).cpu(), pred_c.cpu(), true_c.cpu(),
@@ -210,17 +210,24 @@ class TrainingModule(pl.LightningModule):
         log.info("pixel MSE of predicted frames: %s", ", ".join(
             f"t={t[k]:.0f}: {mse[:, k].mean().item():.4g}" for k in sorted({0, len(t) // 4, len(t) // 2, len(t) - 1})))
         self.log_dict({f"test/{k}": v for k, v in self.test_metrics.items()}, sync_dist=True)
+        self.test_curves = {"t": t.numpy(), "pixel_mse": mse.cpu().numpy(),
+                            "rel_err": metrics.relative_error(frames.flatten(2), x.flatten(2)).cpu().numpy(),
+                            "latent_pred": pred.cpu().numpy(), "latent_encoded": states.cpu().numpy()}
         if self.output_dir is None or not self.trainer.is_global_zero:
             return
-        write_json(self.output_dir / "test_metrics.json", self.test_metrics)
-        save_npz(self.output_dir / "test_curves.npz", t=t.numpy(), pixel_mse=mse.cpu().numpy(),
-                 rel_err=metrics.relative_error(frames.flatten(2), x.flatten(2)).cpu().numpy(),
-                 latent_pred=pred.cpu().numpy(), latent_encoded=states.cpu().numpy())
         out, title = self.output_dir / "figures", self.run_title()
         figures = plots.pixel_mse_figure(t, mse.cpu(), out, title)
         figures += plots.latent_phase_figure(pred.detach().cpu(), states.detach().cpu(), out, title)
         figures += plots.frames_figure(t, frames.cpu(), x.cpu(), out, title)
         plots.log_figures(self.logger, figures)
+
+    def on_test_end(self) -> None:
+        """The one writer of the test results: ``test_metrics.json`` and ``test_curves.npz`` in
+        ``output_dir``, each atomically, once, after every evaluation (callbacks' ``on_test_end``, e.g.
+        ``SantosMetrics``, run before this hook and add to ``test_metrics``)."""
+        if self.output_dir is not None and self.trainer.is_global_zero:
+            write_json(self.output_dir / "test_metrics.json", self.test_metrics)
+            save_npz(self.output_dir / "test_curves.npz", **self.test_curves)
 
     def run_title(self) -> str:
         """Figure title: model (+ regulariser, e.g. ``NODE + C_H``) on system (chart or observation)."""

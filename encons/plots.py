@@ -98,18 +98,18 @@ def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor
     fig.legend(handles=handles, loc="center right", fontsize=7, title="common chart", title_fontsize=8)
     fig.suptitle(title)
     fig.tight_layout(rect=(0, 0, 1 - 1.9 / fig.get_figwidth(), 1))
-    paths.append(_save(fig, out_dir / "rollout.png", layout=False))
+    paths.append(save_png(fig, out_dir / "rollout.png", layout=False))
 
     fig, ax = subplots(figsize=(6, 4))
     _band(ax, t[1:], metrics.relative_error(pred, true)[:, 1:], REL_ERR)
     ax.set_title(f"{title}\nrelative error of the state", fontsize=9)
-    paths.append(_save(fig, out_dir / "relative_error.png"))
+    paths.append(save_png(fig, out_dir / "relative_error.png"))
 
     if energies is not None:
         fig, ax = subplots(figsize=(6, 4))
         _band(ax, t[1:], metrics.energy_abs_error(*energies)[:, 1:].clamp_min(1e-12), ENERGY_ERR)
         ax.set_title(f"{title}\nabsolute error in true energy", fontsize=9)
-        paths.append(_save(fig, out_dir / "energy_error.png"))
+        paths.append(save_png(fig, out_dir / "energy_error.png"))
     return paths
 
 
@@ -163,7 +163,7 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
         ax.set_xlabel("model")
         ax.set_ylabel(f"trajectory relative error, Σ over t ≤ {horizon} steps [–]")
         ax.legend(fontsize=7)
-    paths.append(_save(fig, out_dir / "traj_rel_err.png"))
+    paths.append(save_png(fig, out_dir / "traj_rel_err.png"))
 
     for key, label, name in (("rel_err", REL_ERR, "rel_err_vs_time.png"),
                              ("energy_err", ENERGY_ERR, "energy_err_vs_time.png"),
@@ -192,7 +192,7 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
         fig.legend(list(handles.values()), list(handles), loc="center right", fontsize=7)
         fig.suptitle("mean over test trajectories and seeds (a diverged rollout ends its model's curve)", fontsize=9)
         fig.tight_layout(rect=(0, 0, 1 - 2.2 / fig.get_figwidth(), 1))
-        paths.append(_save(fig, out_dir / name, layout=False))
+        paths.append(save_png(fig, out_dir / name, layout=False))
     return paths
 
 
@@ -207,7 +207,8 @@ def _curve_keys(row: dict) -> list[str]:
         return list(f.files)
 
 
-def _save(fig, path: Path, layout: bool = True) -> Path:
+def save_png(fig, path: Path, layout: bool = True) -> Path:
+    """``fig`` as a PNG at ``path`` (atomically, ``encons.io.save_figure``), laid out tight unless ``layout`` is false."""
     if layout:
         fig.tight_layout()
     return save_figure(fig, path, dpi=110)
@@ -244,7 +245,7 @@ def energy_rmse_figure(summary: list[dict], paper: dict[str, dict], out_dir: Pat
         ax.set_ylabel("RMSE of E(ŝ_t) − E(s_t) [energy units]")
         ax.set_title(system)
         ax.legend(fontsize=7)
-    return [_save(fig, out_dir / "energy_rmse.png")]
+    return [save_png(fig, out_dir / "energy_rmse.png")]
 
 
 def control_success_figure(summary: list[dict], out_dir: Path) -> list[Path]:
@@ -269,7 +270,7 @@ def control_success_figure(summary: list[dict], out_dir: Path) -> list[Path]:
         ax.set_xlabel("model")
         ax.legend(fontsize=7, loc="upper center")
     axes[0, 0].set_ylabel("success rate (held upright) [–]")
-    return [_save(fig, out_dir / "control_success_rate.png")]
+    return [save_png(fig, out_dir / "control_success_rate.png")]
 
 
 def data_efficiency_figure(summary: list[dict], out_dir: Path) -> list[Path]:
@@ -298,7 +299,7 @@ def data_efficiency_figure(summary: list[dict], out_dir: Path) -> list[Path]:
     ax.set_title(f"data efficiency on {summary[0]['system']}\nmean over {seeds} seed(s); bars: ± 1 std over "
                  + ("seeds" if seeds >= 2 else "test trajectories"), fontsize=9)
     ax.legend(fontsize=7)
-    return [_save(fig, out_dir / "data_efficiency.png")]
+    return [save_png(fig, out_dir / "data_efficiency.png")]
 
 
 def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], out_dir: Path, title: str,
@@ -333,7 +334,7 @@ def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], out_dir: Path, t
         ax.set_ylabel(labels[key])
         ax.legend(title="mean over test windows", fontsize=8)
     fig.suptitle(f"{title}\nlong-rollout error against time, model vs trivial baselines", fontsize=9)
-    return [_save(fig, out_dir / "mse_vs_time.png")]
+    return [save_png(fig, out_dir / "mse_vs_time.png")]
 
 
 PIXEL_MSE = "pixel MSE [intensity², intensity in 0–1]"
@@ -349,7 +350,7 @@ def pixel_mse_figure(t: Tensor, mse: Tensor, out_dir: Path, title: str) -> list[
     ax.set_xlabel(DATA_TIME)
     ax.legend(fontsize=8)
     ax.set_title(f"{title}\npredicted frames from the first encoded state", fontsize=9)
-    return [_save(fig, out_dir / "pixel_mse.png")]
+    return [save_png(fig, out_dir / "pixel_mse.png")]
 
 
 def latent_phase_figure(pred: Tensor, encoded: Tensor, out_dir: Path, title: str, n_show: int = 5) -> list[Path]:
@@ -376,7 +377,7 @@ def latent_phase_figure(pred: Tensor, encoded: Tensor, out_dir: Path, title: str
     ax.set_ylabel(names[1])
     ax.legend(fontsize=8, title=f"{shown} test videos (○ start)", title_fontsize=8)
     ax.set_title(f"{title}\nlatent phase portrait (Lim & Kasim Fig. 4)", fontsize=9)
-    return [_save(fig, out_dir / "latent_phase.png")]
+    return [save_png(fig, out_dir / "latent_phase.png")]
 
 
 def frames_figure(t: Tensor, pred: Tensor, true: Tensor, out_dir: Path, title: str, n_times: int = 6) -> list[Path]:
@@ -395,7 +396,7 @@ def frames_figure(t: Tensor, pred: Tensor, true: Tensor, out_dir: Path, title: s
             if row == 1:
                 ax.set_xlabel(f"t = {t[k]:.0f}")
     fig.suptitle(f"{title}\ntest video 0: true vs predicted frames (grey level = pixel intensity, 0–1)", fontsize=9)
-    return [_save(fig, out_dir / "frames.png")]
+    return [save_png(fig, out_dir / "frames.png")]
 
 
 def control_figures(t: Tensor, learned: tuple[Tensor, Tensor], oracle: tuple[Tensor, Tensor],
@@ -428,7 +429,7 @@ def control_figures(t: Tensor, learned: tuple[Tensor, Tensor], oracle: tuple[Ten
     axes[0].set_ylabel("angular velocity θ̇ [rad/s]")
     axes[1].legend(fontsize=7, loc="upper right", title="● start", title_fontsize=7)
     fig.suptitle(f"{title}\nphase portrait on the true system")
-    paths.append(_save(fig, out_dir / "control_phase.png"))
+    paths.append(save_png(fig, out_dir / "control_phase.png"))
 
     fig, axes = subplots(2, 1, figsize=(8, 6.5), sharex=True)
     target = energy(torch.zeros(1, 2 * system.n, dtype=torch.float64))[0]
@@ -447,7 +448,7 @@ def control_figures(t: Tensor, learned: tuple[Tensor, Tensor], oracle: tuple[Ten
     axes[0].legend(fontsize=7)
     axes[1].legend(fontsize=7)
     fig.suptitle(f"{title}\nenergy and input, {shown} starts (one colour each)")
-    paths.append(_save(fig, out_dir / "control_energy_input.png"))
+    paths.append(save_png(fig, out_dir / "control_energy_input.png"))
 
     fig, ax = subplots(figsize=(6, 4))
     for times, label in zip(t_up, labels):
@@ -457,5 +458,5 @@ def control_figures(t: Tensor, learned: tuple[Tensor, Tensor], oracle: tuple[Ten
     ax.set_ylim(-0.02, 1.02)
     ax.legend(fontsize=7)
     ax.set_title(f"{title}\nheld upright (tolerance kept to the end)", fontsize=9)
-    paths.append(_save(fig, out_dir / "control_success.png"))
+    paths.append(save_png(fig, out_dir / "control_success.png"))
     return paths

@@ -68,7 +68,7 @@ def _figure(path, value):
 
     fig, ax = plots.subplots(figsize=(2, 2))
     ax.plot(np.arange(100) * value)
-    plots._save(fig, path)
+    plots.save_png(fig, path)
 
 
 WRITERS = {  # name: (file, write(path, version), read(path) -> what a reader sees)

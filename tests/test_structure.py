@@ -134,3 +134,21 @@ def test_every_objective_a_model_declares_is_registered():
     declared = {o for name in catalogue("model")
                 for o in locate(compose([f"model={name}"], ".").model._target_).objectives}
     assert declared == set(OBJECTIVES)
+
+
+def test_one_writer_saves_the_test_metrics_once_with_every_evaluators_results(tmp_path, monkeypatch):
+    """The states evaluation and the controlled-system metrics (a callback) both reach test_metrics.json,
+    written once, by the module's on_test_end."""
+    import json
+
+    from encons import module
+
+    written = []
+    real = module.write_json
+    monkeypatch.setattr(module, "write_json", lambda path, values: (written.append(path), real(path, values)))
+    cfg = encons.compose("debug=fast", "model=lnode", "system=pendulum_control", "callbacks.santos.steps=10",
+                         "callbacks.santos.n_trajectories=2", output_dir=tmp_path / "run", cache_dir=tmp_path / "c")
+    encons.train(cfg)
+    assert written == [tmp_path / "run" / "test_metrics.json"]
+    saved = json.loads(written[0].read_text())
+    assert {"traj_rel_err", "mse_integration", "mse_test"} <= set(saved)
