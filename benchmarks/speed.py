@@ -48,7 +48,7 @@ from encons.errors import ConfigError
 from encons.integrators import Integrator
 from encons.models.base import DynamicsModel
 from encons.models.constrained import CHNN, CLNN
-from encons.models.lnn import LNN, LNNStructure
+from encons.models.lnn import LNN, LNNStructure, guarded_solve
 from encons.models.networks import mlp
 from encons.module import TrainingModule
 from encons.systems.base import System, point_mass_matrix, split_state
@@ -145,9 +145,8 @@ class NaiveLagrangian(DynamicsModel):
                 dl = torch.autograd.grad(self.lagrangian(si), si, create_graph=True)[0]
                 hess = torch.autograd.functional.hessian(self.lagrangian, si, create_graph=True)
             h, r = hess[n:, n:], dl[:n] - hess[n:, :n] @ si[n:]
-            if isinstance(self.model, LNN):  # the model's guarded solve, written out (lnn.damped_solve)
-                r, h = h.T @ r, h.T @ h + self.model.damping**2 * torch.eye(n, dtype=h.dtype)
-            out.append(torch.linalg.solve(h, r))
+            out.append(guarded_solve(h, r, self.model.guard) if isinstance(self.model, LNN)  # the model's solve
+                       else torch.linalg.solve(h, r))
         return torch.cat([s[..., n:], torch.stack(out).reshape(s[..., n:].shape)], -1)
 
 

@@ -8,7 +8,7 @@ its train overrides, e.g. a model with a regulariser) and as data-efficiency run
 each is trained ``len(seeds)`` times through the training entry point, on datasets cached under
 ``paths.cache_dir`` (one per system and data config, shared by every model and seed). A finished
 run leaves ``runs/<id>/result.json``; a rerun skips it, so an interrupted benchmark resumes where it
-stopped. Progress (stderr) prints ``benchmark run k of n (id), elapsed, ETA``. ``models=all`` /
+stopped. Progress (stdout, the stream a run logs to) prints ``benchmark run k of n (id), elapsed, ETA``. ``models=all`` /
 ``systems=all`` take every option of ``conf/model`` / ``conf/system``. The report (``encons.report``) is written
 to ``out`` at the end and can be rebuilt alone with ``python -m encons.report OUT``.
 """
@@ -25,7 +25,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from encons import threads
-from encons.errors import ConfigError, EnconsError
+from encons.errors import ConfigError, EnconsError, Interrupted
 from encons.io import write_json, write_yaml
 from encons.paths import config_dir
 
@@ -113,14 +113,28 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
             from encons.control import score_control
 
             results.update({f"test/{k}": v for k, v in score_control(trained).items()})
+    except Interrupted as err:  # stops the benchmark; its rerun resumes this run (resume_or_clear)
+        raise Interrupted(f"{run.id}: {str(err).split(';')[0]}; rerun the same benchmark command: finished runs "
+                          f"are skipped and this one resumes from its last.ckpt") from None
     except EnconsError as err:
         results, error, wall = {}, str(err), time.perf_counter() - started
     row = {"system": run.system, "model": run.label, "seed": run.seed, "n_train": cfg.data.n_train,
            "data_efficiency": run.n_train is not None, "run_dir": str(run_dir), "error": error,
-           "wall_time_s": wall, "overrides": " ".join(run.overrides),
+           "wall_time_s": wall, "overrides": " ".join(run.overrides), "optimiser": optimiser(cfg),
            **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))}}
     write_json(done, row, indent=1)  # atomic: a run killed before it is rerun
     return row
+
+
+def optimiser(cfg: DictConfig) -> str:
+    """The optimiser, its lr and weight decay, the schedule and the epochs a run trained with, as the
+    report's optimiser column shows them (class names of the ``optimizer`` and ``scheduler`` configs)."""
+    o, s = cfg.optimizer, cfg.get("scheduler")
+    name = str(o._target_).rsplit(".", 1)[-1]
+    keys = ", ".join(f"{k} {v:g}" for k, v in o.items() if not k.startswith("_") and isinstance(v, (int, float)))
+    schedule = "constant lr" if not s else str(s._target_).rsplit(".", 1)[-1] + "".join(
+        f", {k} {v:g}" for k, v in s.items() if not k.startswith("_") and isinstance(v, (int, float)))
+    return f"{name} {keys}; {schedule}; {cfg.trainer.max_epochs} epochs"
 
 
 def resume_or_clear(cfg: DictConfig, checkpoints: Path) -> None:
@@ -135,10 +149,10 @@ def resume_or_clear(cfg: DictConfig, checkpoints: Path) -> None:
         diff = f"last.ckpt refused: {err}"
     if diff is None:
         cfg.ckpt_path = str(last)
-        print(f"  resuming from {last}", file=sys.stderr)
+        print(f"  resuming from {last}", flush=True)
     elif checkpoints.is_dir():
         shutil.rmtree(checkpoints)
-        print(f"  earlier checkpoints removed ({diff}): training afresh", file=sys.stderr)
+        print(f"  earlier checkpoints removed ({diff}): training afresh", flush=True)
 
 
 def result_line(row: dict) -> str:
@@ -169,7 +183,7 @@ def run_profile(cfg: DictConfig) -> Path:
         if row["error"]:
             print(f"{run.id} failed: {row['error']}", file=sys.stderr)
         else:
-            print(f"{run.id}: {result_line(row)}", file=sys.stderr, flush=True)
+            print(f"{run.id}: {result_line(row)}", flush=True)
     progress.done()
     write_report(out)
     errors = [row.get("error") for row in load_rows(out)]

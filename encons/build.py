@@ -193,20 +193,33 @@ def build(cfg: DictConfig, request: Request | None = None) -> tuple[TrajectoryDa
     import lightning.pytorch as pl
 
     from encons import threads
-    from encons.config import check_config, objective_of
-    from encons.data.datamodule import TrajectoryDataModule
-    from encons.module import TrainingModule
 
     request = Request.of(cfg) if request is None else request
+    check(cfg, request)
+    _route_lightning_logs()
+    threads.apply(cfg.get("threads"))  # before the data are simulated
+    pl.seed_everything(cfg.seed, workers=True, verbose=False)
+    return _instantiate(cfg, request)
+
+
+def check(cfg: DictConfig, request: Request = Request()) -> None:
+    """Every check of a composed config before anything is built: no key left ``???``, every target
+    trusted (before any import), then ``encons.config``'s types, ranges and folders."""
+    from encons.config import check_config
+
     task = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])
     missing = sorted(OmegaConf.missing_keys(task), key=lambda k: not _is_unset(task, k))  # "???" before what refers to it
     if missing:
         raise ConfigError(f"{missing[0]} has no value; allowed: give it one ({missing[0]}=...)")
-    _route_lightning_logs()
     trust.check_targets(OmegaConf.to_container(run_config(cfg)))
     check_config(cfg, request)
-    threads.apply(cfg.get("threads"))  # before the data are simulated
-    pl.seed_everything(cfg.seed, workers=True, verbose=False)
+
+
+def _instantiate(cfg: DictConfig, request: Request):
+    from encons.config import objective_of
+    from encons.data.datamodule import TrajectoryDataModule
+    from encons.module import TrainingModule
+
     system = build_system(cfg, request)
     observation = build_observation(cfg, system, request)
     model = build_model(cfg, system, observation, request)

@@ -1,9 +1,12 @@
-"""Lightning callbacks: the run config in every checkpoint, and evaluation steps run at the end of testing."""
+"""Lightning callbacks: the run config in every checkpoint, a per-epoch progress line, and evaluation steps
+run at the end of testing."""
 
 from __future__ import annotations
 
 import logging
 import shutil
+import sys
+import time
 from pathlib import Path
 
 import lightning.pytorch as pl
@@ -16,6 +19,7 @@ from encons import checkpoints, metrics, plots
 from encons.data.simulate import simulate
 from encons.errors import ConfigError
 from encons.integrators import rollout
+from encons.progress import duration, to_log_files
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +51,38 @@ class RunConfigInCheckpoints(pl.Callback):
         best.best_model_path = best.kth_best_model_path = str(new)
         best.best_model_score = best.kth_value = state["best_model_score"]
         best.best_k_models = {str(new): state["best_model_score"]}
+
+
+class EpochLine(pl.Callback):
+    """One line per training epoch — ``epoch k of N: train/loss …, val/… …, elapsed, ETA`` — in the run's
+    log files (``train.log``), and on the console too when stdout is not a terminal (a job's output file,
+    where the progress bar does not draw) and the run shows progress (``trainer.enable_progress_bar``).
+    The ETA assumes the remaining epochs (``trainer.max_epochs``) take as long as the past ones."""
+
+    def __init__(self, metrics: tuple[str, ...] = ("train/loss", "val/loss")):
+        self.metrics = tuple(metrics)
+
+    def on_train_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        self.started, self.first_epoch = time.perf_counter(), trainer.current_epoch
+
+    def on_train_epoch_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        if not trainer.is_global_zero:
+            return
+        done = trainer.current_epoch + 1
+        total = trainer.max_epochs if trainer.max_epochs and trainer.max_epochs > 0 else None
+        elapsed = time.perf_counter() - self.started
+        monitor = trainer.checkpoint_callback.monitor if trainer.checkpoint_callback is not None else None
+        keys = (*self.metrics, monitor or "val/traj_rel_err")
+        shown = [f"{k} {float(trainer.callback_metrics[k]):.4g}" for k in dict.fromkeys(keys)
+                 if k in trainer.callback_metrics]
+        eta = (f", ETA {duration(elapsed / (done - self.first_epoch) * (total - done))}"
+               if total and done > self.first_epoch else "")
+        line = (f"epoch {done}{f' of {total}' if total else ''} (step {trainer.global_step}): {', '.join(shown)}, "
+                f"elapsed {duration(elapsed)}{eta}")
+        if trainer.progress_bar_callback is not None and not sys.stdout.isatty():
+            log.info(line)              # console and log files
+        else:
+            to_log_files(line)          # the log files only: the progress bar shows it live
 
 
 class SantosMetrics(pl.Callback):

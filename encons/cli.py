@@ -64,6 +64,9 @@ def train() -> None:
     """``python -m encons.train``: Hydra's command line (``-m`` for sweeps) around :func:`train_job`."""
     import hydra
 
+    from encons import help
+
+    help.register()
     os.environ.setdefault("WANDB_SILENT", "true")
     quiet_upstream()
     # Hydra then lets its own errors through to us (else it prints them with its search path and

@@ -126,8 +126,8 @@ FOLDER_KEYS = (("logger", "save_dir"), ("callbacks", "dirpath"))
 def check_folders(cfg: DictConfig) -> None:
     """Create the run's output folders and the cache folder, refusing a path that is a file or unwritable."""
     out = Path(cfg.paths.output_dir)
-    folders = [("paths.output_dir", out), ("paths.output_dir", out / "checkpoints"),
-               ("paths.output_dir", out / "figures"), ("paths.cache_dir", Path(cfg.paths.cache_dir))]
+    folders = [("paths.output_dir", out), ("paths.output_dir", out / "figures"),
+               ("paths.cache_dir", Path(cfg.paths.cache_dir))]  # checkpoints/: the callbacks' dirpath, if any
     for group, leaf in FOLDER_KEYS:  # folders a logger or callback writes to
         for name, node in (cfg.get(group) or {}).items():
             if isinstance(node, DictConfig) and node.get(leaf) is not None:

@@ -17,8 +17,8 @@ the true system (the oracle row), and scores both on the true simulator from one
   a = k_E (E_p − E*) M_xθ θ̇ − k_x x − k_v ẋ (Åström & Furuta's pivot-acceleration law, cos θ
   replaced by the learned M_xθ; the cart terms keep it near the origin), turned into the force u by
   collocated partial feedback linearisation of the learned control-affine field (ẍ = a₀(s) + b₀(s) u,
-  two field evaluations); LQR near upright. Model-predictive shooting is not needed: every model that takes inputs and has an
-  energy (L-NODE, SyMo, E2E-SyMo) gives M, V and f.
+  two field evaluations); LQR near upright. Model-predictive shooting is not needed: every model that
+  takes inputs and has an energy (L-NODE, SyMo, E2E-SyMo) gives M, V and f.
 
 LQR (both systems): f linearised at the upright equilibrium s* = 0, u = 0 by ``torch.func.jacrev``
 (A = ∂f/∂s, B = ∂f/∂u), discretised for the zero-order hold at the control period h (the run's data
@@ -37,9 +37,10 @@ the state stays within ``tolerance`` of upright (|θ| ≤ 0.1 rad, |θ̇| ≤ 0.
 the cart) until the end; t_up is the time to upright. Effort is ∫ u² dt over the horizon. The
 learned model's prediction error is the RMS one-step error ‖ŝ_{k+1} − s_{k+1}‖ (angles wrapped) of
 the model's own step (its training integrator, or its Newton step) from the closed-loop states and
-inputs of its own controller; ``linear_rel_err`` is ‖[A B] − [A B]_true‖_F / ‖[A B]_true‖_F of the
-linearisation at upright the LQR is built from. Limits: |u| ≤ u_max is enforced by saturation;
-gains are fixed per system (``SETTINGS``), tuned on the true model, not per learned model.
+inputs of its own controller; ``a_rel_err`` and ``b_rel_err`` are ‖A − A_true‖_F / ‖A_true‖_F and
+the same for B, of the linearisation at upright the LQR is built from. Limits: |u| ≤ u_max is
+enforced by saturation; gains are fixed per system (``SETTINGS``), tuned on the true model, not per
+learned model.
 """
 
 from __future__ import annotations
@@ -164,7 +165,7 @@ class SwingUp:
     def __init__(self, plant: Plant, system: ControlledMechanical, h: float):
         self.plant, self.u_max, self.settings = plant, system.u_max, SETTINGS[type(system)]
         a, b = linearise(plant, system.n_controls)
-        self.linear = torch.cat([a, b], -1)  # [A B] at upright
+        self.linear = a, b  # at upright
         weights = torch.diag(torch.tensor(self.settings.q_weights, dtype=torch.float64))
         self.gain, self.cost = lqr(a, b, weights, torch.eye(system.n_controls, dtype=torch.float64)
                                    * self.settings.r_weight, h)
@@ -289,9 +290,8 @@ def compare(run, starts: int = 100, seed: int = 0, duration: float | None = None
     oracle_metrics, oracle_up = score(oracle_plant, *oracle, settings, h)
     metrics = {f"control/{k}": v for k, v in learned_metrics.items()}
     metrics["control/pred_rmse"] = prediction_error(run, oracle_plant, *learned, h)
-    truth = controllers[1].linear
-    metrics["control/linear_rel_err"] = (torch.linalg.norm(controllers[0].linear - truth)
-                                         / torch.linalg.norm(truth)).item()
+    for name, part, truth in zip(("a_rel_err", "b_rel_err"), controllers[0].linear, controllers[1].linear):
+        metrics[f"control/{name}"] = (torch.linalg.norm(part - truth) / torch.linalg.norm(truth)).item()
     metrics.update({f"oracle/{k}": v for k, v in oracle_metrics.items()})
     return Outcome(torch.arange(steps + 1) * h, learned, oracle, (learned_up, oracle_up), metrics)
 
@@ -327,7 +327,7 @@ def score_control(run, starts: int = 100, seed: int = 0, duration: float | None 
                         f"control period {run.module.dt} s")
     for column in ("metric", "from the learned model", "from the true model (oracle)"):
         table.add_column(column, justify="left" if column == "metric" else "right")
-    for key in ("success_rate", "time_to_upright_s", "effort", "max_abs_u", "pred_rmse", "linear_rel_err"):
+    for key in ("success_rate", "time_to_upright_s", "effort", "max_abs_u", "pred_rmse", "a_rel_err", "b_rel_err"):
         cells = [outcome.metrics.get(f"{side}/{key}") for side in ("control", "oracle")]
         table.add_row(key, *["" if v is None else f"{v:.4g}" for v in cells])
     console = Console()

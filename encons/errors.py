@@ -35,13 +35,19 @@ class WriteError(EnconsError):
     """A file could not be written (full, read-only or unwritable disk); the earlier file is kept."""
 
 
+class Interrupted(EnconsError):
+    """A run stopped by SIGTERM (what a scheduler sends before it kills a job): the CLI prints
+    ``encons: interrupted: <line>`` with the command that resumes it, and exits with status 143 (128 + 15)."""
+
+
 class SweepError(EnconsError):
     """A sweep stopped because more of its trials failed than it allows."""
 
 
 @contextmanager
 def one_line_errors() -> Iterator[None]:
-    """Print a user's error as ``encons: error: <line>`` on stderr, last, and exit 2; a bug keeps its traceback.
+    """Print a user's error as ``encons: error: <line>`` on stderr, last, and exit 2 (an interrupted run:
+    ``encons: interrupted: <line>``, exit 143); a bug keeps its traceback.
 
     Wraps the whole CLI (with ``HYDRA_FULL_ERROR=1``, so that Hydra lets its own errors through
     rather than printing its search path after them)."""
@@ -49,6 +55,9 @@ def one_line_errors() -> Iterator[None]:
 
     try:
         yield
+    except Interrupted as err:
+        print(f"encons: interrupted: {err}", file=sys.stderr)
+        sys.exit(143)
     except (EnconsError, ConfigCompositionException, OverrideParseException, InstantiationException) as err:
         print(f"encons: error: {user_line(err)}", file=sys.stderr)
         sys.exit(2)

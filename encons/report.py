@@ -30,6 +30,7 @@ from rich.console import Console
 from rich.table import Table
 
 from encons.errors import ConfigError, EnconsError
+from encons.progress import to_log_files
 from encons.io import atomic_open, write_text
 
 
@@ -50,14 +51,6 @@ def print_summary(title: str, results: dict[str, float], output_dir: Path, note:
         out.print(note)
     out.print(f"outputs: {output_dir}  (checkpoints/, figures/, test_metrics.json)")
     to_log_files(out.export_text())
-
-
-def to_log_files(text: str, level: int = logging.INFO) -> None:
-    """Write ``text`` to the file handlers of the root logger only (Hydra's ``<job>.log``), not the console."""
-    record = logging.LogRecord("encons", level, __file__, 0, "%s", (text.rstrip(),), None)
-    for handler in logging.getLogger().handlers:
-        if isinstance(handler, logging.FileHandler) and record.levelno >= handler.level:
-            handler.handle(record)
 
 
 def load_rows(out: Path) -> list[dict]:
@@ -88,7 +81,8 @@ def seed_summary(rows: list[dict]) -> list[dict]:
     summary = []
     for (system, model, n_train, efficiency), group in groups.items():
         entry = {"system": system, "model": model, "n_train": n_train, "data_efficiency": efficiency,
-                 "runs": len(group), "failed": sum(bool(r.get("error")) for r in group)}
+                 "runs": len(group), "failed": sum(bool(r.get("error")) for r in group),
+                 "optimiser": " / ".join(dict.fromkeys(r["optimiser"] for r in group if r.get("optimiser")))}
         for key in metrics:
             values = [r[key] for r in group if key in r and not r.get("error")]
             if values:
@@ -96,7 +90,47 @@ def seed_summary(rows: list[dict]) -> list[dict]:
                 entry[key] = mean
                 entry[f"{key}_sd"] = math.sqrt(sum((v - mean) ** 2 for v in values) / max(1, len(values) - 1))
         summary.append(entry)
-    return summary
+    return summary + oracle_entries(rows)
+
+
+ORACLE = "oracle (true field)"
+
+
+def oracle_entries(rows: list[dict]) -> list[dict]:
+    """One row per system: the true field scored by the runs' own evaluation (their ``test/oracle/*``, the
+    same starts, integrator, horizon and metrics), mean and std over the runs (charts may differ)."""
+    by_system: dict[str, list[dict]] = defaultdict(list)
+    for row in rows:
+        if not row.get("error") and not row.get("data_efficiency"):
+            floor = {f"test/{k.removeprefix('test/oracle/')}": v for k, v in row.items() if k.startswith("test/oracle/")}
+            if floor:
+                by_system[row["system"]].append(floor)
+    entries = []
+    for system, floors in by_system.items():
+        entry = {"system": system, "model": ORACLE, "n_train": "", "data_efficiency": False, "runs": len(floors),
+                 "failed": 0, "optimiser": "none (the true dynamics)"}
+        for key in dict.fromkeys(k for f in floors for k in f):
+            values = [f[key] for f in floors if key in f]
+            mean = sum(values) / len(values)
+            entry[key] = mean
+            entry[f"{key}_sd"] = math.sqrt(sum((v - mean) ** 2 for v in values) / max(1, len(values) - 1))
+        entries.append(entry)
+    return entries
+
+
+def floor_notes(summary: list[dict], metric: str = "test/geom_rel_err") -> list[str]:
+    """One line per system whose best model's ``metric`` is within 10× of the oracle's: the ranking there
+    is close to what the evaluation itself can resolve."""
+    notes = []
+    for oracle in (e for e in summary if e["model"] == ORACLE and metric in e):
+        models = [e for e in summary if e["system"] == oracle["system"] and e["model"] != ORACLE
+                  and not e["data_efficiency"] and math.isfinite(e.get(metric, math.nan))]
+        if models:
+            best = min(models, key=lambda e: e[metric])
+            if best[metric] <= 10 * oracle[metric]:
+                notes.append(f"{oracle['system']}: the best model ({best['model']}, {metric.removeprefix('test/')} "
+                             f"{best[metric]:.3g}) is within 10× of the evaluation's floor (oracle {oracle[metric]:.3g}).")
+    return notes
 
 
 def published(out: Path) -> dict[str, dict]:
@@ -122,11 +156,13 @@ def write_csv(path: Path, rows: list[dict]) -> None:
         writer.writerows(rows)
 
 
-HEADLINE = ("wall_time_s", "test/diverged", "test/traj_rel_err", "test/geom_rel_err", "test/energy_rmse_median",
+HEADLINE = ("wall_time_s", "test/diverged", "test/traj_rel_err", "test/geom_rel_err", "test/vpt",
+            "test/energy_abs_err", "test/energy_rmse_median",
             "test/state_mse_final", "test/energy_mse_final", "test/baseline_constant/state_mse_final",
             "test/baseline_linear_ode/state_mse_final", "test/pixel_mse_final", "test/pixel_mse_final_median",
             "test/control/success_rate", "test/oracle/success_rate", "test/control/time_to_upright_s",
-            "test/oracle/time_to_upright_s", "test/control/effort", "test/oracle/effort", "test/control/pred_rmse")
+            "test/oracle/time_to_upright_s", "test/control/effort", "test/oracle/effort", "test/control/pred_rmse",
+            "test/control/b_rel_err")
 
 
 def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", headline: bool = False) -> str:
@@ -138,15 +174,20 @@ def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", head
         metrics = [m for m in HEADLINE if m in metrics]
     paper_keys = list(dict.fromkeys(m for values in paper.values() for m in values))
     head = ["system", "model", "n_train", "runs", *[m.removeprefix("test/") for m in metrics],
-            *[f"paper {m}" for m in paper_keys]]
+            *[f"paper {m}" for m in paper_keys], "optimiser"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for e in summary:
         cells = [e["system"], e["model"], str(e["n_train"]), f"{e['runs'] - e['failed']}/{e['runs']}"]
-        cells += [f"{e[m]:.3g} ± {e[m + '_sd']:.2g}" if m in e else "failed" for m in metrics]
+        cells += [f"{e[m]:.3g} ± {e[m + '_sd']:.2g}" if m in e else "–" if e["model"] == ORACLE else "failed"
+                  for m in metrics]
         values = paper.get(f"{e['system']}/{e['model']}", {}) if not e["data_efficiency"] else {}
         cells += [f"{values[m]:.3g}" if m in values else "" for m in paper_keys]
+        cells.append(e.get("optimiser", ""))
         lines.append("| " + " | ".join(cells) + " |")
     note = f"\nPublished values: {source}\n" if source and paper_keys else ""
+    floors = floor_notes(summary)
+    if floors:
+        note += "\n" + "\n".join(floors) + "\n"
     return "\n".join(lines) + "\n" + note
 
 
@@ -170,7 +211,7 @@ def write_report(out: str | Path) -> list[Path]:
     write_text(out / "summary.md", f"# {out.name}\n\n" + markdown(summary, paper, source, headline=True)
                + "\n## Every metric\n\n" + markdown(summary, paper, source))
     grid = [r for r in rows if not r.get("data_efficiency") and not r.get("error")]
-    grid_summary = [e for e in summary if not e["data_efficiency"]]
+    grid_summary = [e for e in summary if not e["data_efficiency"] and e["model"] != ORACLE]
     files = [out / "results.csv", out / "summary.csv", out / "summary.md"]
     if grid:
         files += plots.comparison_figures(grid, grid_summary, out)

@@ -7,17 +7,19 @@ and tests; ``encons.checkpoints`` reads every checkpoint (``weights_only=True``)
 from __future__ import annotations
 
 import logging
+import shlex
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig, OmegaConf
 
-from encons import checkpoints
+from encons import checkpoints, compat
 from encons.build import Request, build, build_trainer, run_config
-from encons.errors import ConfigError
+from encons.errors import ConfigError, Interrupted
 
 if TYPE_CHECKING:
     from encons.data.datamodule import TrajectoryDataModule
@@ -41,6 +43,32 @@ class Run:
         return self.module.model
 
 
+@contextmanager
+def log_file(path: Path) -> Iterator[None]:
+    """The run's log in ``path`` (``train.log``) where nothing configured logging to a file (a script, a
+    notebook, ``encons-evaluate``; Hydra's job logging writes it under the CLI), with upstream noise
+    silenced (:func:`quiet_upstream`). With no handler at all, INFO records go to that file only."""
+    compat.quiet_upstream()
+    root = logging.getLogger()
+    if any(isinstance(h, logging.FileHandler) for h in root.handlers):
+        yield
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handler = logging.FileHandler(path)
+    handler.setFormatter(logging.Formatter("[%(asctime)s][%(name)s][%(levelname)s] - %(message)s"))
+    level, bare = root.level, not root.handlers
+    root.addHandler(handler)
+    if bare:  # nothing else listens, so INFO cannot reach a console the user set up
+        root.setLevel(logging.INFO)
+    try:
+        yield
+    finally:
+        root.removeHandler(handler)
+        handler.close()
+        root.setLevel(level)
+
+
+
 def _best_checkpoint(trainer):
     """The checkpoint callback that monitors a metric and kept a file (the best-by-validation model)."""
     return next((cb for cb in trainer.checkpoint_callbacks if cb.monitor and cb.best_model_path), None)
@@ -61,7 +89,8 @@ def train(cfg: DictConfig, summary: bool = True, request: Request | None = None)
     from encons.report import to_log_files
 
     try:
-        return _train(cfg, summary, Request.of(cfg) if request is None else request)
+        with log_file(Path(cfg.paths.output_dir) / "train.log"):
+            return _train(cfg, summary, Request.of(cfg) if request is None else request)
     except EnconsError as err:
         to_log_files(f"encons: error: {err}", logging.ERROR)  # the CLI prints the same line on stderr
         raise
@@ -72,7 +101,12 @@ def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
 
     from encons.report import print_summary
 
+    from encons.build import _route_lightning_logs, check
+
     started = time.perf_counter()
+    check(cfg, request)
+    _route_lightning_logs()  # before the Trainer prints its device lines
+    trainer, loggers = build_trainer(cfg, request)  # before any data: an accelerator, logger or callback that cannot work
     data, module = build(cfg, request)
     resume = checkpoints.resume_from(cfg)
     if resume is not None:
@@ -81,12 +115,11 @@ def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
     run_dir.mkdir(parents=True, exist_ok=True)
     config = run_config(cfg)
     OmegaConf.save(config, run_dir / "config.yaml")
-    trainer, loggers = build_trainer(cfg, request)
     for lg in loggers:
         lg.log_hyperparams(OmegaConf.to_container(config))
     tested = None
     try:
-        _fit(cfg, trainer, module, data, resume)
+        _fit(cfg, trainer, module, data, resume, request)
         results = {k: float(v) for k, v in trainer.callback_metrics.items()}
         best = _best_checkpoint(trainer)
         if best is not None:
@@ -96,6 +129,9 @@ def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
         if cfg.test:
             trainer.test(module, datamodule=data, ckpt_path=str(tested) if tested else None, verbose=False,
                          weights_only=True)
+            if trainer.received_sigterm:  # Lightning finishes a one-batch test stage before it looks
+                raise Interrupted(f"SIGTERM during test; the trained checkpoints are complete, test them: "
+                                  f"python -m encons.evaluate {shlex.quote(str(run_dir))}")
             results.update({f"test/{k}": v for k, v in module.test_metrics.items()})
         elif tested is not None:
             module.load_state_dict(checkpoints.read(tested)["state_dict"])
@@ -109,21 +145,37 @@ def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
     return Run(module, data, config, run_dir, tested, results)
 
 
-def _fit(cfg: DictConfig, trainer, module, data, resume: str | None) -> None:
+def _fit(cfg: DictConfig, trainer, module, data, resume: str | None, request: Request) -> None:
     """``trainer.fit`` (a resume read with ``weights_only=True``), with a monitored metric the module
-    never logs named as the user's key."""
+    never logs named as the user's key, and SIGTERM (Lightning stops after the epoch) as :class:`Interrupted`."""
     from lightning.fabric.utilities.exceptions import MisconfigurationException
+    from lightning.pytorch.utilities.exceptions import SIGTERMException
 
     from encons.compat import logged_metric_names
 
     try:
         trainer.fit(module, datamodule=data, ckpt_path=resume, weights_only=True)
+    except SIGTERMException:
+        raise Interrupted(_resume_line(cfg, request, trainer.current_epoch)) from None
     except MisconfigurationException as err:
         names = logged_metric_names(err)
         if names is None:
             raise
         raise ConfigError(f"optimized_metric={cfg.optimized_metric!r} is not a metric this run logs; allowed: "
                           f"{', '.join(names)}") from None
+
+
+def _resume_line(cfg: DictConfig, request: Request, epoch: int) -> str:
+    """What an interrupted fit says: where it stopped and the command that continues it in the same folder."""
+    run_dir = Path(cfg.paths.output_dir)
+    last = run_dir / "checkpoints" / "last.ckpt"
+    given = list(request.overrides)
+    kept = [o for o in given if not o.lstrip("+~").startswith(("ckpt_path=", "hydra.run.dir="))]
+    if not last.is_file():
+        return f"SIGTERM during fit, epoch {epoch}, before the first checkpoint; start again: " + \
+            shlex.join(["python", "-m", "encons.train", *given])
+    return (f"SIGTERM during fit, epoch {epoch} (checkpoints/last.ckpt holds the last whole epoch); resume: "
+            + shlex.join(["python", "-m", "encons.train", *kept, f"ckpt_path={last}", f"hydra.run.dir={run_dir}"]))
 
 
 def _which(ckpt: Path | None, results: dict[str, float]) -> str:
@@ -202,8 +254,12 @@ def evaluate(run: Run | str | Path, overrides: Iterable[str] = (), ckpt: str = "
     config = run.config.copy()
     config.logger, config.callbacks = None, None
     run.module.output_dir = run.run_dir / "evaluation"
-    trainer, _ = build_trainer(config)
-    trainer.test(run.module, datamodule=run.data, verbose=False, weights_only=True)
+    with log_file(run.module.output_dir / "evaluate.log"):
+        from encons.build import _route_lightning_logs
+
+        _route_lightning_logs()
+        trainer, _ = build_trainer(config)
+        trainer.test(run.module, datamodule=run.data, verbose=False, weights_only=True)
     run.metrics = {f"test/{k}": v for k, v in run.module.test_metrics.items()}
     note = f"tested: {run.checkpoint.name if run.checkpoint else 'in-memory weights'}; {run.module.evaluation.describe()}"
     steps = run.data.states["test"].shape[1] - 1

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from encons import io as atomic
-from encons.errors import WriteError
+from encons.errors import EnconsError, WriteError
 
 
 class _FillingFile:
@@ -42,17 +42,34 @@ class _FillingFile:
 
 @pytest.fixture
 def full_disk(monkeypatch):
-    """``full_disk(room)``: from now on every file ``encons.io`` opens fills after ``room`` bytes."""
-    real = os.fdopen
+    """``full_disk(room, suffix="", after=0)``: from now on, each file ``encons.io`` writes whose name ends
+    with ``suffix``, after the first ``after`` of them, fills after ``room`` bytes."""
+    real, mkstemp = os.fdopen, atomic.tempfile.mkstemp
 
-    def fill(room: int) -> None:
-        monkeypatch.setattr(atomic.os, "fdopen", lambda fd, *a, **k: _FillingFile(real(fd, *a, **k), room))
+    def fill(room: int, suffix: str = "", after: int = 0) -> None:
+        names = {}
+
+        def named(*args, prefix: str = "", **kwargs):  # the temporary's prefix holds the final name
+            fd, tmp = mkstemp(*args, prefix=prefix, **kwargs)
+            names[fd] = prefix.split(f".{atomic._host()}.")[0]
+            return fd, tmp
+
+        def fdopen(fd, *args, **kwargs):
+            nonlocal after
+            f = real(fd, *args, **kwargs)
+            if not names.pop(fd, "").endswith(suffix):
+                return f
+            after -= 1
+            return f if after >= 0 else _FillingFile(f, room)
+
+        monkeypatch.setattr(atomic.tempfile, "mkstemp", named)
+        monkeypatch.setattr(atomic.os, "fdopen", fdopen)
 
     return fill
 
 
 def _checkpoint(path, epoch):
-    from encons.checkpoint_io import AtomicCheckpointIO
+    from encons.lightning_io import AtomicCheckpointIO
 
     AtomicCheckpointIO().save_checkpoint({"epoch": epoch, "state_dict": {"w": torch.full((2000,), float(epoch))}}, path)
 
@@ -115,3 +132,20 @@ def test_a_read_only_folder_is_one_line(tmp_path, monkeypatch):
     with pytest.raises(WriteError, match=r"folder=.*: cannot write x\.json \(Read-only file system\); allowed: "):
         atomic.write_json(tmp_path / "x.json", {})
     assert not (tmp_path / "x.json").exists()
+
+
+def test_the_csv_logger_keeps_its_last_whole_table_when_the_disk_fills(tmp_path, full_disk):
+    from encons.lightning_io import CSVLogger
+
+    logger = CSVLogger(tmp_path, name="csv")
+    logger.log_hyperparams({"model": {"hidden": 16}})
+    logger.log_metrics({"train/loss": 1.0}, step=0)
+    logger.save()
+    table = tmp_path / "csv" / "version_0" / "metrics.csv"
+    before = table.read_text()
+    full_disk(room=8, suffix="metrics.csv")
+    logger.log_metrics({"train/loss": 0.5, "val/loss": 0.7}, step=1)
+    with pytest.raises(WriteError, match="cannot write metrics.csv"):
+        logger.save()
+    assert table.read_text() == before and before.splitlines() == ["step,train/loss", "0,1.0"]
+    assert sorted(p.name for p in table.parent.iterdir()) == ["hparams.yaml", "metrics.csv"]

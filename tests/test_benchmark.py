@@ -31,12 +31,17 @@ def test_smoke_profile_writes_report_and_resumes(tmp_path, capsys):
     assert len(list(cache.iterdir())) == 3  # n_train 4, 8 and the grid runs' 16
     md = (out / "summary.md").read_text()
     assert "| pendulum1 | hnn | 16 |" in md and "traj_rel_err" in md
+    # the floor beside the models (the true field, same evaluation), and the optimiser each model used
+    assert "| pendulum1 | oracle (true field) |" in md and "optimiser |" in md.splitlines()[2]
+    assert "AdamW lr 0.001, weight_decay 0.01; constant lr; 2 epochs |" in md
+    oracle_row = next(line for line in md.splitlines() if "oracle (true field)" in line)
+    assert float(oracle_row.split("|")[md.splitlines()[2].split("|").index(" geom_rel_err ")].split("±")[0]) < 1e-6
     for name in ("summary.csv", *FIGURES):
         assert (out / name).stat().st_size > 0, name
     stamps = {p: p.stat().st_mtime_ns for p in (out / "runs").glob("*/result.json")}
     capsys.readouterr()
     main(["profile=smoke", f"out={out}", f"cache_dir={cache}"])
-    printed = capsys.readouterr().err
+    printed = capsys.readouterr().out                    # the stream training logs to, not stderr
     assert printed.count("finished before, skipped") == 6 and "benchmark run 6 of 6 done" in printed
     assert stamps == {p: p.stat().st_mtime_ns for p in (out / "runs").glob("*/result.json")}
     (out / "summary.md").unlink()
@@ -47,7 +52,7 @@ def test_smoke_profile_writes_report_and_resumes(tmp_path, capsys):
     before = json.loads(killed.read_text())
     killed.unlink()
     main(["profile=smoke", f"out={out}", f"cache_dir={cache}"])
-    assert f"resuming from {killed.parent / 'checkpoints' / 'last.ckpt'}" in capsys.readouterr().err
+    assert f"resuming from {killed.parent / 'checkpoints' / 'last.ckpt'}" in capsys.readouterr().out
     after = json.loads(killed.read_text())
     assert {k: v for k, v in after.items() if k.startswith("test/")} == {
         k: v for k, v in before.items() if k.startswith("test/")}
@@ -88,6 +93,6 @@ def test_help_lists_the_profiles_and_trains_nothing(tmp_path, capsys):
     main(["--help", f"out={tmp_path}"])
     out = capsys.readouterr().out
     profiles = sorted(p.stem for p in (Path(config_dir()) / "profile").glob("*.yaml"))
-    assert {"finzi", "lim_kasim", "pixels", "quick", "smoke", "zhong"} <= set(profiles)
+    assert {"control", "finzi", "lim_kasim", "pixels", "quick", "smoke", "zhong"} <= set(profiles)
     assert f"profiles: {', '.join(profiles)}" in out and "seeds:" in out
     assert not any(tmp_path.iterdir())

@@ -116,7 +116,7 @@ def test_control_command_scores_a_tiny_trained_run(model, system, tmp_path, caps
         assert f"control/{key}" in saved and f"oracle/{key}" in saved
     assert 0 <= saved["control/success_rate"] <= 1 and saved["control/max_abs_u"] <= 2.0 + 1e-12
     assert np.isfinite(saved["control/pred_rmse"]) and saved["control/pred_rmse"] > 0
-    assert 0 < saved["control/linear_rel_err"] < np.inf
+    assert 0 < saved["control/a_rel_err"] < np.inf and 0 < saved["control/b_rel_err"] < np.inf
     for name in ("control_phase", "control_energy_input", "control_success"):
         assert (out / f"{name}.png").stat().st_size > 10_000
     printed = capsys.readouterr().out

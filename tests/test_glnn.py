@@ -29,7 +29,7 @@ def states(system, n=64, seed=3):
 @pytest.mark.parametrize("name", SYSTEMS)
 def test_glnn_with_true_lagrangian_and_force_gives_true_acceleration(name, angular):
     system = SYSTEMS[name]()
-    model = GLNN(system, hidden=8, depth=2, damping=0.0, angular=angular).double()
+    model = GLNN(system, hidden=8, depth=2, guard=0.0, angular=angular).double()
     model.lagrangian_derivatives = partial(lagrangian_derivatives, system.lagrangian)  # torch.func, of any L
     model.force = system.force
     s = states(system)
@@ -42,7 +42,7 @@ def test_glnn_without_force_is_lnn_on_a_conservative_system():
     system = NPendulum(2, masses=[1.0, 1.5], lengths=[1.0, 0.8])
     s = system.sample_initial(64, torch.Generator().manual_seed(4))
     t = torch.zeros(())
-    glnn, lnn = GLNN(system, hidden=16, depth=2, damping=0.0).double(), LNN(system, hidden=16, depth=2, damping=0.0).double()
+    glnn, lnn = GLNN(system, hidden=16, depth=2, guard=0.0).double(), LNN(system, hidden=16, depth=2, guard=0.0).double()
     glnn.lagrangian_derivatives = lnn.lagrangian_derivatives = partial(lagrangian_derivatives, _pendulum_lagrangian(system))
     glnn.force = lambda x: torch.zeros_like(x[..., :2])
     torch.testing.assert_close(glnn(t, s), lnn(t, s), rtol=0, atol=1e-12)
@@ -52,7 +52,7 @@ def test_glnn_without_force_is_lnn_on_a_conservative_system():
 def test_glnn_networks_with_zero_force_equal_lnn_with_the_same_lagrangian_network():
     system = NPendulum(2)
     glnn = GLNN(system, hidden=16, depth=2).double()
-    lnn = LNN(system, hidden=16, depth=2, damping=glnn.damping).double()  # GLNN keeps λ = 0.1, LNN's default is 1
+    lnn = LNN(system, hidden=16, depth=2).double()
     lnn.lagrangian_net.load_state_dict(glnn.lagrangian_net.state_dict())
     torch.nn.init.zeros_(glnn.force_net[-1].weight)
     torch.nn.init.zeros_(glnn.force_net[-1].bias)

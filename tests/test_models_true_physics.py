@@ -73,7 +73,6 @@ def with_true_physics(model, system, potential_scale=1.0):
         return 0.5 * (qd * (mass(q) @ qd.unsqueeze(-1)).squeeze(-1)).sum(-1)
 
     if isinstance(model, LNN):
-        model.damping = 0.0  # the plain solve: the guard's O(λ²) bias is not physics
         model.lagrangian = lambda s: kinetic(*split_state(s)) - potential(split_state(s)[0])
         model.lagrangian_derivatives = partial(lagrangian_derivatives, model.lagrangian)
     elif isinstance(model, HNN):

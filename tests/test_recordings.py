@@ -56,13 +56,20 @@ def test_two_trial_csv_with_jittered_stamps_keeps_trials_apart_and_splits_each_b
     assert "train t < 102.8: 27, val t < 103.2: 4, test: 3" in caplog.text
 
 
-def test_the_cli_trains_on_a_csv_recording(tmp_path, train_run, caplog):
+def test_the_cli_trains_on_a_csv_recording_for_a_budget_in_steps(tmp_path, caplog):
+    from encons import api
+
     path = two_trial_csv(tmp_path / "rig.csv")
+    cfg = api.compose("debug=fast", "system=from_file", f"system.path={path}", "model=node", "data.n_steps=10",
+                      "data.test_steps=20", "data.recording.columns={t: time, q: [theta], qdot: [omega], trial: run}",
+                      "trainer.max_epochs=null", "trainer.max_steps=9", output_dir=tmp_path / "run")
     with caplog.at_level(logging.INFO, logger="encons"):
-        m = train_run(["system=from_file", f"system.path={path}", "model=node", "data.n_steps=10",
-                       "data.test_steps=20", "data.recording.columns={t: time, q: [theta], qdot: [omega], trial: run}"])
-    assert math.isfinite(m["test/traj_rel_err"])
-    assert "optimiser step(s) per epoch (a file: budget training with trainer.max_steps)" in caplog.text
+        run = api.train(cfg)
+    assert math.isfinite(run.metrics["test/traj_rel_err"])
+    assert "54 trajectories in batches of 8: 7 optimiser step(s) per epoch (a file: budget training with " \
+           "trainer.max_steps)" in caplog.text
+    last = torch.load(run.run_dir / "checkpoints" / "last.ckpt", weights_only=True, map_location="cpu")
+    assert last["global_step"] == 9 and last["epoch"] == 1                 # 9 steps: epoch 0 whole, 2 of epoch 1
 
 
 def test_steps_beyond_the_jitter_tolerance_are_refused_or_resampled(tmp_path):

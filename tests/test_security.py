@@ -71,7 +71,7 @@ def test_benchmark_resume_starts_afresh_instead(tmp_path, evil_ckpt, capsys):
     cfg = fast(tmp_path)
     benchmark.resume_or_clear(cfg, ckpts)
     assert cfg.ckpt_path is None and not ckpts.exists()
-    assert "last.ckpt refused" in capsys.readouterr().err
+    assert "last.ckpt refused" in capsys.readouterr().out
     assert not marker.exists()
 
 

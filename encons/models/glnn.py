@@ -11,7 +11,7 @@ import torch
 from torch import Tensor
 
 from encons.models.base import DynamicsModel
-from encons.models.lnn import LNN, SECOND_ORDER_OBJECTIVES, damped_solve
+from encons.models.lnn import LNN, SECOND_ORDER_OBJECTIVES, guarded_solve
 from encons.models.networks import embed_angles, embedded_width, mlp
 from encons.systems.base import System, split_state
 
@@ -28,14 +28,15 @@ class GLNN(LNN):
 
     LNN's closed-form ``lagrangian_derivatives`` of the L network (``MLPTape``; tests check them against
     ``encons.models.lnn.lagrangian_derivatives``, torch.func of any L) with F added to the right-hand
-    side, and LNN's guarded solve with λ = ``damping`` (0: the plain inverse of eq. (11)). L starts from
+    side, and LNN's ``guarded_solve`` (``guard`` 1e-3: the plain inverse of eq. (11) wherever ∇²_q̇L is
+    not near singular; 0: always). L starts from
     Cranmer et al.'s initialisation as in LNN; F from PyTorch's default. Limits: L and F are not
     identifiable apart (any F can absorb a change of L), so only q̈ is learned, not the energy split.
     """
 
     def __init__(self, system: System, chart: str | None = None, hidden: int = 200, depth: int = 3,
-                 activation: str = "softplus", damping: float = 0.1, angular: bool = False):
-        super().__init__(system, chart, hidden, depth, activation, damping, angular)
+                 activation: str = "softplus", guard: float = 1e-3, angular: bool = False):
+        super().__init__(system, chart, hidden, depth, activation, guard, angular)
         self.force_net = mlp(embedded_width(self.n, angular) + self.n, self.n, hidden, depth, activation)
 
     def force(self, s: Tensor) -> Tensor:
@@ -44,7 +45,7 @@ class GLNN(LNN):
 
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         dl_dq, hessian, mixed = self.lagrangian_derivatives(s)
-        return torch.cat([split_state(s)[1], damped_solve(hessian, dl_dq - mixed + self.force(s), self.damping)], -1)
+        return torch.cat([split_state(s)[1], guarded_solve(hessian, dl_dq - mixed + self.force(s), self.guard)], -1)
 
 
 class SecondOrder(DynamicsModel):

@@ -1,0 +1,98 @@
+"""Every tensor a model, system, metric or integrator creates follows its inputs' device and dtype:
+one training step (loss and backward) of every catalogue model on every simulated system it can
+serve, on the ``meta`` device (devices, dtypes and shapes only: a tensor created on the CPU beside
+meta ones fails the step) and, where present, on CUDA (``gpu`` mark), its loss compared with the CPU's.
+
+Meta tensors hold no values, so on meta three value reads are stood in for: torchdiffeq's
+fixed-grid loop (it reads the times' values to build its grid) is replaced by the same method's own
+step function over the given times, the integrator's step size (read from the times) is left out, and
+SyMo's Newton iteration stops at its iteration count (``model.train_iters=0``) rather than its tolerance.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+import torch
+from torchdiffeq._impl.odeint import SOLVERS
+
+import encons.integrators
+from encons import api
+from encons.errors import ConfigError
+from tests.helpers import simulated_systems
+
+FLAGSHIP = "gyroscope"
+SYSTEMS = [s if s == FLAGSHIP else pytest.param(s, marks=pytest.mark.slow) for s in simulated_systems()]
+
+
+def meta_odeint(func, y0, t, method="rk4", options=None, **_):
+    """``odeint`` over the steps of ``t`` with ``method``'s own step, reading no values."""
+    solver = SOLVERS[method](func, y0, step_size=1.0, rtol=0.0, atol=0.0)
+    field = lambda time, y, perturb=None: func(time, y)  # noqa: E731 - torchdiffeq's step passes perturb
+    ys = [y0]
+    for k in range(t.shape[0] - 1):
+        dy, _ = solver._step_func(field, t[k], t[k + 1] - t[k], t[k + 1], ys[-1])
+        ys.append(ys[-1] + dy)
+    return torch.stack(ys)
+
+
+def step_loss(module, batch: dict) -> torch.Tensor:
+    """``DynamicsModule.training_step``'s loss, without its logging and its finiteness check (a value read)."""
+    loss = module.loss(batch)
+    if module.regulariser is not None:
+        with torch.no_grad():
+            points = module.encode(batch)[1]
+        u = batch.get("u")
+        u = None if u is None else u[:, : points.shape[1]].flatten(0, 1)
+        loss = loss + module.regulariser(module.model, points.flatten(0, 1), u)
+    return loss
+
+
+def built_pairs(system: str, cache, device: str):
+    """(model name, data, module) for every catalogue model that can serve ``system``."""
+    for model in api.catalogue("model"):
+        extra = ["model.train_iters=0"] if device == "meta" and "symo" in model else []
+        cfg = api.compose("debug=fast", f"model={model}", f"system={system}", *extra,
+                          output_dir=cache / "run", cache_dir=cache / "data")
+        try:
+            data, module = api.build(cfg)
+        except ConfigError:  # a model that cannot serve this system (chart, controls, constraints)
+            continue
+        yield model, data, module
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("devices")
+
+
+@pytest.mark.parametrize("system", SYSTEMS)
+def test_training_step_on_meta(system, cache, monkeypatch):
+    monkeypatch.setattr(encons.integrators, "odeint", meta_odeint)
+    monkeypatch.setattr(encons.integrators.Integrator, "options", lambda self, t: {"method": self.method})
+    stepped = []
+    for model, data, module in built_pairs(system, cache, "meta"):
+        batch = {k: v.to("meta") for k, v in next(iter(data.train_dataloader())).items()}
+        module.to("meta")
+        loss = step_loss(module, batch)
+        loss.backward()
+        assert (loss.device.type, loss.dtype, loss.shape) == ("meta", torch.float32, ()), model
+        grads = [p.grad for p in module.parameters() if p.grad is not None]
+        assert grads and all(g.device.type == "meta" and g.dtype == torch.float32 for g in grads), model
+        stepped.append(model)
+    assert stepped, f"no catalogue model serves {system}"
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
+@pytest.mark.parametrize("system", SYSTEMS)
+def test_training_step_on_cuda_matches_cpu(system, cache):
+    for model, data, module in built_pairs(system, cache, "cuda"):
+        batch = next(iter(data.train_dataloader()))
+        on_gpu = copy.deepcopy(module).to("cuda")
+        cpu_loss = step_loss(module, batch)
+        gpu_loss = step_loss(on_gpu, {k: v.to("cuda") for k, v in batch.items()})
+        gpu_loss.backward()
+        assert gpu_loss.device.type == "cuda", model
+        torch.testing.assert_close(gpu_loss.cpu(), cpu_loss.detach(), rtol=1e-3, atol=1e-5, msg=model)

@@ -1,0 +1,65 @@
+"""Bad settings found before any data, and an interrupted run that says so: SIGTERM (what a scheduler
+sends) ends a run with a non-zero exit and the command that resumes it in the same folder."""
+
+from __future__ import annotations
+
+import json
+import os
+import shlex
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import torch
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="the accelerator error needs a machine without a GPU")
+def test_a_full_size_run_is_refused_with_the_accelerator_error_before_any_data_is_simulated(cli, tmp_path):
+    started = time.perf_counter()
+    proc = cli("model=hnn", "system=pendulum2", "trainer.accelerator=gpu", f"paths.cache_dir={tmp_path / 'cache'}",
+               f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert proc.stderr.startswith("encons: error: trainer.accelerator=gpu") and "allowed:" in proc.stderr
+    assert "simulating" not in proc.stdout and not any((tmp_path / "cache").glob("*.npz"))
+    assert time.perf_counter() - started < 60                 # not after the 1000 trajectories of pendulum2
+
+
+def _wait_for(path, text, proc, timeout=300):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and proc.poll() is None:
+        if path.is_file() and text in path.read_text():
+            return
+        time.sleep(0.2)
+    raise AssertionError(f"{text!r} never reached {path}")
+
+
+@pytest.mark.slow
+def test_sigterm_during_fit_exits_non_zero_prints_the_resume_command_and_resuming_continues(tmp_path):
+    run = tmp_path / "run"
+    args = ["model=node", "system=pendulum1", "debug=fast", "trainer.max_epochs=30", f"hydra.run.dir={run}",
+            f"paths.cache_dir={tmp_path / 'cache'}"]
+    env = {**os.environ, "ENCONS_ROOT": str(tmp_path)}
+    proc = subprocess.Popen([sys.executable, "-m", "encons.train", *args], cwd=tmp_path, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _wait_for(run / "train.log", "epoch 3 of 30", proc)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 143, err[-2000:]
+    line = err.strip().splitlines()[-1]
+    assert line.startswith("encons: interrupted: SIGTERM during fit"), err[-2000:]
+    command = line.split("resume: ", 1)[1]
+    assert f"hydra.run.dir={run}" in command and f"ckpt_path={run / 'checkpoints' / 'last.ckpt'}" in command
+    assert not (run / "test_metrics.json").exists()
+    stopped = torch.load(run / "checkpoints" / "last.ckpt", weights_only=True, map_location="cpu")["epoch"]
+    assert 2 <= stopped < 29
+
+    resumed = subprocess.run(shlex.split(command.replace("python", shlex.quote(sys.executable), 1)), cwd=tmp_path,
+                             env=env, capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    log = (run / "train.log").read_text()
+    assert "epoch 30 of 30" in log and f"epoch {stopped + 2} of 30" in log          # the same run, continued
+    assert torch.load(run / "checkpoints" / "last.ckpt", weights_only=True, map_location="cpu")["epoch"] == 29
+    assert json.loads((run / "test_metrics.json").read_text())["traj_rel_err"] > 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cache", "run"]          # no second run folder

@@ -1,0 +1,52 @@
+"""The README's first hour: one python form after activating the venv, the console scripts it names
+exist and run, a one-minute first command near the top, committed example results the report reads."""
+
+from __future__ import annotations
+
+import importlib
+import re
+import tomllib
+from pathlib import Path
+
+ROOT = Path(__file__).parents[1]
+README = (ROOT / "README.md").read_text()
+
+
+def test_one_python_form_after_activating_the_venv():
+    top = README[: README.index("## From Python")]
+    assert "source .venv/bin/activate" in top
+    assert not re.search(r"^\s*\.venv/bin/python -m", README, re.M)       # one form: python -m after activation
+    assert "python -m encons.train model=hnn_angle system=pendulum1 debug=fast" in top
+
+
+def test_every_console_script_is_named_in_the_readme_and_has_a_main():
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    assert {"encons-train", "encons-evaluate", "encons-benchmark", "encons-report"} <= set(scripts)
+    for name, target in scripts.items():
+        assert f"`{name}`" in README, name
+        module, _, function = target.partition(":")
+        assert callable(getattr(importlib.import_module(module), function)), target
+
+
+def test_the_readme_states_measured_durations():
+    section = README[README.index("### How long things take"):README.index("## From Python")]
+    assert re.search(r"load average at about \d+", section)
+    rows = [line.split("|")[1:3] for line in section.splitlines() if line.startswith("| `") or line.startswith("| the")]
+    assert len(rows) >= 9 and all(re.fullmatch(r" \d+ (s|min) ", time) for _, time in rows), rows
+    for command in ("make install", "make test-fast", "debug=fast", "system=pendulum2", "encons.evaluate",
+                    "profile=smoke", "encons.report"):
+        assert command in section, command
+
+
+def test_the_committed_example_results_rebuild_with_the_report(tmp_path):
+    import shutil
+
+    from encons.report import write_report
+
+    out = tmp_path / "smoke"
+    shutil.copytree(ROOT / "examples" / "results" / "smoke", out)
+    summary = (out / "summary.md").read_text()
+    (out / "summary.md").unlink()
+    files = write_report(out)
+    assert (out / "summary.md").read_text() == summary
+    assert {p.name for p in files} >= {"traj_rel_err.png", "data_efficiency.png", "summary.csv"}

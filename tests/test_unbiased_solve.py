@@ -1,0 +1,68 @@
+"""LNN, its angle form and GLNN at their default settings solve ∇²_q̇L q̈ = r without bias: fed the true
+Lagrangian at physical scale (and GLNN the true force) they give the true q̈ (``guarded_solve``)."""
+
+from __future__ import annotations
+
+from functools import partial
+
+import pytest
+import torch
+from hydra.utils import execution_whitelist
+
+from encons import api
+from encons.config import build_model, build_system
+from encons.models.glnn import GLNN
+from encons.models.lnn import guarded_solve, lagrangian_derivatives
+from encons.systems.base import split_state
+
+SYSTEMS = ["pendulum1", "pendulum2", "pendulum4", "gyroscope", "damped_oscillator", "compound_pendulum"]
+
+
+def true_lagrangian(system):
+    def lagrangian(s):
+        q, qd = split_state(s)
+        return 0.5 * (qd.unsqueeze(-2) @ system.mass_matrix(q) @ qd.unsqueeze(-1))[..., 0, 0] - system.potential(q)
+    return lagrangian
+
+
+def physical_states(system, n=256):
+    """States as the data sample them (the gyroscope's kept |sin θ| ≥ 0.1, as its data are)."""
+    s = system.sample_initial(4 * n, torch.Generator().manual_seed(3))
+    if system.name == "gyroscope":
+        s = s[torch.sin(s[:, 1]).abs() >= 0.1]
+    return s[:n]
+
+
+@pytest.mark.parametrize("name", SYSTEMS)
+@pytest.mark.parametrize("model_name", ["lnn", "lnn_angle", "glnn"])
+def test_true_lagrangian_gives_the_true_acceleration_at_default_settings(model_name, name):
+    cfg = api.compose(f"model={model_name}", f"system={name}", output_dir=".")
+    with execution_whitelist(api.trusted_targets()):
+        system = build_system(cfg)
+        model = build_model(cfg, system).double()
+    model.lagrangian_derivatives = partial(lagrangian_derivatives, true_lagrangian(system))
+    force = getattr(system, "force", lambda s: torch.zeros_like(split_state(s)[0]))
+    s = physical_states(system)
+    q, _ = split_state(s)
+    expected = split_state(system.vector_field(s, "angle"))[1]
+    if isinstance(model, GLNN):
+        model.force = force
+    else:  # LNN learns no force: the true q̈ of L alone
+        expected = expected - torch.linalg.solve(system.mass_matrix(q), force(s).unsqueeze(-1)).squeeze(-1)
+    got = split_state(model(torch.zeros(()), s))[1]
+    rel = ((got - expected).norm(dim=-1) / expected.norm(dim=-1)).max().item()
+    assert rel <= 1e-6, rel
+
+
+def test_the_guard_acts_where_the_hessian_is_near_singular_and_bounds_the_solution():
+    h = torch.tensor([[[2.0, 0.0], [0.0, 1e-7]], [[2.0, 0.0], [0.0, 1.0]], [[1.0, 0.0], [0.0, 0.0]]],
+                     dtype=torch.float64, requires_grad=True)
+    r = torch.ones(3, 2, dtype=torch.float64)
+    x = guarded_solve(h, r, 1e-4)
+    lam = 1e-4 * h.detach().flatten(-2).norm(dim=-1)
+    assert torch.equal(x[1], torch.tensor([0.5, 1.0], dtype=torch.float64))       # well conditioned: exact
+    assert (x[0].norm() <= r[0].norm() / (2 * lam[0])) and x[0, 0].item() == pytest.approx(0.5)  # damped on the small σ only
+    assert x[2].tolist() == pytest.approx([1.0, 0.0]) and x[2, 1] == 0            # singular: finite, not NaN
+    x.sum().backward()
+    assert h.grad.isfinite().all()
+    assert guarded_solve(1e6 * h.detach()[:2], 1e6 * r[:2], 1e-4).allclose(x[:2].detach())  # scale-free
