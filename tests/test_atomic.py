@@ -83,9 +83,9 @@ def _report(path, value):
 def _figure(path, value):
     from encons import plots
 
-    fig, ax = plots.plt.subplots()
+    fig, ax = plots.subplots(figsize=(2, 2))
     ax.plot(np.arange(100) * value)
-    plots._save(fig, path)
+    plots.save_png(fig, path)
 
 
 WRITERS = {  # name: (file, write(path, version), read(path) -> what a reader sees)

@@ -9,7 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from encons.benchmark import compose_benchmark, expand, main
+from encons.benchmark import expand
+from encons.build import compose
+from encons.cli import benchmark as main
 from encons.errors import ConfigError
 from encons.paths import config_dir
 from encons.report import write_report
@@ -31,7 +33,7 @@ def test_smoke_profile_writes_report_and_resumes(tmp_path, capsys):
     assert "| pendulum1 | hnn | 16 |" in md and "traj_rel_err" in md
     # the floor beside the models (the true field, same evaluation), and the optimiser each model used
     assert "| pendulum1 | oracle (true field) |" in md and "optimiser |" in md.splitlines()[2]
-    assert "AdamW lr 0.001 wd 0.01, constant, 2 epochs |" in md
+    assert "AdamW lr 0.001, weight_decay 0.01; constant lr; 2 epochs |" in md
     oracle_row = next(line for line in md.splitlines() if "oracle (true field)" in line)
     assert float(oracle_row.split("|")[md.splitlines()[2].split("|").index(" geom_rel_err ")].split("±")[0]) < 1e-6
     for name in ("summary.csv", *FIGURES):
@@ -57,35 +59,35 @@ def test_smoke_profile_writes_report_and_resumes(tmp_path, capsys):
 
 
 def test_profiles_expand_and_carry_published_numbers():
-    finzi = expand(compose_benchmark(["profile=finzi"]))
+    finzi = expand(compose(["profile=finzi"], config_name="benchmark"))
     assert len(finzi) == 2 * 2 * 3 and all("data.noise=0.0" in r.overrides for r in finzi)
-    lim_kasim = expand(compose_benchmark(["profile=lim_kasim"]))
+    lim_kasim = expand(compose(["profile=lim_kasim"], config_name="benchmark"))
     assert {r.label for r in lim_kasim} >= {"node+C_H", "hnn", "nsf", "node+C_D"}
     assert next(r for r in lim_kasim if r.label == "node+C_H" and r.system == "pendulum").paper == {
         "energy_rmse_median": 0.024}
-    quick = expand(compose_benchmark(["profile=quick"]))
+    quick = expand(compose(["profile=quick"], config_name="benchmark"))
     assert len(quick) == 11 * 4 * 3
-    zhong = expand(compose_benchmark(["profile=zhong"]))
+    zhong = expand(compose(["profile=zhong"], config_name="benchmark"))
     assert {r.n_train for r in zhong} == {None, 10, 100, 1000, 10000}
     two_networks = {r.label for r in zhong if "model.shared_trunk=false" in r.overrides}
     assert two_networks == {"hnn_structure", "hnn_structure_angle", "lnn_structure", "lnn_structure_angle"}
     assert all(("system.min_sin_theta=0.0" in r.overrides) == (r.system == "gyroscope") for r in zhong)
-    santos = expand(compose_benchmark(["profile=santos"]))
+    santos = expand(compose(["profile=santos"], config_name="benchmark"))
     assert len(santos) == 5 * 2 * 6 and {r.system for r in santos} == {"pendulum_control", "cartpole"}
     big = next(r for r in santos if r.n_train == 128 and r.system == "cartpole" and r.label == "symo")
-    assert {"data.batch_size=17", "optim.lr=1e-3", "model.hidden=256", "objective=residual"} <= set(big.overrides)
-    part = expand(compose_benchmark(["profile=lim_kasim", "only=[mass_spring,pendulum/hnn]"]))
+    assert {"data.batch_size=17", "optimizer.lr=1e-3", "model.hidden=256", "objective=residual"} <= set(big.overrides)
+    part = expand(compose(["profile=lim_kasim", "only=[mass_spring,pendulum/hnn]"], config_name="benchmark"))
     assert [r.id for r in part][-1] == "pendulum-hnn-seed0" and {r.system for r in part[:-1]} == {"mass_spring"}
     with pytest.raises(ConfigError, match="only=\\['nope'\\] selects none"):
-        expand(compose_benchmark(["profile=lim_kasim", "only=[nope]"]))
-    xiao = expand(compose_benchmark(["profile=xiao"]))
+        expand(compose(["profile=lim_kasim", "only=[nope]"], config_name="benchmark"))
+    xiao = expand(compose(["profile=xiao"], config_name="benchmark"))
     assert len(xiao) == 16 and next(r for r in xiao if r.label == "glnn-h200-d3" and r.system == "damped_oscillator"
                                     ).paper == {"table_3_4": 1.94e-4}
 
 
 def test_unknown_profile_is_one_line_error():
     with pytest.raises(ConfigError, match="profile=nope is unknown; allowed: .*quick"):
-        compose_benchmark(["profile=nope"])
+        compose(["profile=nope"], config_name="benchmark")
 
 
 def test_report_of_a_folder_without_runs(tmp_path):

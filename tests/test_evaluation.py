@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from encons import api, metrics
-from encons.config import build_system
+from encons.build import build_system
 from encons.data.simulate import sample_trajectories
 from encons.evaluation import Evaluation, TrueField
 from encons.integrators import Integrator, rollout
