@@ -66,9 +66,9 @@ def main() -> None:
             def train_step() -> None:
                 opt.zero_grad(set_to_none=True)
                 loss = module.loss(batch)
-                if module.regulariser is not None:  # as DynamicsModule.training_step
+                if module.regulariser is not None:  # as TrainingModule.training_step
                     with torch.no_grad():
-                        points = module.encode(batch)[1]
+                        points = module.observe(batch)[1]
                     loss = loss + module.regulariser(module.model, points.flatten(0, 1))
                 loss.backward()
                 opt.step()
@@ -76,7 +76,7 @@ def main() -> None:
             test = next(iter(data.test_dataloader()))
 
             def test_pass() -> None:
-                x, states = module.encode(test)
+                x, states = module.observe(test)
                 module.observation.decode(module.predict(test, states)).detach()
 
             frames = batch["obs"].shape[0] * batch["obs"].shape[1]

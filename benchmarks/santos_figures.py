@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from encons.config import compose_train
+from encons.build import compose
 from encons.errors import EnconsError
 from encons.plots import _save, plt
 
@@ -36,7 +36,7 @@ FIGURE = {"pendulum_control": "figure3", "cartpole": "figure4"}
 
 
 def run(systems: list[str], models: list[str], sizes: list[int], epochs: int, lr: float, out: Path) -> list[dict]:
-    from encons.train import train
+    from encons.api import train
 
     rows = []
     for system in systems:
@@ -44,10 +44,10 @@ def run(systems: list[str], models: list[str], sizes: list[int], epochs: int, lr
             for model in models:
                 run_dir = out / "runs" / f"{system}-{model}-n{size}"
                 overrides = ["experiment=symo_paper", f"system={system}", *MODELS[model], *SYSTEM_OVERRIDES[system],
-                             f"data.n_train={size}", f"trainer.max_epochs={epochs}", f"optim.lr={lr}", "logger=none",
+                             f"data.n_train={size}", f"trainer.max_epochs={epochs}", f"optimizer.lr={lr}", "logger=none",
                              "trainer.enable_progress_bar=false"]
                 try:
-                    results, error = train(compose_train(overrides, run_dir, out / "cache")), ""
+                    results, error = train(compose(overrides, run_dir, out / "cache")), ""
                 except EnconsError as err:
                     results, error = {}, str(err)
                 rows.append({"system": system, "model": model, "n_train": size, "error": error,

@@ -1,7 +1,7 @@
 """Speed of one training step per model, against the bare floor of its derivative order and
-against a straightforward implementation of the same model (``make bench``; issue 11).
+against a straightforward implementation of the same model (``make bench``).
 
-A step is what ``DynamicsModule`` does per batch: roll out 200 windows of 5 states with RK4
+A step is what ``TrainingModule`` does per batch: roll out 200 windows of 5 states with RK4
 (4 steps, 16 field evaluations), L1 loss, backward, AdamW step, 3 × 256 Softplus networks
 (DESIGN.md "Speed targets"). The floors are the same step with the simplest field of each
 derivative order, through one 3 × 256 network V(q) and batched ``autograd.grad``
@@ -42,7 +42,7 @@ from torch import Tensor
 
 from encons import threads
 from encons.api import catalogue, compose
-from encons.config import build_model, build_system
+from encons.build import build_model, build_system
 from encons.data.simulate import sample_trajectories, simulate
 from encons.errors import ConfigError
 from encons.integrators import Integrator
@@ -50,7 +50,7 @@ from encons.models.base import DynamicsModel
 from encons.models.constrained import CHNN, CLNN
 from encons.models.lnn import LNN, LNNStructure
 from encons.models.networks import mlp
-from encons.module import DynamicsModule
+from encons.module import TrainingModule
 from encons.systems.base import System, point_mass_matrix, split_state
 
 FIELDS = ["system", "model", "order", "wall_ms", "cpu_ms", "steps_per_s", "peak_mb", "ratio_floor",
@@ -171,7 +171,7 @@ def windows(system: System, chart: str, dt: float, batch: int, chunk: int) -> Te
 
 
 def stepper(model: DynamicsModel, params: list, system: System, batch: Tensor, dt: float) -> Callable[[], None]:
-    module = DynamicsModule(model, system, dt, Integrator("rk4"))
+    module = TrainingModule(model, system, dt, Integrator("rk4"))
     opt = torch.optim.AdamW(params, lr=1e-3)
 
     def step() -> None:

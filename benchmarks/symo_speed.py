@@ -1,6 +1,6 @@
 """Speed of an E2E-SyMo training step against a SyMo step at the same sizes (Santos et al. §5–6).
 
-One step is what ``DynamicsModule`` does per batch: windows of 3 states (q_{k−1}, q_k, q_{k+1})
+One step is what ``TrainingModule`` does per batch: windows of 3 states (q_{k−1}, q_k, q_{k+1})
 with constant controls; SyMo: the squared DEL residual (eq. (15)); E2E-SyMo: Newton root-find of
 q_{k+1} (training tolerance 1e-5, at most 10 iterations, batched: one linear solve per iteration
 for the whole batch) and the L1 rollout loss, backward by the implicit gradient (eq. (16)); then
@@ -20,7 +20,7 @@ import torch
 from encons import threads
 from encons.data.simulate import simulate
 from encons.models.symo import E2ESyMo, SyMo
-from encons.module import DynamicsModule
+from encons.module import TrainingModule
 from encons.systems.controlled import CartPole, ControlledPendulum
 
 SYSTEMS = {"pendulum_control": (ControlledPendulum, 0.1, 128), "cartpole": (CartPole, 0.05, 256)}
@@ -34,7 +34,7 @@ def batch(system, dt: float, size: int) -> dict[str, torch.Tensor]:
     return {"states": simulate(system, s0, t, 10, u).float(), "u": u.float()}
 
 
-def time_step(module: DynamicsModule, data: dict, steps: int) -> tuple[float, float, list[int]]:
+def time_step(module: TrainingModule, data: dict, steps: int) -> tuple[float, float, list[int]]:
     """Fastest wall and CPU time (ms) of ``steps`` steps after a warm-up, and Newton iterations per step."""
     opt = torch.optim.Adam(module.parameters(), lr=1e-4)
     wall, cpu, iters = [], [], []
@@ -65,7 +65,7 @@ def main() -> None:
         for model_cls in (SyMo, E2ESyMo):
             torch.manual_seed(0)
             model = model_cls(system, hidden=hidden, depth=2).train()
-            module = DynamicsModule(model, system, dt, None, objective=model_cls.objectives[0])
+            module = TrainingModule(model, system, dt, None, objective=model_cls.objectives[0])
             wall, cpu, iters = time_step(module, data, args.steps)
             times[model_cls] = cpu
             ratio = cpu / times[SyMo]

@@ -27,6 +27,7 @@ import lightning.pytorch as pl
 import torch
 
 from encons import api
+from encons.compat import quiet_upstream
 
 #: model/system -> target val/traj_rel_err: the flagship, then one model per family on pendulum2
 #: (about twice what each reached in 100 default epochs, sweeps/README.md)
@@ -84,7 +85,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("overrides", nargs="*", help="train overrides for every run, e.g. data.n_train=200")
     args = parser.parse_args(argv)
     os.environ.setdefault("WANDB_MODE", "disabled")
-    api.quiet_upstream()
+    quiet_upstream()
     for name in ("lightning.pytorch", "lightning.fabric"):  # devices, stop reason: per run, not news
         logging.getLogger(name).setLevel(logging.WARNING)
     warnings.filterwarnings("ignore", message=r"hydra\.utils\.instantiate\(\) resolved")

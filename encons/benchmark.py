@@ -22,9 +22,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from hydra import compose, initialize_config_dir
-from hydra.core.global_hydra import GlobalHydra
-from hydra.errors import MissingConfigException
 from omegaconf import DictConfig, OmegaConf
 
 from encons import threads
@@ -34,7 +31,7 @@ from encons.paths import config_dir
 
 
 @dataclass
-class Run:
+class PlannedRun:
     """One training run of a benchmark: ``label`` is the model column of the tables."""
 
     system: str
@@ -50,31 +47,15 @@ class Run:
         return f"{self.system}-{self.label}{size}-seed{self.seed}".replace("/", "_").replace("'", "p")
 
 
-def compose_benchmark(overrides: list[str]) -> DictConfig:
-    """``conf/benchmark.yaml`` with its profile and the command line's overrides."""
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=config_dir(), job_name="benchmark"):
-        try:
-            cfg = compose("benchmark", overrides=list(overrides), return_hydra_config=True)
-        except MissingConfigException:
-            profiles = sorted(p.stem for p in (Path(config_dir()) / "profile").glob("*.yaml"))
-            bad = next((o for o in overrides if o.startswith("profile=")), "profile=?")
-            raise ConfigError(f"{bad} is unknown; allowed: {', '.join(profiles)}") from None
-    from hydra.core.hydra_config import HydraConfig
-
-    HydraConfig.instance().set_config(cfg)
-    return cfg
-
-
 def plain(cfg: DictConfig) -> dict:
     """The benchmark config without Hydra's own node, resolved."""
     return {k: OmegaConf.to_container(cfg[k], resolve=True) if OmegaConf.is_config(cfg[k]) else cfg[k]
             for k in cfg if k != "hydra"}
 
 
-def expand(cfg: DictConfig) -> list[Run]:
+def expand(cfg: DictConfig) -> list[PlannedRun]:
     """Every run of the profile: grid, listed runs and data-efficiency runs, times seeds."""
-    from encons.api import catalogue
+    from encons.build import catalogue
 
     c = plain(cfg)
     check_keys(c)
@@ -91,8 +72,8 @@ def expand(cfg: DictConfig) -> list[Run]:
             entries.append((c["n_train_system"], m, [f"model={m}", f"data.n_train={n}"], n, {}))
     if not entries:
         raise ConfigError("profile has no runs: give systems and models, runs or n_train")
-    return [Run(system, label, seed, [f"system={system}", *ovr, *c["common"], *per_system.get(system, []),
-                                     f"seed={seed}", f"threads={json.dumps(c['threads'])}", *c["train"]], n, paper)
+    return [PlannedRun(system, label, seed, [f"system={system}", *ovr, *c["common"], *per_system.get(system, []),
+                                            f"seed={seed}", f"threads={json.dumps(c['threads'])}", *c["train"]], n, paper)
             for system, label, ovr, n, paper in entries for seed in c["seeds"]]
 
 
@@ -108,24 +89,25 @@ def check_keys(c: dict) -> None:
         raise ConfigError(f"out={c['out']!r}: {str(blocking)!r} is a file; allowed: a folder for the runs and report")
 
 
-def finished(run: Run, out: Path) -> Path:
+def finished(run: PlannedRun, out: Path) -> Path:
     """Where ``run`` leaves its result row; the run is finished when the file exists."""
     return out / "runs" / run.id / "result.json"
 
 
-def run_one(run: Run, out: Path, cache_dir: str | None, control: bool = False) -> dict:
-    """Train and test ``run`` through ``encons.api`` (and with ``control`` score its controller beside the
+def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = False) -> dict:
+    """Train and test ``run`` (``encons.runs.train``; with ``control`` also score its controller beside the
     oracle, ``encons.control``: ``test/control/*``, ``test/oracle/*``); write and return its result row."""
-    from encons import api
+    from encons import runs
+    from encons.build import compose
 
     done = finished(run, out)
     run_dir = done.parent
     # first, so a profile or the command line may turn the model table back on
-    cfg = api.compose("trainer.enable_model_summary=false", *run.overrides, output_dir=run_dir, cache_dir=cache_dir)
+    cfg = compose(["trainer.enable_model_summary=false", *run.overrides], run_dir, cache_dir)
     resume_or_clear(cfg, run_dir / "checkpoints")
     started = time.perf_counter()
     try:
-        trained = api.train(cfg, summary=False)
+        trained = runs.train(cfg, summary=False)
         results, error, wall = dict(trained.metrics), "", time.perf_counter() - started  # training time only
         if control:
             from encons.control import score_control
@@ -144,13 +126,13 @@ def run_one(run: Run, out: Path, cache_dir: str | None, control: bool = False) -
 def resume_or_clear(cfg: DictConfig, checkpoints: Path) -> None:
     """An interrupted run (its ``last.ckpt``, no result) resumes where it stopped, as ``ckpt_path`` does
     for one run; checkpoints of another config (the profile changed since) are removed: a fresh start."""
-    from encons.config import checkpoint_difference
+    from encons import checkpoints as ckpts
 
     last = checkpoints / "last.ckpt"
     try:
-        diff = checkpoint_difference(cfg, last) if last.is_file() else "no last.ckpt"
-    except Exception as err:  # noqa: BLE001 - any unreadable checkpoint is a fresh start
-        diff = f"last.ckpt unreadable: {type(err).__name__}"
+        diff = ckpts.difference(cfg, last) if last.is_file() else "no last.ckpt"
+    except ConfigError as err:  # an unreadable or unsafe checkpoint is a fresh start
+        diff = f"last.ckpt refused: {err}"
     if diff is None:
         cfg.ckpt_path = str(last)
         print(f"  resuming from {last}", file=sys.stderr)
@@ -168,8 +150,9 @@ def result_line(row: dict) -> str:
 
 
 def run_profile(cfg: DictConfig) -> Path:
-    """Run every run of ``cfg`` not yet finished under ``cfg.out``, then write the report there."""
-    from encons.report import Progress, load_rows, write_report
+    """PlannedRun every run of ``cfg`` not yet finished under ``cfg.out``, then write the report there."""
+    from encons.progress import Progress
+    from encons.report import load_rows, write_report
 
     runs = expand(cfg)
     out = Path(cfg.out)
@@ -202,26 +185,7 @@ def usage() -> str:
     return f"{__doc__}\nprofiles: {', '.join(profiles)}\n\nconf/benchmark.yaml:\n{keys}"
 
 
-def main(argv: list[str] | None = None) -> None:
-    import logging
-    import os
-
-    from encons import api
-    from encons.errors import one_line_errors
-
-    os.environ.setdefault("WANDB_MODE", "disabled")
-    api.quiet_upstream()
-    import lightning.pytorch  # noqa: F401 - its import sets its loggers' level: quieten them after it
-
-    for name in ("lightning.pytorch", "lightning.fabric"):  # devices, stop reason, checkpoint restored: per run, not news
-        logging.getLogger(name).setLevel(logging.WARNING)
-    args = list(sys.argv[1:] if argv is None else argv)
-    if {"-h", "--help"} & set(args):
-        print(usage())
-        return
-    with one_line_errors():
-        run_profile(compose_benchmark(args))
-
-
 if __name__ == "__main__":
-    main()
+    from encons.cli import benchmark
+
+    benchmark()

@@ -1,14 +1,18 @@
-"""Evaluation steps run at the end of testing, as Lightning callbacks."""
+"""Lightning callbacks: the run config in every checkpoint, and evaluation steps run at the end of testing."""
 
 from __future__ import annotations
 
 import logging
+import shutil
+from pathlib import Path
 
 import lightning.pytorch as pl
 import torch
 from torch import Tensor
 
-from encons import metrics, plots
+from omegaconf import DictConfig, OmegaConf
+
+from encons import checkpoints, metrics, plots
 from encons.data.simulate import simulate
 from encons.errors import ConfigError
 from encons.integrators import rollout
@@ -17,11 +21,41 @@ from encons.io import write_json
 log = logging.getLogger(__name__)
 
 
+class RunConfigInCheckpoints(pl.Callback):
+    """Stores the resolved run ``config`` in every checkpoint (``checkpoints.CONFIG_KEY``); on a resume
+    into a new run folder, carries the earlier run's best checkpoint over so that the best is chosen
+    among all epochs (Lightning keeps only its path when the folder changes)."""
+
+    def __init__(self, config: DictConfig):
+        self.config = OmegaConf.to_container(config)
+
+    def on_save_checkpoint(self, trainer: pl.Trainer, pl_module: pl.LightningModule, checkpoint: dict) -> None:
+        checkpoint[checkpoints.CONFIG_KEY] = self.config
+
+    def on_train_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        best = next((cb for cb in trainer.checkpoint_callbacks if cb.monitor), None)
+        if trainer.ckpt_path is None or best is None:
+            return
+        state = checkpoints.read(trainer.ckpt_path, "ckpt_path")["callbacks"].get(best.state_key, {})
+        old = Path(state.get("best_model_path") or "")
+        if state.get("dirpath") == best.dirpath or not old.is_file() or state.get("best_model_score") is None:
+            return
+        new = Path(best.dirpath) / old.name
+        if trainer.is_global_zero:
+            new.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(old, new)
+        trainer.strategy.barrier()
+        best.best_model_path = best.kth_best_model_path = str(new)
+        best.best_model_score = best.kth_value = state["best_model_score"]
+        best.best_k_models = {str(new): state["best_model_score"]}
+
+
 class SantosMetrics(pl.Callback):
     """The metrics of Santos, Ekal & Ventura §7, added to the test metrics (``test/…``) after testing.
 
-    - ``mse_train`` / ``mse_test``: one-step configuration MSE, each state k ≥ 2 of every train / test
-      trajectory predicted from the ``history`` states before it (the same targets for every model);
+    - ``mse_train`` / ``mse_test``: one-step configuration MSE, each state k ≥ max(2, ``history``) of every
+      train / test trajectory predicted from the ``history`` states before it (the same targets for every
+      model of history 1 or 2);
     - ``mse_integration``: configuration MSE of ``n_trajectories`` unforced (u = 0) initial conditions
       rolled out ``steps`` steps of the data dt from their first ``history`` true states;
     - ``energy_mse_integration``: per-trajectory MSE of the true energy along those rollouts against the
@@ -58,10 +92,10 @@ class SantosMetrics(pl.Callback):
     @staticmethod
     def one_step_mse(module: pl.LightningModule, arrays: dict[str, Tensor]) -> float:
         states, u, history, n = arrays["states"], arrays.get("u"), module.model.history, module.model.n
-        windows = states.unfold(1, history + 1, 1)[:, 2 - history:].movedim(-1, -2).flatten(0, 1)
+        windows = one_step_windows(states, history)
         batch = {"states": windows.to(module.device)}
         if u is not None:
-            batch["u"] = u.unfold(1, history + 1, 1)[:, 2 - history:].movedim(-1, -2).flatten(0, 1).to(module.device)
+            batch["u"] = one_step_windows(u, history).to(module.device)
         pred = module.predict(batch)[:, -1, :n]
         return metrics.configuration_mse(pred.double().cpu(), windows[:, -1, :n].double()).item()
 
@@ -89,8 +123,7 @@ class SantosMetrics(pl.Callback):
 
     @staticmethod
     def figure(module, t: Tensor, pred: Tensor, true: Tensor, energy_pred: Tensor, energy_true: Tensor) -> None:
-        plt = plots.plt
-        fig, (ax_q, ax_e) = plt.subplots(1, 2, figsize=(10, 3.8))
+        fig, (ax_q, ax_e) = plots.subplots(1, 2, figsize=(10, 3.8))
         for d in range(module.model.n):
             line, = ax_q.plot(t, true[0, :, d], lw=1.4, label=f"q{d + 1} truth")
             ax_q.plot(t, pred[0, :, d], "--", color=line.get_color(), lw=1.1, label=f"q{d + 1} model")
@@ -107,3 +140,10 @@ class SantosMetrics(pl.Callback):
         fig.suptitle(module.run_title())
         path = plots._save(fig, module.output_dir / "figures" / "integration.png")
         plots.log_figures(module.logger, [path])
+
+
+def one_step_windows(values: Tensor, history: int) -> Tensor:
+    """The windows of ``history`` + 1 steps of ``values`` (N, T, d) whose last step k is ≥ max(2, history),
+    flattened over trajectories: (N · (T − max(2, history)), history + 1, d)."""
+    first = max(0, 2 - history)  # window s predicts step s + history
+    return values.unfold(1, history + 1, 1)[:, first:].movedim(-1, -2).flatten(0, 1)

@@ -306,7 +306,7 @@ def score_control(run, starts: int = 100, seed: int = 0, duration: float | None 
     true-model oracle on the true system; returns ``control/...`` and ``oracle/...`` metrics and writes
     them (``control_metrics.json``) and the figures to ``<run>/control``."""
     from encons import plots
-    from encons.api import Run, load
+    from encons.runs import Run, load
     from rich.console import Console
     from rich.table import Table
 
@@ -336,14 +336,14 @@ def score_control(run, starts: int = 100, seed: int = 0, duration: float | None 
 
 def main(argv: Iterable[str] | None = None) -> None:
     """``python -m encons.control RUN [ckpt=…] [starts=…] [seed=…] [duration=…]``."""
-    from encons import api
+    from encons.compat import quiet_upstream
     from encons.errors import one_line_errors
 
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
         print(__doc__)
         sys.exit(0 if argv else 2)
-    api.quiet_upstream()
+    quiet_upstream()
     kinds = {"ckpt": str, "starts": int, "seed": int, "duration": float}
     with one_line_errors():
         options = {}

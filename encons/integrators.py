@@ -8,20 +8,20 @@ step, shape (..., T, m), and held constant over each step (zero-order hold).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import torch
 from torch import Tensor
 from torch.func import jvp
 from torchdiffeq import odeint
-from torchdiffeq._impl.odeint import SOLVERS
-from torchdiffeq._impl.solvers import FixedGridODESolver
 
+from encons.compat import ode_methods
 from encons.errors import ConfigError
-from encons.models.base import DynamicsModel
 
-METHODS = tuple(sorted(SOLVERS))
-FIXED_STEP = tuple(sorted(m for m, solver in SOLVERS.items() if issubclass(solver, FixedGridODESolver)))
+if TYPE_CHECKING:
+    from encons.models.base import DynamicsModel
+
+METHODS, FIXED_STEP = ode_methods()
 
 
 @dataclass(frozen=True)

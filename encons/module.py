@@ -1,12 +1,8 @@
 """The one LightningModule that trains any model on any system.
 
-Objectives: ``rollout`` (Zhong et al. §4.1: L1 loss summed over a window rolled out from its
-first state, or first ``model.history`` states), ``derivative`` (Lim & Kasim eq. (2): squared
-error of the field against the state derivatives the data module pairs with the states),
-``acceleration`` (Xiao et al. §3: the same on the q̈ half only) or
-``residual`` (the squared norm of a discrete model's own residual, e.g. SyMo's DEL equations).
-A model lists the objectives it supports in ``objectives``. An optional regulariser adds a
-weighted penalty. Batches are dicts (see ``encons.data.datamodule``): ``states`` and, where
+The objective is one of ``encons.objectives`` (rollout, derivative, acceleration, residual), chosen
+among those the model lists in ``objectives``. An optional regulariser adds a weighted penalty;
+optimiser and scheduler are the ``_partial_`` configs of ``conf/optimizer`` and ``conf/scheduler``. Batches are dicts (see ``encons.data.datamodule``): ``states`` and, where
 present, inputs ``u``, ``rates`` and frames ``obs``.
 The ``observation`` (``encons.models.observation``) maps the batch entry it reads to the states the
 model rolls out, and adds its own loss terms: the identity by default; with an autoencoder the
@@ -16,36 +12,36 @@ validation and test compare decoded frames with the true ones (pixel MSE, frames
 
 from __future__ import annotations
 
-import math
+import inspect
 import logging
+from functools import partial
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import lightning.pytorch as pl
 import torch
 from torch import Tensor
+from torch.optim import Optimizer
 
-from encons import metrics, plots
+from encons import checkpoints, metrics, plots
 from encons.errors import ConfigError, DivergenceError
-from encons.integrators import Integrator, rollout, state_derivative
+from encons.integrators import Integrator, rollout
 from encons.io import save_npz, write_json
 from encons.models.base import DynamicsModel
 from encons.models.observation import Observation
+from encons.objectives import OBJECTIVES
 from encons.systems.base import System
 
 log = logging.getLogger(__name__)
-OBJECTIVES = ("rollout", "derivative", "acceleration", "residual")
-SCHEDULERS = (None, "cosine", "onecycle", "plateau")
 Regulariser = Callable[[DynamicsModel, Tensor, Tensor | None], Tensor]
 Batch = dict[str, Tensor]
 
 
-class DynamicsModule(pl.LightningModule):
+class TrainingModule(pl.LightningModule):
     """Trains ``model`` on windows of ``system`` trajectories sampled every ``dt``."""
 
     def __init__(self, model: DynamicsModel, system: System, dt: float, integrator: Integrator,
-                 lr: float = 1e-3, weight_decay: float = 1e-2, scheduler: str | None = None, warmup: float = 0.0,
-                 patience: int = 50, factor: float = 0.7,
+                 optimizer: Callable[..., Optimizer] | None = None, scheduler: Callable[..., Any] | None = None,
                  objective: str | None = None, regulariser: Regulariser | None = None,
                  horizon: int = 4, output_dir: str | None = None, observation: Observation | None = None,
                  model_name: str | None = None):
@@ -59,17 +55,9 @@ class DynamicsModule(pl.LightningModule):
         if objective not in model.objectives:
             raise ConfigError(f"objective={objective} does not apply to {type(model).__name__}; "
                               f"allowed: {', '.join(model.objectives)}")
-        if scheduler not in SCHEDULERS:
-            raise ConfigError(f"optim.scheduler={scheduler!r} is unknown; allowed: {', '.join(map(str, SCHEDULERS))}")
-        if not 0 <= warmup < 1:
-            raise ConfigError(f"optim.warmup={warmup} must lie in [0, 1): the fraction of steps warming up")
-        if patience < 0 or not 0 < factor < 1:
-            raise ConfigError(f"optim.patience={patience}; allowed: >= 0 and optim.factor={factor} in (0, 1)")
-        if lr <= 0:
-            raise ConfigError(f"optim.lr={lr}; allowed: > 0")
         self.model, self.system, self.dt, self.integrator = model, system, dt, integrator
-        self.lr, self.weight_decay, self.scheduler_name, self.warmup = lr, weight_decay, scheduler, warmup
-        self.patience, self.factor = patience, factor
+        self.optimizer = optimizer or partial(torch.optim.AdamW, lr=1e-3, weight_decay=1e-2)
+        self.scheduler = scheduler
         self.objective, self.regulariser, self.horizon = objective, regulariser, horizon
         self.output_dir = Path(output_dir) if output_dir else None
         self.test_metrics: dict[str, float] = {}
@@ -78,7 +66,7 @@ class DynamicsModule(pl.LightningModule):
     def times(self, length: int, like: Tensor) -> Tensor:
         return torch.arange(length, dtype=like.dtype, device=like.device) * self.dt
 
-    def encode(self, batch: Batch) -> tuple[Tensor, Tensor]:
+    def observe(self, batch: Batch) -> tuple[Tensor, Tensor]:
         """The observations of a batch (its ``observation.key`` entry) and the states they encode to."""
         x = batch[self.observation.key]
         return x, self.observation.encode(x)
@@ -86,7 +74,7 @@ class DynamicsModule(pl.LightningModule):
     def predict(self, batch: Batch, states: Tensor | None = None) -> Tensor:
         """Roll out from the first state (``history`` states) of each window's (encoded) states over the
         window's length T: (N, T, 2n)."""
-        x, states = (batch[self.observation.key], states) if states is not None else self.encode(batch)
+        x, states = (batch[self.observation.key], states) if states is not None else self.observe(batch)
         history = self.model.history
         start = states[:, 0] if history == 1 else states[:, :history]
         return rollout(self.model, start, self.times(x.shape[1], states), self.integrator, batch.get("u"))
@@ -99,20 +87,8 @@ class DynamicsModule(pl.LightningModule):
         return self.system.to_chart(states, self.model.chart, self.system.common_chart)
 
     def loss(self, batch: Batch) -> Tensor:
-        """The objective on a batch of windows (see the module docstring)."""
-        x, states = self.encode(batch)
-        u = batch.get("u")
-        if self.objective == "rollout":
-            return self.rollout_loss(x, states, self.predict(batch, states))
-        if self.objective == "residual":
-            return (self.model.residual(states, self.times(states.shape[1], states), u) ** 2).sum(-1).mean()
-        if "rates" not in batch:
-            raise ConfigError(f"objective={self.objective} needs batches with rates; allowed: a data module built "
-                              f"with objective='{self.objective}' (data.objective: ${{objective}})")
-        error = state_derivative(self.model, states, u) - batch["rates"]
-        if self.objective == "acceleration":  # q̈ only
-            error = error[..., error.shape[-1] // 2:]
-        return (error**2).sum(-1).mean()
+        """The run's objective (``encons.objectives``) on a batch of windows."""
+        return OBJECTIVES[self.objective](self, batch)
 
     def training_step(self, batch: Batch, batch_idx: int) -> Tensor:
         u, size = batch.get("u"), len(batch["states"])
@@ -120,7 +96,7 @@ class DynamicsModule(pl.LightningModule):
         self.log("train/loss", loss, prog_bar=True, batch_size=size)
         if self.regulariser is not None:  # at the (encoded) states, detached: it shapes the field, not the encoder
             with torch.no_grad():
-                points = self.encode(batch)[1]
+                points = self.observe(batch)[1]
             u = None if u is None else u[:, : points.shape[1]]
             penalty = self.regulariser(self.model, points.flatten(0, 1), None if u is None else u.flatten(0, 1))
             self.log("train/regulariser", penalty, batch_size=size)
@@ -128,7 +104,7 @@ class DynamicsModule(pl.LightningModule):
         if not torch.isfinite(loss):
             raise DivergenceError(
                 f"training diverged: loss is {loss.item()} at epoch {self.current_epoch}, step "
-                f"{self.global_step}; {self._kept_checkpoint()}; allowed: a lower optim.lr (or a larger model.mass_eps / model.damping where the model has one)")
+                f"{self.global_step}; {self._kept_checkpoint()}; allowed: a lower optimizer.lr (or a larger model.mass_eps / model.damping where the model has one)")
         return loss
 
     def _kept_checkpoint(self) -> str:
@@ -140,7 +116,7 @@ class DynamicsModule(pl.LightningModule):
         kept = [Path(p) for p in paths if p and Path(p).is_file()]
         if not kept:
             return "no checkpoint was written before it (none to resume from)"
-        epoch = torch.load(kept[0], map_location="cpu", weights_only=False, mmap=True).get("epoch")
+        epoch = checkpoints.read(kept[0]).get("epoch")
         return f"{kept[0]} holds the last good weights (epoch {epoch}); resume with ckpt_path=last"
 
     def compared(self, x: Tensor, pred: Tensor) -> tuple[Tensor, Tensor]:
@@ -151,7 +127,7 @@ class DynamicsModule(pl.LightningModule):
         return self.observation.decode(pred).flatten(2), x.flatten(2)
 
     def validation_step(self, batch: Batch, batch_idx: int) -> None:
-        x, states = self.encode(batch)
+        x, states = self.observe(batch)
         pred = self.predict(batch, states)
         tre = metrics.trajectory_relative_error(*self.compared(x, pred), self.horizon)
         size = states.shape[0]
@@ -159,7 +135,7 @@ class DynamicsModule(pl.LightningModule):
         self.log("val/traj_rel_err", tre.mean(), prog_bar=True, batch_size=size, sync_dist=True)
 
     def test_step(self, batch: Batch, batch_idx: int) -> None:
-        x, states = self.encode(batch)
+        x, states = self.observe(batch)
         pred = self.predict(batch, states)
         kept = (x, pred) if self.observation.identity else (x, states, pred)
         self._test_batches.append(tuple(p.detach() for p in kept))
@@ -200,7 +176,7 @@ class DynamicsModule(pl.LightningModule):
             save_npz(self.output_dir / "test_curves.npz", **curves)
             linear = metrics.fit_linear_ode(self.trainer.datamodule.states["train"].to(true), self.dt)
             baseline = self.to_common(metrics.linear_ode_rollout(linear, true[:, 0], self.times(true.shape[1], true)))
-            figures += plots.test_figures(self.times(true.shape[1], true).cpu(), pred_c.cpu(), true_c.cpu(),
+            figures += plots.rollout_figures(self.times(true.shape[1], true).cpu(), pred_c.cpu(), true_c.cpu(),
                                          [e.cpu() for e in energies] if energies else None,
                                          self.output_dir / "figures", title=self.run_title(), units=units,
                                          baseline=baseline.cpu())
@@ -245,26 +221,25 @@ class DynamicsModule(pl.LightningModule):
         return f"{model} on {self.system.name} ({self.model.chart} chart)"
 
     def configure_optimizers(self):
-        """AdamW at ``lr``, optionally scheduled per optimiser step over the whole run.
+        """The ``optimizer`` partial on the parameters, and the ``scheduler`` partial on it (if any).
 
-        ``cosine``: linear warm-up from 0 over the first ``warmup`` fraction of steps, then cosine
-        decay to 0. ``onecycle``: torch's ``OneCycleLR`` peaking at ``lr`` after ``warmup`` of the
-        steps (0: its default 0.3), momentum cycled. The step count is Lightning's estimate for
-        ``max_epochs``; a run stopped by ``max_time`` or ``max_steps`` ends before the decay does.
-        ``plateau``: ``ReduceLROnPlateau`` on ``val/loss`` each epoch (``patience``, ``factor``).
+        A scheduler that takes ``total_steps`` gets Lightning's estimate for ``max_epochs`` and steps per
+        optimiser step (a run stopped by ``max_time`` or ``max_steps`` ends before its decay does);
+        ``ReduceLROnPlateau`` steps each epoch on ``val/loss``; any other scheduler each epoch.
         """
-        opt = torch.optim.AdamW(self.parameters(), lr=self.lr, weight_decay=self.weight_decay)
-        if self.scheduler_name is None:
+        opt = self.optimizer(self.parameters())
+        if self.scheduler is None:
             return opt
-        if self.scheduler_name == "plateau":  # on the validation loss, every epoch (Santos et al. §7)
-            sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, patience=self.patience, factor=self.factor)
+        if takes_total_steps(self.scheduler):
+            sched = self.scheduler(opt, total_steps=max(1, int(self.trainer.estimated_stepping_batches)))
+            return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+        sched = self.scheduler(opt)
+        if isinstance(sched, torch.optim.lr_scheduler.ReduceLROnPlateau):
             return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "monitor": "val/loss"}}
-        total = max(1, int(self.trainer.estimated_stepping_batches))
-        if self.scheduler_name == "onecycle":
-            sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=self.lr, total_steps=total,
-                                                        pct_start=self.warmup or 0.3)
-        else:
-            warm = int(self.warmup * total)
-            sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda step: (step + 1) / warm if step < warm else
-                                                      0.5 * (1 + math.cos(math.pi * (step - warm) / max(1, total - warm))))
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched}}
+
+
+def takes_total_steps(scheduler: Callable[..., Any]) -> bool:
+    """Whether a scheduler (class or partial of one) takes ``total_steps`` (per-step schedules)."""
+    func = scheduler.func if isinstance(scheduler, partial) else scheduler
+    return "total_steps" in inspect.signature(func).parameters

@@ -5,14 +5,19 @@ from __future__ import annotations
 from pathlib import Path
 
 import matplotlib
+import torch
+from matplotlib.figure import Figure
+from torch import Tensor
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import torch  # noqa: E402
-from torch import Tensor  # noqa: E402
+from encons import metrics
+from encons.io import save_figure
 
-from encons import metrics  # noqa: E402
-from encons.io import save_figure  # noqa: E402
+
+def subplots(*grid: int, figsize: tuple[float, float], **kwargs):
+    """``(figure, axes)`` like ``pyplot.subplots``, on a bare ``Figure``: no pyplot state and no backend
+    choice, so figures are drawn the same in a script, on a server and in a notebook."""
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(*grid, **kwargs)
 
 
 TIME = "time t [s]"
@@ -31,10 +36,10 @@ def colours(k: int) -> list:
     """``k`` distinguishable colours: tab10 up to 10, tab20's dark then light halves up to 20, else evenly
     spaced hues of ``turbo``."""
     if k <= 10:
-        return [plt.cm.tab10(i) for i in range(k)]
+        return [matplotlib.colormaps["tab10"](i) for i in range(k)]
     if k <= 20:
-        return [plt.cm.tab20(2 * i if i < 10 else 2 * (i - 10) + 1) for i in range(k)]
-    return [plt.cm.turbo(i / (k - 1)) for i in range(k)]
+        return [matplotlib.colormaps["tab20"](2 * i if i < 10 else 2 * (i - 10) + 1) for i in range(k)]
+    return [matplotlib.colormaps["turbo"](i / (k - 1)) for i in range(k)]
 
 
 def unit_label(units: tuple[str, ...], rate: bool = False) -> str:
@@ -54,7 +59,7 @@ def _band(ax, t: Tensor, values: Tensor, ylabel: str) -> None:
     ax.legend()
 
 
-def test_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] | None, out_dir: Path,
+def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] | None, out_dir: Path,
                  title: str, units: tuple[str, ...] | None = None, baseline: Tensor | None = None) -> list[Path]:
     """Rollout vs truth (every coordinate, positions and velocities) of three test trajectories — the
     best, median and worst by relative error summed over the rollout, each labelled so — with the
@@ -72,7 +77,7 @@ def test_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] |
     picks = dict.fromkeys([order[0], order[len(order) // 2], order[-1]])      # best, median, worst (distinct)
     tags = {order[0]: "best", order[len(order) // 2]: "median", order[-1]: "worst"}
     palette = colours(n)
-    fig, axes = plt.subplots(2, len(picks), figsize=(4.6 * len(picks) + 1.9, 6.5), squeeze=False, sharex=True)
+    fig, axes = subplots(2, len(picks), figsize=(4.6 * len(picks) + 1.9, 6.5), squeeze=False, sharex=True)
     for col, k in enumerate(picks):
         for row, rate in enumerate((False, True)):
             ax = axes[row, col]
@@ -95,13 +100,13 @@ def test_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] |
     fig.tight_layout(rect=(0, 0, 1 - 1.9 / fig.get_figwidth(), 1))
     paths.append(_save(fig, out_dir / "rollout.png", layout=False))
 
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = subplots(figsize=(6, 4))
     _band(ax, t[1:], metrics.relative_error(pred, true)[:, 1:], REL_ERR)
     ax.set_title(f"{title}\nrelative error of the state", fontsize=9)
     paths.append(_save(fig, out_dir / "relative_error.png"))
 
     if energies is not None:
-        fig, ax = plt.subplots(figsize=(6, 4))
+        fig, ax = subplots(figsize=(6, 4))
         _band(ax, t[1:], metrics.energy_abs_error(*energies)[:, 1:].clamp_min(1e-12), ENERGY_ERR)
         ax.set_title(f"{title}\nabsolute error in true energy", fontsize=9)
         paths.append(_save(fig, out_dir / "energy_error.png"))
@@ -137,7 +142,7 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
 
     systems = list(dict.fromkeys(e["system"] for e in summary))
     paths = []
-    fig, axes = plt.subplots(1, len(systems), figsize=(5.5 * len(systems), 5), squeeze=False)
+    fig, axes = subplots(1, len(systems), figsize=(5.5 * len(systems), 5), squeeze=False)
     for ax, system in zip(axes[0], systems):
         errors: dict[str, list] = {}  # per test trajectory, pooled over seeds
         for row in rows:
@@ -165,7 +170,7 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
                              ("pixel_mse", PIXEL_MSE, "pixel_mse_vs_time.png")):
         if not any(key in _curve_keys(row) for row in rows):
             continue
-        fig, axes = plt.subplots(1, len(systems), figsize=(4.5 * len(systems) + 2, 4), squeeze=False)
+        fig, axes = subplots(1, len(systems), figsize=(4.5 * len(systems) + 2, 4), squeeze=False)
         styles = {}  # one colour and line style per model, the same in every panel (11+ models)
         for ax, system in zip(axes[0], systems):
             curves: dict[str, list] = {}
@@ -178,7 +183,7 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
             for model, runs in curves.items():
                 k = styles.setdefault(model, len(styles))
                 ax.plot(runs[0][0][1:], np.mean([c for _, c in runs], 0)[1:], label=model,
-                        color=plt.cm.tab20(k % 20), linestyle=("-", "--", ":")[k // 10 % 3])
+                        color=matplotlib.colormaps["tab20"](k % 20), linestyle=("-", "--", ":")[k // 10 % 3])
             ax.set_yscale("log")
             ax.set_xlabel(TIME)
             ax.set_ylabel(label)
@@ -205,10 +210,7 @@ def _curve_keys(row: dict) -> list[str]:
 def _save(fig, path: Path, layout: bool = True) -> Path:
     if layout:
         fig.tight_layout()
-    try:
-        return save_figure(fig, path, dpi=110)
-    finally:
-        plt.close(fig)
+    return save_figure(fig, path, dpi=110)
 
 
 def log_figures(logger, paths: list[Path]) -> None:
@@ -225,7 +227,7 @@ def energy_rmse_figure(summary: list[dict], paper: dict[str, dict], out_dir: Pat
     systems = list(dict.fromkeys(e["system"] for e in entries))
     if not systems:
         return []
-    fig, axes = plt.subplots(1, len(systems), figsize=(4.5 * len(systems), 4), squeeze=False)
+    fig, axes = subplots(1, len(systems), figsize=(4.5 * len(systems), 4), squeeze=False)
     for ax, system in zip(axes[0], systems):
         rows = [e for e in entries if e["system"] == system]
         x = range(len(rows))
@@ -252,7 +254,7 @@ def control_success_figure(summary: list[dict], out_dir: Path) -> list[Path]:
     systems = list(dict.fromkeys(e["system"] for e in entries))
     if not systems:
         return []
-    fig, axes = plt.subplots(1, len(systems), figsize=(4.5 * len(systems), 4), squeeze=False, sharey=True)
+    fig, axes = subplots(1, len(systems), figsize=(4.5 * len(systems), 4), squeeze=False, sharey=True)
     for ax, system in zip(axes[0], systems):
         rows = [e for e in entries if e["system"] == system]
         x = torch.arange(len(rows), dtype=torch.float64)
@@ -276,7 +278,7 @@ def data_efficiency_figure(summary: list[dict], out_dir: Path) -> list[Path]:
     two or more seeds, else ± 1 std over test trajectories (cut at the axis where it reaches below 0)."""
     import numpy as np
 
-    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    fig, ax = subplots(figsize=(6.5, 4.2))
     sizes, seeds = set(), min(e.get("runs", 1) for e in summary)
     for model in dict.fromkeys(e["model"] for e in summary):
         rows = sorted((e for e in summary if e["model"] == model and "test/traj_rel_err" in e),
@@ -310,7 +312,7 @@ def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], out_dir: Path, t
     state_unit = "–" if units is None else "/".join(sorted(set(units)))
     labels = {"state_mse": f"state MSE, mean over q [{state_unit}]² and q̇ [{state_unit}/s]²",
               "energy_mse": "energy MSE [J²]"}
-    fig, axes = plt.subplots(1, len(keys), figsize=(6 * len(keys), 4), squeeze=False)
+    fig, axes = subplots(1, len(keys), figsize=(6 * len(keys), 4), squeeze=False)
     for ax, key in zip(axes[0], keys):
         model = curves["model"][key][1:]
         finite = model[torch.isfinite(model) & (model > 0)]
@@ -341,7 +343,7 @@ DATA_TIME = "time t [the data's time unit]"
 def pixel_mse_figure(t: Tensor, mse: Tensor, out_dir: Path, title: str) -> list[Path]:
     """Pixel MSE (N, T) of decoded predictions against the true frames over time, median and 2.5–97.5 %
     band over test videos, with the mean (``pixel_mse.png``)."""
-    fig, ax = plt.subplots(figsize=(6.5, 4))
+    fig, ax = subplots(figsize=(6.5, 4))
     _band(ax, t, mse.clamp_min(1e-12), PIXEL_MSE)
     ax.plot(t, mse.mean(0), "k--", lw=1, label="mean over test videos")
     ax.set_xlabel(DATA_TIME)
@@ -364,7 +366,7 @@ def latent_phase_figure(pred: Tensor, encoded: Tensor, out_dir: Path, title: str
         project = lambda z: (z.double() - mean) @ axes_  # noqa: E731
         names = (f"1st principal component of the {d}-d latent [–]", f"2nd principal component [–]")
     shown = min(n_show, pred.shape[0])
-    fig, ax = plt.subplots(figsize=(5.5, 5))
+    fig, ax = subplots(figsize=(5.5, 5))
     for k in range(shown):
         p, e = project(pred[k]), project(encoded[k])
         line, = ax.plot(p[:, 0], p[:, 1], lw=1.2, label="model rollout (one colour per video)" if k == 0 else None)
@@ -381,7 +383,7 @@ def frames_figure(t: Tensor, pred: Tensor, true: Tensor, out_dir: Path, title: s
     """Lim & Kasim Figs. 5–6: true (top) and predicted (bottom) frames of the first test video at
     ``n_times`` times from 0 to the end (``frames.png``)."""
     picks = torch.linspace(0, len(t) - 1, n_times).round().long().tolist()
-    fig, axes = plt.subplots(2, n_times, figsize=(1.6 * n_times, 3.8), squeeze=False)
+    fig, axes = subplots(2, n_times, figsize=(1.6 * n_times, 3.8), squeeze=False)
     for col, k in enumerate(picks):
         for row, (frames, name) in enumerate(((true, "true"), (pred, "predicted"))):
             ax = axes[row, col]
@@ -408,11 +410,11 @@ def control_figures(t: Tensor, learned: tuple[Tensor, Tensor], oracle: tuple[Ten
     angle = system.n - 1                                    # the (pole) angle: last coordinate
     unit = "N·m" if system.n == 1 else "N"
     shown = min(n_show, t_up[0].shape[0])
-    colours = plt.cm.tab10(range(shown))
+    colours = matplotlib.colormaps["tab10"](range(shown))
     labels = ("controller from the learned model", "same controller from the true model (oracle)")
     paths = []
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5), sharex=True, sharey=True)
+    fig, axes = subplots(1, 2, figsize=(11, 4.5), sharex=True, sharey=True)
     for ax, (states, _), label in zip(axes, (learned, oracle), labels):
         x = error(states[:shown])
         theta = x[..., angle].clone()
@@ -428,7 +430,7 @@ def control_figures(t: Tensor, learned: tuple[Tensor, Tensor], oracle: tuple[Ten
     fig.suptitle(f"{title}\nphase portrait on the true system")
     paths.append(_save(fig, out_dir / "control_phase.png"))
 
-    fig, axes = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
+    fig, axes = subplots(2, 1, figsize=(8, 6.5), sharex=True)
     target = energy(torch.zeros(1, 2 * system.n, dtype=torch.float64))[0]
     for (states, inputs), style, label in zip((learned, oracle), ("-", "--"), labels):
         e = energy(states[:shown])
@@ -447,7 +449,7 @@ def control_figures(t: Tensor, learned: tuple[Tensor, Tensor], oracle: tuple[Ten
     fig.suptitle(f"{title}\nenergy and input, {shown} starts (one colour each)")
     paths.append(_save(fig, out_dir / "control_energy_input.png"))
 
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = subplots(figsize=(6, 4))
     for times, label in zip(t_up, labels):
         ax.plot(t, (times[:, None] <= t[None, :]).double().mean(0), label=label)
     ax.set_xlabel(TIME)

@@ -23,8 +23,6 @@ import io
 import json
 import logging
 import math
-import sys
-import time
 from collections import defaultdict
 from pathlib import Path
 
@@ -62,41 +60,6 @@ def to_log_files(text: str, level: int = logging.INFO) -> None:
             handler.handle(record)
 
 
-class Progress:
-    """``<what> k of n (label), elapsed, ETA`` lines for a loop over items of known relative cost.
-
-    Lines go to ``log`` at INFO if given (the run's console and log file), else to stderr.
-    """
-
-    def __init__(self, items: int, what: str, log: logging.Logger | None = None, work: float | None = None):
-        self.items, self.what, self.log = items, what, log
-        self.total = float(items if work is None else work)  # the ETA assumes work proceeds at one rate
-        self.done_work, self.count, self.started = 0.0, 0, time.perf_counter()
-
-    def start(self, label: str, work: float = 1.0) -> None:
-        """Item ``label`` begins; ``work`` is its cost in the units of ``work`` (one item by default)."""
-        elapsed = time.perf_counter() - self.started
-        eta = (f", ETA {_duration(elapsed / self.done_work * (self.total - self.done_work))}"
-               if self.done_work else "")
-        self.count += 1
-        self.done_work += work
-        self._say(f"{self.what} {self.count} of {self.items} ({label}), elapsed {_duration(elapsed)}{eta}")
-
-    def done(self) -> None:
-        self._say(f"{self.what} {self.count} of {self.items} done in {_duration(time.perf_counter() - self.started)}")
-
-    def _say(self, line: str) -> None:
-        if self.log is not None:
-            self.log.info(line)
-        else:
-            print(line, file=sys.stderr, flush=True)
-
-
-def _duration(seconds: float) -> str:
-    minutes, secs = divmod(int(seconds), 60)
-    return f"{minutes // 60}h{minutes % 60:02d}m" if minutes >= 60 else f"{minutes}m{secs:02d}s"
-
-
 def load_rows(out: Path) -> list[dict]:
     """The rows of the finished runs under ``out/runs`` (sorted by run folder), each ``run_dir`` the folder
     its ``result.json`` lies in now (a moved or committed results folder still finds its curves)."""
@@ -116,7 +79,7 @@ def load_rows(out: Path) -> list[dict]:
     return rows
 
 
-def summarise(rows: list[dict]) -> list[dict]:
+def seed_summary(rows: list[dict]) -> list[dict]:
     """Mean and std over seeds of every metric per (system, model, n_train), in first-seen order."""
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for row in rows:
@@ -195,7 +158,7 @@ def write_report(out: str | Path) -> list[Path]:
 
     out = Path(out)
     rows = load_rows(out)
-    summary = summarise(rows)
+    summary = seed_summary(rows)
     paper = published(out)
     source = ""
     if (out / "benchmark.yaml").is_file():
@@ -282,18 +245,12 @@ def write_sweep_report(out: str | Path) -> list[Path]:
     return [out / "sweep.csv", out / "sweep.md"]
 
 
-def main() -> None:
-    if len(sys.argv) != 2 or sys.argv[1] in ("-h", "--help"):
-        print(__doc__)
-        sys.exit(0 if len(sys.argv) == 2 else 2)
-    try:
-        folder = Path(sys.argv[1])
-        for path in (write_sweep_report if (folder / "multirun.yaml").is_file() else write_report)(folder):
-            print(path)
-    except EnconsError as err:
-        print(f"encons: error: {err}", file=sys.stderr)
-        sys.exit(2)
+def write_folder_report(folder: Path) -> list[Path]:
+    """The report of ``folder``: a multirun's (it holds ``multirun.yaml``) or a benchmark's."""
+    return (write_sweep_report if (folder / "multirun.yaml").is_file() else write_report)(folder)
 
 
 if __name__ == "__main__":
-    main()
+    from encons.cli import report
+
+    report()

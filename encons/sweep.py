@@ -11,7 +11,6 @@ and the sweep goes on. Storage, pruner and search space are set in ``sweeps/optu
 
 from __future__ import annotations
 
-import argparse
 import csv
 import io
 import logging
@@ -27,14 +26,14 @@ from hydra.core.utils import JobReturn, JobStatus
 from hydra.plugins.sweeper import Sweeper
 from hydra.types import HydraContext, TaskFunction
 from hydra.utils import instantiate
-from hydra_plugins.hydra_optuna_sweeper._impl import create_params_from_overrides
 from numpy.random import SeedSequence
 from omegaconf import DictConfig, OmegaConf
 from optuna.trial import TrialState
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import NoSuchModuleError, OperationalError
 
-from encons.errors import ConfigError, SweepError, one_line_errors
+from encons.compat import job_exception, optuna_search_space
+from encons.errors import ConfigError, SweepError
 from encons.io import save_figure, write_text, write_yaml
 
 log = logging.getLogger(__name__)
@@ -70,7 +69,7 @@ class OptunaSweeper(Sweeper):
 
     def sweep(self, arguments: list[str]) -> None:
         check_search_space([f"{k}={v}" for k, v in self.params.items()] + list(arguments))
-        space, fixed, fixed_overrides = create_params_from_overrides(
+        space, fixed, fixed_overrides = optuna_search_space(
             [f"{k}={v}" for k, v in self.params.items()] + list(arguments))
         for name in fixed:
             space.pop(name, None)
@@ -163,7 +162,7 @@ def open_study(storage: str | None, study_name: str, direction: str) -> optuna.S
 def _tell(study: optuna.Study, trial: optuna.Trial, ret: JobReturn) -> TrialState:
     """Record how a launched job ended: complete with its value, pruned, or failed with a reason."""
     if ret.status == JobStatus.FAILED:
-        err = ret._return_value  # the job's exception; ret.return_value would re-raise it
+        err = job_exception(ret)
         if isinstance(err, optuna.TrialPruned):
             log.info("trial %d pruned: %s", trial.number, err)
             study.tell(trial, state=TrialState.PRUNED)
@@ -237,9 +236,6 @@ def report(study: optuna.Study, out_dir: Path) -> None:
 
 
 def _save_figures(study: optuna.Study, out_dir: Path, plot_importance: bool) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from optuna.visualization import matplotlib as vis
 
@@ -262,18 +258,6 @@ def _save_figures(study: optuna.Study, out_dir: Path, plot_importance: bool) -> 
                 plt.close(fig)
 
 
-def main() -> None:
-    """``python -m encons.sweep STORAGE STUDY [OUT]``: the report of a stored study, e.g. after
-    several workers shared it."""
-    parser = argparse.ArgumentParser(description=main.__doc__)
-    parser.add_argument("storage", help="SQLAlchemy URL, e.g. sqlite:///multirun/NAME/optuna.db")
-    parser.add_argument("study")
-    parser.add_argument("out", nargs="?", default=".", help="folder for trials.csv and figures")
-    args = parser.parse_args()
-    with one_line_errors():
-        report(load_study(args.storage, args.study), Path(args.out))
-
-
 def load_study(storage: str, study_name: str) -> optuna.Study:
     """The stored study ``study_name``; one that is not there is one line naming those that are."""
     store = check_storage(storage)
@@ -284,4 +268,6 @@ def load_study(storage: str, study_name: str) -> optuna.Study:
 
 
 if __name__ == "__main__":
-    main()
+    from encons.cli import sweep_report
+
+    sweep_report()

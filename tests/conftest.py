@@ -41,32 +41,14 @@ def isolated_env(tmp_path_factory, monkeypatch):
 def cli(monkeypatch):
     """``encons.train``'s CLI in this process: ``cli(*args, cwd=...)`` -> (exit code, stdout, stderr).
 
-    The same ``main()`` as ``python -m encons.train`` (Hydra, the one-line errors, exit 2) without a
-    new interpreter importing Lightning for each case; ``tests.helpers.run_cli`` runs a real process.
-    Output goes to buffers that stay open: loggers set up during the call (Hydra's, Optuna's) may keep them."""
-    import contextlib
-    import importlib
-    import io
-    import logging
-    import sys
-    from types import SimpleNamespace
+    The same ``encons.cli.train()`` as ``python -m encons.train`` (Hydra, the one-line errors, exit 2) without a
+    new interpreter importing Lightning for each case; ``tests.helpers.run_cli`` runs a real process."""
+    from tests.helpers import in_process
 
     def run(*args: str, cwd=None):
         if cwd is not None:
             monkeypatch.chdir(cwd)
-        monkeypatch.setattr(sys, "argv", ["encons.train", *args])
-        root = logging.getLogger()
-        handlers, level = root.handlers[:], root.level  # Hydra's job logging replaces them
-        out, err, code = io.StringIO(), io.StringIO(), 0
-        try:
-            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-                importlib.import_module("encons.train").main()
-        except SystemExit as stop:
-            code = stop.code
-        finally:
-            GlobalHydra.instance().clear()
-            root.handlers[:], root.level = handlers, level
-        return SimpleNamespace(returncode=code, stdout=out.getvalue(), stderr=err.getvalue())
+        return in_process("encons.train", list(args), monkeypatch)
 
     return run
 

@@ -83,7 +83,7 @@ def _report(path, value):
 def _figure(path, value):
     from encons import plots
 
-    fig, ax = plots.plt.subplots()
+    fig, ax = plots.subplots(figsize=(2, 2))
     ax.plot(np.arange(100) * value)
     plots._save(fig, path)
 

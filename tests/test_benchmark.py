@@ -9,7 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from encons.benchmark import compose_benchmark, expand, main
+from encons.benchmark import expand
+from encons.build import compose
+from encons.cli import benchmark as main
 from encons.errors import ConfigError
 from encons.paths import config_dir
 from encons.report import write_report
@@ -52,21 +54,21 @@ def test_smoke_profile_writes_report_and_resumes(tmp_path, capsys):
 
 
 def test_profiles_expand_and_carry_published_numbers():
-    finzi = expand(compose_benchmark(["profile=finzi"]))
+    finzi = expand(compose(["profile=finzi"], config_name="benchmark"))
     assert len(finzi) == 2 * 2 * 3 and all("data.noise=0.0" in r.overrides for r in finzi)
-    lim_kasim = expand(compose_benchmark(["profile=lim_kasim"]))
+    lim_kasim = expand(compose(["profile=lim_kasim"], config_name="benchmark"))
     assert {r.label for r in lim_kasim} >= {"node+C_H", "hnn", "nsf", "node+C_D"}
     assert next(r for r in lim_kasim if r.label == "node+C_H" and r.system == "pendulum").paper == {
         "energy_rmse_median": 0.024}
-    quick = expand(compose_benchmark(["profile=quick"]))
+    quick = expand(compose(["profile=quick"], config_name="benchmark"))
     assert len(quick) == 11 * 4 * 3
-    zhong = expand(compose_benchmark(["profile=zhong"]))
+    zhong = expand(compose(["profile=zhong"], config_name="benchmark"))
     assert {r.n_train for r in zhong} == {None, 10, 100, 1000, 10000}
 
 
 def test_unknown_profile_is_one_line_error():
     with pytest.raises(ConfigError, match="profile=nope is unknown; allowed: .*quick"):
-        compose_benchmark(["profile=nope"])
+        compose(["profile=nope"], config_name="benchmark")
 
 
 def test_report_of_a_folder_without_runs(tmp_path):

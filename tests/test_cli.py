@@ -20,7 +20,7 @@ FAST = ["debug=fast", "logger=none"]
     (["data.n_train=0"], "data.n_train=0; allowed: >= 1"),
     (["data.chunk_len=1"], "data.chunk_len=1; allowed: [2, "),
     (["trainer.max_epochs=0"], "trainer.max_epochs=0; allowed: an integer >= 1"),
-    (["optim.lr=-1"], "optim.lr=-1"),
+    (["optimizer.lr=-1"], "optimizer.lr=-1"),
     (["nosuchkey=3"], "nosuchkey is not a key of the config"),
     (["system=from_file", "system.path=/nonexistent/data.npz"], "does not exist"),
     (["ckpt_path=last"], "no earlier run"),

@@ -1,4 +1,4 @@
-"""The closed-form derivatives of the models' networks (``MLPTape``; issue 11) equal autodiff's.
+"""The closed-form derivatives of the models' networks (``MLPTape``) equal autodiff's.
 
 Float64, small random networks of every activation, with and without the angle embedding: the
 tape's gradient, forward tangents and curvature against ``torch.func``; each model's closed-form

@@ -6,14 +6,14 @@ from __future__ import annotations
 import pytest
 import torch
 
-from encons.config import compose_train
+from encons.build import compose
 from encons.errors import ConfigError
 
 
 def built(tmp_path, *overrides: str):
     from encons.api import build
 
-    return build(compose_train(["debug=fast", "model.hidden=32", *overrides], tmp_path / "run", tmp_path / "cache"))
+    return build(compose(["debug=fast", "model.hidden=32", *overrides], tmp_path / "run", tmp_path / "cache"))
 
 
 @pytest.mark.slow

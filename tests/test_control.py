@@ -146,9 +146,10 @@ def test_control_command_refuses_a_node_run_and_a_bad_option_in_one_line(tmp_pat
 
 
 def test_control_profile_lists_the_energy_models_with_inputs_on_both_systems():
-    from encons.benchmark import compose_benchmark, expand
+    from encons.benchmark import expand
+    from encons.build import compose
 
-    cfg = compose_benchmark(["profile=control"])
+    cfg = compose(["profile=control"], config_name="benchmark")
     runs = expand(cfg)
     assert cfg.control is True and len(runs) == 18
     assert {(r.system, r.label) for r in runs} == {(s, m) for s in ("pendulum_control", "cartpole")
@@ -157,7 +158,7 @@ def test_control_profile_lists_the_energy_models_with_inputs_on_both_systems():
 
 @pytest.mark.slow
 def test_control_profile_reports_the_controller_beside_the_oracle(tmp_path):
-    from encons.benchmark import main
+    from encons.cli import benchmark as main
 
     out = tmp_path / "bench"
     main(["profile=control", "seeds=[0]", "models=[lnode]", "systems=[pendulum_control]", f"out={out}",

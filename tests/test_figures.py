@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from encons import plots
+from encons.build import run_config
 from encons.systems.controlled import CartPole
 from encons.systems.mass_spring import MassSpring
 from encons.systems.pendulum import NPendulum
@@ -41,7 +42,7 @@ def test_rollout_figure_one_legend_units_and_a_labelled_choice(tmp_path, saved):
     t = torch.arange(11) * 0.1
     true = torch.randn(7, 11, 24)
     pred = true + torch.linspace(0.01, 1.0, 7)[:, None, None]       # trajectory 0 best, 6 worst
-    plots.test_figures(t, pred, true, None, tmp_path, "hnn_angle on gyroscope", units=("rad",) * 12,
+    plots.rollout_figures(t, pred, true, None, tmp_path, "hnn_angle on gyroscope", units=("rad",) * 12,
                        baseline=true * 0.5)
     fig = saved["rollout.png"]
     assert fig["legends"] == 1 and not any(has_legend for _, _, has_legend, *_ in fig["axes"])
@@ -88,5 +89,5 @@ def test_the_run_title_names_the_models_config(tmp_path):
 
     cfg = api.compose("debug=fast", "model=hnn_angle", "system=pendulum1", output_dir=tmp_path / "run",
                       cache_dir=tmp_path / "cache")
-    assert api.run_config(cfg).model_name == "hnn_angle"
+    assert run_config(cfg).model_name == "hnn_angle"
     assert api.build(cfg)[1].run_title() == "hnn_angle on pendulum1 (angle chart)"   # not the class, HNN

@@ -1,4 +1,4 @@
-"""Measured data for issue 14: one long recording with gaps and wrapped angles cut by time, the
+"""Measured data: one long recording with gaps and wrapped angles cut by time, the
 acceleration objective's q̈ estimate, and the two trivial baselines every report shows."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from encons.data.datamodule import TrajectoryDataModule
 from encons.data.recording import load_recording, unwrap, wrap, write_example
 from encons.errors import ConfigError, DataError
 from encons.systems.dissipative import DampedOscillator
-from encons.systems.from_file import FileSystem
+from encons.data.from_file import FileSystem
 
 
 def index_recording(path, n=60, dt=0.1, dropped=(17, 18, 40)):

@@ -10,7 +10,7 @@ from hydra.utils import instantiate
 from torch.func import jvp
 from torchdiffeq import odeint
 
-from encons.config import compose_train
+from encons.build import compose
 from encons.data import store
 from encons.data.datamodule import TrajectoryDataModule
 from encons.data.simulate import simulate
@@ -59,7 +59,7 @@ def test_damped_pendulum_simulated_in_cartesian_matches_the_angle_chart():
     ("double_pendulum", 2 * math.pi / 299, 299, 100.0), ("damped_pendulum", 2 * math.pi / 29, 29, 100.0),
 ])
 def test_system_configs_follow_the_paper_protocol(tmp_path, name, dt, steps, test_t):
-    cfg = compose_train([f"system={name}"], tmp_path)
+    cfg = compose([f"system={name}"], tmp_path)
     assert cfg.data.dt == pytest.approx(dt, rel=1e-12) and cfg.data.n_steps == steps
     assert cfg.data.test_steps * dt >= test_t > (cfg.data.test_steps - 1) * dt
     assert cfg.data.n_test == 100 and cfg.data.n_train == (2000 if name == "double_pendulum" else 250)

@@ -1,4 +1,4 @@
-"""LNN trains at defaults (issue 11 item 3): a 20-epoch run on tiny data, with the default network
+"""LNN trains at defaults: a 20-epoch run on tiny data, with the default network
 (3 × 256, as every default run has; debug=fast shrinks it to 2 × 16), stays finite and learns."""
 
 from __future__ import annotations

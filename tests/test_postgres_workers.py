@@ -75,7 +75,7 @@ def test_three_workers_share_one_study(postgres_url, tmp_path):
     env = {**os.environ, "ENCONS_ROOT": str(tmp_path)}
     workers = [subprocess.Popen(
         [sys.executable, "-m", "encons.train", "-m", "sweeps=optuna", "model=node", "system=pendulum1",
-         "debug=fast", "test=false", "trainer.max_epochs=1", "optim.lr=tag(log,interval(1e-4,1e-2))",
+         "debug=fast", "test=false", "trainer.max_epochs=1", "optimizer.lr=tag(log,interval(1e-4,1e-2))",
          f"hydra.sweeper.n_trials={TRIALS_PER_WORKER}", f"hydra.sweeper.sampler.seed={k}",
          f"sweeps.storage={postgres_url}", f"sweeps.study_name={study}"],
         cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for k in range(WORKERS)]
@@ -86,11 +86,11 @@ def test_three_workers_share_one_study(postgres_url, tmp_path):
     trials = optuna.load_study(study_name=study, storage=postgres_url).trials
     assert sorted(t.number for t in trials) == list(range(WORKERS * TRIALS_PER_WORKER))
     assert all(t.state == TrialState.COMPLETE for t in trials), [t.state for t in trials]
-    assert len({t.params["optim.lr"] for t in trials}) == len(trials), "workers sampled the same point"
+    assert len({t.params["optimizer.lr"] for t in trials}) == len(trials), "workers sampled the same point"
     runs = sorted((tmp_path / "multirun" / study).glob("trial_*/.hydra/overrides.yaml"))
     assert len(runs) == len(trials)  # each trial ran exactly once, in its own folder
     for t in trials:
         overrides = yaml.safe_load((tmp_path / "multirun" / study / f"trial_{t.number}/.hydra/overrides.yaml")
                                    .read_text())
         assert f"++sweeps.trial={t.number}" in overrides
-        assert f"optim.lr={t.params['optim.lr']}" in overrides
+        assert f"optimizer.lr={t.params['optimizer.lr']}" in overrides

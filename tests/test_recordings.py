@@ -14,7 +14,7 @@ import torch
 from encons.data.datamodule import TrajectoryDataModule
 from encons.data.recording import load_recording
 from encons.errors import ConfigError, DataError
-from encons.systems.from_file import FileSystem
+from encons.data.from_file import FileSystem
 
 DT = 0.01
 COLUMNS = {"t": "time", "q": ["theta"], "qdot": ["omega"], "trial": "run"}

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from encons.errors import DivergenceError
-from encons.module import DynamicsModule
+from encons.module import TrainingModule
 
 RUN = ["model=hnn", "system=pendulum1", "trainer.max_epochs=4"]
 
@@ -27,13 +27,13 @@ def test_resume_matches_uninterrupted(train_run, tmp_path):
 
 
 def test_divergence_raises_and_keeps_last_good_checkpoint(train_run, tmp_path, monkeypatch):
-    loss = DynamicsModule.loss
+    loss = TrainingModule.loss
 
     def poisoned(self, *args):
         value = loss(self, *args)
         return value * float("nan") if self.current_epoch == 2 else value
 
-    monkeypatch.setattr(DynamicsModule, "loss", poisoned)
+    monkeypatch.setattr(TrainingModule, "loss", poisoned)
     with pytest.raises(DivergenceError, match="training diverged") as err:
         train_run(RUN, name="nan")
     # the message names the checkpoint that exists (it said "no checkpoint was written" before)

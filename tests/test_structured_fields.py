@@ -1,4 +1,4 @@
-"""Structured models (issue 11 item 2): the fast fields (one network forward, Cholesky solves) equal
+"""Structured models: the fast fields (one network forward, Cholesky solves) equal
 the textbook ones built from the same learned M(q) and V(q), with the shared trunk and with two networks."""
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ import yaml
 from optuna.trial import TrialState
 
 from tests.helpers import run_cli
-from encons.config import compose_train
+from encons.build import compose
 
 TINY = ["system=pendulum1", "debug=fast", "test=false"]
 NODE = ["model=node", *TINY]
@@ -73,8 +73,8 @@ def _processes_with_env(needle: str) -> list[int]:
 def test_pruned_and_diverged_trials_are_recorded_and_wandb_logs_every_trial_offline(tmp_path):
     wandb_dir = os.environ["WANDB_DIR"]
     out = sweep(tmp_path, *NODE, "sweeps=optuna", "logger=wandb", "trainer.max_epochs=3", "hydra.sweeper.n_trials=3",
-                "optim.lr=tag(log,interval(1e-4,10.0))", "sweeps.pruner.n_startup_trials=1",
-                "sweeps.pruner.n_warmup_steps=0", "hydra.sweeper.enqueue=[{optim.lr:1e-3},{optim.lr:3.0},{optim.lr:1e9}]")
+                "optimizer.lr=tag(log,interval(1e-4,10.0))", "sweeps.pruner.n_startup_trials=1",
+                "sweeps.pruner.n_warmup_steps=0", "hydra.sweeper.enqueue=[{optimizer.lr:1e-3},{optimizer.lr:3.0},{optimizer.lr:1e9}]")
     folder = tmp_path / "multirun" / "optuna-pendulum1-node"
     good, bad, nan = stored(folder, "optuna-pendulum1-node")
     assert good.state == TrialState.COMPLETE and sorted(good.intermediate_values) == [0, 1, 2]
@@ -115,6 +115,6 @@ def test_model_grid_runs_every_model_and_seed(tmp_path):
     ("slurm", "submitit_launcher.SlurmLauncher", "array_parallelism"),
 ])
 def test_launcher_configs_follow_the_sweepers_batch_size(tmp_path, launcher, target, parallel_key):
-    cfg = compose_train(["sweeps=optuna", f"hydra/launcher={launcher}", "hydra.sweeper.n_jobs=3"], tmp_path)
+    cfg = compose(["sweeps=optuna", f"hydra/launcher={launcher}", "hydra.sweeper.n_jobs=3"], tmp_path)
     assert cfg.hydra.launcher._target_.endswith(target)
     assert cfg.hydra.launcher[parallel_key] == 3

@@ -36,21 +36,21 @@ def test_model_trains_end_to_end_with_the_section_7_metrics(train_run, model, sy
     (["model=hnn", "system=cartpole"], "cannot take control inputs"),
 ])
 def test_incompatible_santos_configs_are_one_line_errors(tmp_path, overrides, match):
-    from encons.config import compose_train
+    from encons.build import compose
     from encons.api import build
 
     with pytest.raises(ConfigError, match=match):
-        build(compose_train(["debug=fast", "system=pendulum_control", *overrides], tmp_path / "run", tmp_path / "c"))
+        build(compose(["debug=fast", "system=pendulum_control", *overrides], tmp_path / "run", tmp_path / "c"))
 
 
 def test_symo_learns_the_true_inertia_of_the_pendulum(tmp_path):
     """From 32 noiseless trajectories, the DEL residual (eq. (15)) fixes M = m l²/3 (the known
     controls set the scale of L); 400 Adam steps on whole trajectories bring M(q) within 1e-3."""
-    from encons.config import compose_train
+    from encons.build import compose
     from encons.api import build
 
     torch.manual_seed(0)
-    cfg = compose_train(["model=symo", "system=pendulum_control", "logger=none", "data.n_train=32",
+    cfg = compose(["model=symo", "system=pendulum_control", "logger=none", "data.n_train=32",
                          "data.chunk_len=33", "data.batch_size=32", "model.hidden=32"],
                         tmp_path / "run", tmp_path / "c")
     data, module = build(cfg)

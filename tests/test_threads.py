@@ -12,7 +12,8 @@ import pytest
 import torch
 
 from encons import api, threads
-from encons.benchmark import compose_benchmark, expand
+from encons.benchmark import expand
+from encons.build import compose
 from encons.errors import ConfigError
 
 #: a subprocess that builds a tiny run through the API and prints torch's threads before and after
@@ -122,8 +123,8 @@ def test_parallel_launcher_passes_the_users_environment_on(monkeypatch, tmp_path
 
 @pytest.mark.parametrize("given, value", [("null", None), ("2", 2), ("auto", "auto")])
 def test_benchmark_threads_key_reaches_every_run(tmp_path, given, value):
-    bench = compose_benchmark(["profile=smoke", f"threads={given}"])
+    bench = compose(["profile=smoke", f"threads={given}"], config_name="benchmark")
     for run in expand(bench):
         assert api.compose(*run.overrides, output_dir=tmp_path).threads == value
-    again = compose_benchmark(["profile=smoke", "threads=2", 'train=["threads=1"]'])
+    again = compose(["profile=smoke", "threads=2", 'train=["threads=1"]'], config_name="benchmark")
     assert {api.compose(*r.overrides, output_dir=tmp_path).threads for r in expand(again)} == {1}

@@ -24,11 +24,11 @@ def builds(model: str, system: str, tmp_path) -> str | None:
     """None when ``model`` can serve ``system``, else the one-line reason."""
     from hydra.utils import execution_whitelist
 
-    from encons.config import build_model, build_system
+    from encons.build import build_model, build_system
 
     cfg = api.compose("debug=fast", f"model={model}", f"system={system}", output_dir=tmp_path)
     try:
-        with execution_whitelist(api.trusted_targets()):
+        with execution_whitelist(trusted_targets()):
             build_model(cfg, build_system(cfg))
     except ConfigError as err:
         return str(err)

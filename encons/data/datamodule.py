@@ -34,7 +34,7 @@ from encons.data import store
 from encons.data.recording import is_recording, load_recording
 from encons.data.simulate import sample_trajectories
 from encons.errors import ConfigError, DataError
-from encons.report import Progress
+from encons.progress import Progress
 from encons.systems.base import System
 
 log = logging.getLogger(__name__)

@@ -8,7 +8,7 @@ any model out: continuous fields through torchdiffeq, discrete models (``Discret
 own ``rollout``.
 
 What a model supports is declared by class attributes, checked once when a run is built
-(``encons.config.check_model``): ``discrete``, ``supports_controls``, ``needs_constraints``,
+(``encons.config.check_capabilities``): ``discrete``, ``supports_controls``, ``needs_constraints``,
 ``history`` and ``objectives``.
 """
 
@@ -105,3 +105,9 @@ class DiscreteModel(DynamicsModel):
     def residual(self, states: Tensor, t: Tensor, u: Tensor | None = None) -> Tensor:
         """Residual vectors (..., K) of the model's own equations on windows ``states`` (..., T, 2n)."""
         raise NotImplementedError
+
+
+def angle_mask(system: System, angular: bool) -> bool | tuple[bool, ...]:
+    """Which coordinates the networks embed on S¹ when ``angular``: the system's ``angles``, all when it
+    declares none."""
+    return tuple(system.angles) if angular and system.angles is not None else angular

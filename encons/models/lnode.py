@@ -15,9 +15,8 @@ import torch
 from torch import Tensor
 from torch.func import grad, jvp
 
-from encons.models.base import DynamicsModel
+from encons.models.base import DynamicsModel, angle_mask
 from encons.models.networks import CholeskyMass, Potential
-from encons.models.symo import angle_mask, input_matrix
 from encons.systems.base import System, split_state
 
 
@@ -33,7 +32,7 @@ class LNode(DynamicsModel):
         angles = angle_mask(system, angular)
         self.mass = CholeskyMass(self.n, angles, hidden, depth, activation, mass_eps)
         self.potential = Potential(self.n, angles, hidden, depth, activation)
-        self.register_buffer("input_matrix", input_matrix(system), persistent=False)
+        self.register_buffer("input_matrix", system.input_matrix().float(), persistent=False)
 
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         return forced_euler_lagrange(self.mass, self.potential, self.input_matrix, s, u)

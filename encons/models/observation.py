@@ -7,7 +7,7 @@ data hold (batch entry ``key``) to those states and ``decode`` maps states back 
 before pixels); ``Autoencoder`` (``observation=autoencoder``) maps frames to a latent state of
 ``latent`` numbers, and the dynamics model is built on ``LatentSystem`` of that size, so any model
 of generalised coordinates (``node``, ``hnn``, ``nsf``, ...) learns the latent dynamics and the
-Lim & Kasim regularisers act on the latent field (``DynamicsModule`` passes them encoded states).
+Lim & Kasim regularisers act on the latent field (``TrainingModule`` passes them encoded states).
 """
 
 from __future__ import annotations

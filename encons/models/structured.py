@@ -14,7 +14,7 @@ class MassPotentialModel(DynamicsModel):
 
     ``shared_trunk=True`` (default): one ``depth`` × ``hidden`` network with n(n+1)/2 + 1 outputs
     gives L(q) and V(q), so a field evaluation runs one network instead of two (about half the
-    cost; issue 11). ``False``: two separate networks as in Zhong et al. (SymODEN, DeLaN).
+    cost). ``False``: two separate networks as in Zhong et al. (SymODEN, DeLaN).
     Fields get both through ``factor_potential``.
     """
 

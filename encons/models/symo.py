@@ -26,25 +26,9 @@ from torch import Tensor
 from torch.func import grad, vjp, vmap
 
 from encons.errors import ConfigError
-from encons.models.base import DiscreteModel
+from encons.models.base import DiscreteModel, angle_mask
 from encons.models.networks import CholeskyMass, Potential
 from encons.systems.base import System
-
-
-def input_matrix(system: System) -> Tensor:
-    """The system's B (n, m) (``system.input_matrix()``), the identity when m = n; (n, 0) without inputs."""
-    n = system.coord_dim(system.base_chart)
-    if hasattr(system, "input_matrix"):
-        return system.input_matrix().float()
-    if system.n_controls not in (0, n):
-        raise ConfigError(f"system '{system.name}' has {system.n_controls} inputs for {n} coordinates and no "
-                          f"input_matrix(); allowed: a system that declares how u enters its equations")
-    return torch.eye(n)[:, : system.n_controls]
-
-
-def angle_mask(system: System, angular: bool) -> bool | tuple[bool, ...]:
-    """Which coordinates the networks embed on S¹: the system's ``angles`` (all when it declares none)."""
-    return tuple(system.angles) if angular and hasattr(system, "angles") else angular
 
 
 class ImplicitRoot(torch.autograd.Function):
@@ -94,7 +78,7 @@ class SyMo(DiscreteModel):
         angles = angle_mask(system, angular)
         self.mass = CholeskyMass(self.n, angles, hidden, depth, activation, mass_eps)
         self.potential = Potential(self.n, angles, hidden, depth, activation)
-        self.register_buffer("input_matrix", input_matrix(system), persistent=False)
+        self.register_buffer("input_matrix", system.input_matrix().float(), persistent=False)
         self.train_tol, self.train_iters, self.eval_tol, self.eval_iters = train_tol, train_iters, eval_tol, eval_iters
         self.newton_iterations: list[int] = []  # iterations of each step of the last rollout
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from encons.errors import ChartError
+from encons.errors import ChartError, ConfigError
 
 
 @dataclass(frozen=True)
@@ -76,11 +76,21 @@ class System(abc.ABC):
     layout: CartesianLayout | None = None
     known_physics: bool = True
     n_controls: int = 0            # width m of the exogenous inputs u the dynamics take
+    angles: tuple[bool, ...] | None = None  # which generalised coordinates are angles (None: not declared)
     frame_shape: tuple[int, int] | None = None  # (H, W) of the frames it is also observed by (``render``)
 
     @property
     def base_chart(self) -> str:
         return self.charts[0]
+
+    def input_matrix(self) -> Tensor:
+        """B (n, m): input u enters the generalised forces as B u. Here the identity when m = n and (n, 0)
+        without inputs; a system with 0 < m ≠ n inputs overrides it."""
+        n = self.coord_dim(self.base_chart)
+        if self.n_controls not in (0, n):
+            raise ConfigError(f"system '{self.name}' has {self.n_controls} inputs for {n} coordinates and no "
+                              f"input_matrix(); allowed: a system that declares how u enters its equations")
+        return torch.eye(n, dtype=torch.float64)[:, : self.n_controls]
 
     def check_chart(self, chart: str) -> None:
         if chart not in self.charts:

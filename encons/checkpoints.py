@@ -1,0 +1,106 @@
+"""Checkpoints: the one function that reads them, finding a run's, and choosing one to resume from.
+
+Every read goes through :func:`read`, with ``torch.load(weights_only=True)``: a pickle that names
+anything but tensors and plain containers is refused before any of it runs. What encons saves
+(Lightning's state and the run config under :data:`CONFIG_KEY`, a plain dict) needs no other
+allowed globals. A checkpoint's saved config is data: it is built only through
+``encons.build.build``, whose trust check runs before any import.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from encons.errors import ConfigError
+
+CONFIG_KEY = "encons_config"  # where a checkpoint carries its resolved run config
+#: The config keys a resume must share with the checkpoint's run (budget and paths may differ).
+RESUME_KEYS = ("system", "model", "data", "integrator", "regulariser", "objective", "optimizer", "scheduler",
+               "seed")
+
+
+def read(path: str | Path, key: str = "ckpt") -> dict[str, Any]:
+    """The contents of checkpoint ``path`` (memory-mapped, on the CPU), read with ``weights_only=True``;
+    a file that is missing, damaged or not a plain checkpoint is one ``ConfigError`` naming ``key``."""
+    import torch
+
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+    except Exception as err:  # noqa: BLE001 - torch raises several types for a file that is not a checkpoint
+        raise ConfigError(f"{key}={str(path)!r} is not a readable checkpoint ({type(err).__name__}); "
+                          f"allowed: a .ckpt written by encons") from None
+    if not isinstance(state, dict) or "state_dict" not in state:
+        raise ConfigError(f"{key}={str(path)!r} holds no state_dict; allowed: a .ckpt written by encons")
+    return state
+
+
+def find(run_dir: Path, which: str = "best") -> Path:
+    """``best`` (lowest validation error), ``last``, or a path to a ``.ckpt``."""
+    if which == "last":
+        found = [run_dir / "checkpoints" / "last.ckpt"]
+    elif which == "best":
+        found = sorted((run_dir / "checkpoints").glob("best-*.ckpt"))
+    else:
+        found = [Path(which)]
+    if not found or not found[-1].is_file():
+        raise ConfigError(f"ckpt={which!r}: no such checkpoint under {run_dir}; allowed: best, last or a .ckpt path")
+    return found[-1]
+
+
+def resume_from(cfg: DictConfig) -> str | None:
+    """The checkpoint to resume from: ``cfg.ckpt_path``, or for ``last`` the newest ``last.ckpt`` among
+    the earlier runs beside this one whose saved config matches this run's :data:`RESUME_KEYS`.
+    Every candidate is read (and so validated) here, before Lightning opens it."""
+    if cfg.ckpt_path != "last":
+        if cfg.ckpt_path is not None and not Path(cfg.ckpt_path).is_file():
+            raise ConfigError(f"ckpt_path={cfg.ckpt_path!r} does not exist; allowed: a .ckpt file, last or null")
+        if cfg.ckpt_path is not None:
+            read(cfg.ckpt_path, "ckpt_path")
+        return cfg.ckpt_path
+    runs = Path(cfg.paths.output_dir).parent
+    found = sorted(runs.glob("*/checkpoints/last.ckpt"), key=lambda p: p.stat().st_mtime, reverse=True)
+    if not found:
+        raise ConfigError(f"ckpt_path=last: no earlier run of '{cfg.name}' has a checkpoint under {runs}; "
+                          f"allowed: a .ckpt file, or null to start afresh")
+    differences = []
+    for path in found:
+        diff = difference(cfg, path)
+        if diff is None:
+            return str(path)
+        differences.append(f"{path.parent.parent.name} has {diff}")
+    raise ConfigError(f"ckpt_path=last: no earlier run under {runs} has this run's config (newest: {differences[0]}); "
+                      f"allowed: the same system/model/data/optimizer config, ckpt_path=PATH, or null")
+
+
+def difference(cfg: DictConfig, path: Path) -> str | None:
+    """None when the checkpoint at ``path`` was trained with ``cfg``'s :data:`RESUME_KEYS`, else the first
+    difference as ``key=saved where this run has value``."""
+    mine = OmegaConf.to_container(OmegaConf.masked_copy(cfg, [k for k in RESUME_KEYS if k in cfg]), resolve=True)
+    saved = read(path, "ckpt_path").get(CONFIG_KEY) or {}
+    diff = _first_difference({k: saved.get(k) for k in mine}, mine)
+    return None if diff is None else f"{diff[0]}={diff[1]!r} where this run has {diff[2]!r}"
+
+
+def _first_difference(a: Any, b: Any, key: str = "") -> tuple[str, Any, Any] | None:
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b)):
+            found = _first_difference(a.get(k), b.get(k), f"{key}.{k}".lstrip("."))
+            if found:
+                return found
+        return None
+    return None if a == b else (key, a, b)
+
+
+def check_fits(module: Any, path: str) -> None:
+    """Refuse a checkpoint whose parameters do not fit ``module`` (another model or size), naming the first."""
+    saved = read(path, "ckpt_path")["state_dict"]
+    own = module.state_dict()
+    for name in sorted(set(saved) | set(own)):
+        shapes = [tuple(d[name].shape) if name in d else None for d in (saved, own)]
+        if shapes[0] != shapes[1]:
+            said = ["absent" if s is None else f"shape {s}" for s in shapes]
+            raise ConfigError(f"ckpt_path={path!r}: parameter {name} is {said[0]} in the checkpoint and {said[1]} "
+                              f"in this model; allowed: a checkpoint of the same model config (model.*)")

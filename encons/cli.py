@@ -1,0 +1,142 @@
+"""The command-line entry points, as plain functions (console scripts and ``python -m encons.<name>``).
+
+    encons-train / python -m encons.train model=<model> system=<system> [overrides]
+    encons-evaluate / python -m encons.evaluate RUN_DIR|CKPT [ckpt=best|last|PATH] [overrides]
+    encons-benchmark / python -m encons.benchmark [profile=NAME] [overrides]
+    encons-report / python -m encons.report DIR
+    python -m encons.sweep STORAGE STUDY [OUT]
+
+Each wraps one library function in :func:`encons.errors.one_line_errors`: a user's error is one
+line on stderr and exit status 2; a bug keeps its traceback. Hydra's process-global state is read
+here, at the top, and passed down explicitly (``encons.build.Request``).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from contextlib import nullcontext
+
+from omegaconf import DictConfig
+
+from encons.compat import quiet_upstream
+from encons.errors import ConfigError, one_line_errors
+from encons.paths import config_dir
+from encons.trust import TRUST_VARIABLE, trusted_targets
+
+EVALUATE_USAGE = """Roll out a trained run's checkpoint on a test set: metrics, figures, summary table.
+
+    python -m encons.evaluate RUN_DIR|CKPT [ckpt=best|last|PATH] [key=value ...]
+
+``RUN_DIR`` is a training run's output folder (``checkpoints/``); a ``.ckpt`` file works alone,
+since checkpoints carry their config. ``ckpt=best`` (default) is the checkpoint ``train`` tested,
+so the metrics agree to the digit. Overrides change the evaluation, e.g. ``data.test_steps=1000``
+for a longer test set; metrics sum over the first ``horizon`` steps (4), so add
+``horizon=1000`` to score the whole trajectory. Results land in ``RUN_DIR/evaluation/``.
+"""
+
+
+def train_job(cfg: DictConfig) -> float | None:
+    """One Hydra job: train ``cfg`` and return its ``optimized_metric`` (best checkpoint's value) for a sweep.
+
+    A config that sets ``ENCONS_TRUSTED_TARGETS`` through ``hydra.job.env_set`` is refused: the trust
+    list is the user's environment, never a file's.
+    """
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    from encons import runs
+    from encons.build import Request
+
+    hydra = HydraConfig.get()
+    # a single run reports a user's error here, before Hydra adds its own "Error executing job" line;
+    # in a sweep the error goes to the sweeper, which records the trial as failed and goes on
+    with one_line_errors() if hydra.mode == RunMode.RUN else nullcontext():
+        if TRUST_VARIABLE in (hydra.job.env_set or {}):
+            raise ConfigError(f"hydra.job.env_set.{TRUST_VARIABLE} is set by a config; allowed: "
+                              f"{TRUST_VARIABLE} in the environment that starts encons (a config cannot widen trust)")
+        request = Request(dict(hydra.runtime.choices), tuple(hydra.overrides.task))
+        results = runs.train(cfg, request=request).metrics
+    return results.get(f"best/{cfg.optimized_metric}", results.get(cfg.optimized_metric))
+
+
+def train() -> None:
+    """``python -m encons.train``: Hydra's command line (``-m`` for sweeps) around :func:`train_job`."""
+    import hydra
+
+    os.environ.setdefault("WANDB_SILENT", "true")
+    quiet_upstream()
+    # Hydra then lets its own errors through to us (else it prints them with its search path and
+    # exits 1): a user's error becomes the last line printed, a bug keeps its traceback.
+    os.environ["HYDRA_FULL_ERROR"] = "1"
+    main = hydra.main(config_path=config_dir(), config_name="train", execution_whitelist=trusted_targets())(train_job)
+    with one_line_errors():
+        main()
+
+
+def evaluate(argv: list[str] | None = None) -> None:
+    """``python -m encons.evaluate RUN_DIR|CKPT [ckpt=...] [overrides]``."""
+    from encons import runs
+
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ("-h", "--help"):
+        print(EVALUATE_USAGE)
+        sys.exit(0 if argv else 2)
+    quiet_upstream()
+    overrides = [a for a in argv[1:] if not a.startswith("ckpt=")]
+    ckpt = next((a.split("=", 1)[1] for a in argv[1:] if a.startswith("ckpt=")), "best")
+    with one_line_errors():
+        runs.evaluate(argv[0], overrides, ckpt=ckpt)
+
+
+def benchmark(argv: list[str] | None = None) -> None:
+    """``python -m encons.benchmark [overrides]``: every run of a profile, then the report."""
+    import logging
+
+    from encons import benchmark as bench
+    from encons.build import compose
+
+    os.environ.setdefault("WANDB_MODE", "disabled")
+    quiet_upstream()
+    import lightning.pytorch  # noqa: F401 - its import sets its loggers' level: quieten them after it
+
+    for name in ("lightning.pytorch", "lightning.fabric"):  # devices, stop reason, checkpoint restored: per run, not news
+        logging.getLogger(name).setLevel(logging.WARNING)
+    args = list(sys.argv[1:] if argv is None else argv)
+    if {"-h", "--help"} & set(args):
+        print(bench.usage())
+        return
+    with one_line_errors():
+        bench.run_profile(compose(args, config_name="benchmark"))
+
+
+def sweep_report(argv: list[str] | None = None) -> None:
+    """``python -m encons.sweep STORAGE STUDY [OUT]``: the report of a stored study, e.g. after
+    several workers shared it."""
+    import argparse
+    from pathlib import Path
+
+    from encons import sweep
+
+    parser = argparse.ArgumentParser(prog="python -m encons.sweep", description=sweep_report.__doc__)
+    parser.add_argument("storage", help="SQLAlchemy URL, e.g. sqlite:///multirun/NAME/optuna.db")
+    parser.add_argument("study")
+    parser.add_argument("out", nargs="?", default=".", help="folder for trials.csv and figures")
+    args = parser.parse_args(argv)
+    with one_line_errors():
+        sweep.report(sweep.load_study(args.storage, args.study), Path(args.out))
+
+
+def report(argv: list[str] | None = None) -> None:
+    """``python -m encons.report DIR``: a benchmark's or a multirun's report, rebuilt without training."""
+    from pathlib import Path
+
+    from encons import report as rep
+
+    argv = sys.argv[1:] if argv is None else argv
+    if len(argv) != 1 or argv[0] in ("-h", "--help"):
+        print(rep.__doc__)
+        sys.exit(0 if len(argv) == 1 else 2)
+    with one_line_errors():
+        for path in rep.write_folder_report(Path(argv[0])):
+            print(path)

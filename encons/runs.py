@@ -1,0 +1,213 @@
+"""A run's life: train one model on one system, load a run back, evaluate it.
+
+Each function goes one way: ``encons.build`` composes, checks and instantiates; Lightning trains
+and tests; ``encons.checkpoints`` reads every checkpoint (``weights_only=True``).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from omegaconf import DictConfig, OmegaConf
+
+from encons import checkpoints
+from encons.build import Request, build, build_trainer, run_config
+from encons.errors import ConfigError
+
+if TYPE_CHECKING:
+    from encons.data.datamodule import TrajectoryDataModule
+    from encons.module import TrainingModule
+
+
+@dataclass
+class Run:
+    """A trained or loaded run: the module (holding the weights of ``checkpoint``), its data and config."""
+
+    module: TrainingModule
+    data: TrajectoryDataModule
+    config: DictConfig
+    run_dir: Path
+    checkpoint: Path | None = None     # None: the in-memory weights (no checkpoint was kept)
+    metrics: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def model(self):
+        """The trained ``DynamicsModel`` (roll it out with ``encons.rollout``)."""
+        return self.module.model
+
+
+def _best_checkpoint(trainer):
+    """The checkpoint callback that monitors a metric and kept a file (the best-by-validation model)."""
+    return next((cb for cb in trainer.checkpoint_callbacks if cb.monitor and cb.best_model_path), None)
+
+
+def train(cfg: DictConfig, summary: bool = True, request: Request | None = None) -> Run:
+    """Train one model on one system, then test the best-by-validation checkpoint (the one kept).
+
+    Returns a :class:`Run` whose module holds the tested weights, whose ``metrics`` are every
+    logged value as floats (``test/...`` of the tested checkpoint, ``best_epoch``, ``wall_time_s``)
+    and whose ``run_dir`` holds ``config.yaml``, ``checkpoints/``, ``figures/``, ``test_metrics.json``
+    and, under the CLI (Hydra's job logging), ``train.log``.
+    With no monitored checkpoint (``callbacks=null``) the last-epoch weights are tested.
+    ``summary=False`` leaves the metrics table out of the console (it still goes to the log files).
+    ``request`` (default: the one ``cfg``'s ``hydra`` node carries) names what the user chose.
+    """
+    from encons.errors import EnconsError
+    from encons.report import to_log_files
+
+    try:
+        return _train(cfg, summary, Request.of(cfg) if request is None else request)
+    except EnconsError as err:
+        to_log_files(f"encons: error: {err}", logging.ERROR)  # the CLI prints the same line on stderr
+        raise
+
+
+def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
+    import torch
+
+    from encons.report import print_summary
+
+    started = time.perf_counter()
+    data, module = build(cfg, request)
+    resume = checkpoints.resume_from(cfg)
+    if resume is not None:
+        checkpoints.check_fits(module, resume)
+    run_dir = Path(cfg.paths.output_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    config = run_config(cfg)
+    OmegaConf.save(config, run_dir / "config.yaml")
+    trainer, loggers = build_trainer(cfg, request)
+    for lg in loggers:
+        lg.log_hyperparams(OmegaConf.to_container(config))
+    tested = None
+    try:
+        _fit(cfg, trainer, module, data, resume)
+        results = {k: float(v) for k, v in trainer.callback_metrics.items()}
+        best = _best_checkpoint(trainer)
+        if best is not None:
+            tested = Path(best.best_model_path)
+            results[f"best/{best.monitor}"] = float(best.best_model_score)
+            results["best_epoch"] = float(checkpoints.read(tested)["epoch"])
+        if cfg.test:
+            trainer.test(module, datamodule=data, ckpt_path=str(tested) if tested else None, verbose=False,
+                         weights_only=True)
+            results.update({f"test/{k}": v for k, v in module.test_metrics.items()})
+        elif tested is not None:
+            module.load_state_dict(checkpoints.read(tested)["state_dict"])
+    finally:
+        _finish_wandb(loggers)
+    results["wall_time_s"] = time.perf_counter() - started
+    results["threads"] = float(torch.get_num_threads())  # what wall_time_s ran on (encons.threads)
+    if trainer.is_global_zero:
+        print_summary(module.run_title(), results, run_dir, note=_which(tested, results), console=summary)
+    return Run(module, data, config, run_dir, tested, results)
+
+
+def _fit(cfg: DictConfig, trainer, module, data, resume: str | None) -> None:
+    """``trainer.fit`` (a resume read with ``weights_only=True``), with a monitored metric the module
+    never logs named as the user's key."""
+    from lightning.fabric.utilities.exceptions import MisconfigurationException
+
+    from encons.compat import logged_metric_names
+
+    try:
+        trainer.fit(module, datamodule=data, ckpt_path=resume, weights_only=True)
+    except MisconfigurationException as err:
+        names = logged_metric_names(err)
+        if names is None:
+            raise
+        raise ConfigError(f"optimized_metric={cfg.optimized_metric!r} is not a metric this run logs; allowed: "
+                          f"{', '.join(names)}") from None
+
+
+def _which(ckpt: Path | None, results: dict[str, float]) -> str:
+    if ckpt is None:
+        return "tested: last-epoch weights (no monitored checkpoint)"
+    epoch = f", epoch {int(results['best_epoch'])}" if "best_epoch" in results else ""
+    return f"tested: best checkpoint by validation ({ckpt.name}{epoch})"
+
+
+def _finish_wandb(loggers: list) -> None:
+    if any(type(lg).__name__ == "WandbLogger" for lg in loggers):
+        import wandb
+
+        wandb.finish()
+
+
+def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") -> Run:
+    """A run back from its folder (checkpoint ``ckpt``: best, last or a path) or from a ``.ckpt`` file.
+
+    The config comes from the checkpoint itself (``encons_config``), else from ``config.yaml``
+    beside ``checkpoints/``; ``overrides`` (``"data.test_steps=400"``) change it before building.
+    Data are re-simulated from the config if the cache is gone. Results go to ``<run>/evaluation``.
+    """
+    path = Path(path)
+    if path.is_file():
+        ckpt_file, run_dir = path, path.parent.parent
+    elif path.is_dir() and ((path / "checkpoints").is_dir() or (path / "config.yaml").is_file()):
+        run_dir, ckpt_file = path, checkpoints.find(path, ckpt)
+    else:
+        raise ConfigError(f"{str(path)!r} is not a training run folder (no checkpoints/) or a .ckpt file; allowed: a run folder that train wrote, or its .ckpt")
+    state = checkpoints.read(ckpt_file)
+    if checkpoints.CONFIG_KEY in state:
+        cfg = OmegaConf.create(state[checkpoints.CONFIG_KEY])
+    elif (run_dir / "config.yaml").is_file():
+        cfg = OmegaConf.load(run_dir / "config.yaml")
+    else:
+        raise ConfigError(f"checkpoint {str(ckpt_file)!r} carries no config and has no config.yaml beside it")
+    cfg = OmegaConf.merge(cfg, _key_overrides(cfg, overrides))
+    cfg.paths.output_dir = str(run_dir / "evaluation")
+    cfg.logger, cfg.callbacks = None, None
+    data, module = build(cfg)
+    try:
+        module.load_state_dict(state["state_dict"])
+    except RuntimeError:
+        raise ConfigError(f"overrides {list(overrides)} change the model, so the weights of {ckpt_file.name} no "
+                          f"longer fit; allowed: overrides of data.*, horizon, integrator.*") from None
+    module.eval()
+    return Run(module, data, cfg, run_dir, ckpt_file)
+
+
+def _key_overrides(cfg: DictConfig, overrides: Iterable[str]) -> DictConfig:
+    """``key=value`` overrides of a saved run config; one that names a whole group (``model=hnn``) or is
+    not ``key=value`` is refused: a saved config has no groups left to choose from."""
+    overrides = list(overrides)
+    for item in overrides:
+        key, eq, _ = item.partition("=")
+        if not eq or not key:
+            raise ConfigError(f"{item!r} is not a key=value override; allowed: key=value (data.test_steps=400)")
+        if isinstance(OmegaConf.select(cfg, key.lstrip("+")), DictConfig):
+            raise ConfigError(f"{item}: {key} is a whole group of the saved run, which evaluation cannot swap; "
+                              f"allowed: overrides of its keys (data.test_steps=400, horizon=400, integrator.method=...)")
+    return OmegaConf.from_dotlist(overrides)
+
+
+def evaluate(run: Run | str | Path, overrides: Iterable[str] = (), ckpt: str = "best") -> dict[str, float]:
+    """Test a run (a :class:`Run`, a run folder or a ``.ckpt``) on its test set; return ``test/...`` metrics.
+
+    Overrides change the evaluation, e.g. ``data.test_steps=1000``: a longer test horizon. Metrics
+    such as ``traj_rel_err`` sum over the first ``horizon`` steps; add ``horizon=1000`` to score
+    the whole trajectory. Figures and ``test_metrics.json`` go to ``<run>/evaluation``.
+    """
+    from encons.report import print_summary
+
+    if not isinstance(run, Run) or list(overrides):
+        run = load(run.checkpoint if isinstance(run, Run) else run, overrides, ckpt)
+    config = run.config.copy()
+    config.logger, config.callbacks = None, None
+    run.module.output_dir = run.run_dir / "evaluation"
+    trainer, _ = build_trainer(config)
+    trainer.test(run.module, datamodule=run.data, verbose=False, weights_only=True)
+    run.metrics = {f"test/{k}": v for k, v in run.module.test_metrics.items()}
+    note = f"tested: {run.checkpoint.name if run.checkpoint else 'in-memory weights'}"
+    steps = run.data.states["test"].shape[1] - 1
+    if steps > run.module.horizon:
+        note += (f"; traj_rel_err sums the first {run.module.horizon} of {steps} test steps "
+                 f"(add horizon={steps} to score the whole trajectory)")
+    print_summary(run.module.run_title(), run.metrics, run.module.output_dir, note=note)
+    return run.metrics

@@ -1,0 +1,68 @@
+"""One test per upstream workaround in ``encons.compat``: an upgrade that breaks one fails here."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pytest
+import torch
+
+from encons import compat
+
+
+def test_torchdiffeq_methods_and_which_are_fixed_step():
+    methods, fixed = compat.ode_methods()
+    assert {"dopri5", "rk4", "euler", "midpoint"} <= set(methods)
+    assert {"rk4", "euler", "midpoint"} <= set(fixed) and "dopri5" not in fixed
+
+
+def test_optuna_sweeper_parses_a_search_space():
+    import optuna
+
+    space, fixed, fixed_overrides = compat.optuna_search_space(["optimizer.lr=tag(log, interval(1e-4, 1e-2))",
+                                                                "seed=3", "model=choice(hnn, node)"])
+    assert isinstance(space["optimizer.lr"], optuna.distributions.FloatDistribution) and space["optimizer.lr"].log
+    assert isinstance(space["model"], optuna.distributions.CategoricalDistribution)
+    assert fixed == {"seed": "3"} and fixed_overrides == []
+
+
+def test_a_failed_jobs_exception_is_read_without_reraising():
+    from hydra.core.utils import JobReturn, JobStatus
+
+    err = ValueError("boom")
+    ret = JobReturn(status=JobStatus.FAILED, _return_value=err)
+    assert compat.job_exception(ret) is err
+    with pytest.raises(ValueError):
+        ret.return_value  # noqa: B018 - the public property re-raises: why compat reads the field
+
+
+def test_wandb_logger_loses_lightnings_anonymous_none(tmp_path):
+    from lightning.pytorch.loggers import WandbLogger
+
+    logger = WandbLogger(offline=True, save_dir=str(tmp_path))
+    assert logger._wandb_init.get("anonymous", "absent") is None   # what Lightning 2.6 passes
+    compat.drop_wandb_anonymous(logger)
+    assert "anonymous" not in logger._wandb_init
+
+
+def test_lightnings_missing_monitor_message_lists_the_logged_metrics():
+    from lightning.fabric.utilities.exceptions import MisconfigurationException
+    from lightning.pytorch.callbacks import ModelCheckpoint
+
+    trainer = SimpleNamespace(fit_loop=SimpleNamespace(epoch_loop=SimpleNamespace(
+        val_loop=SimpleNamespace(_has_run=True))))
+    with pytest.raises(MisconfigurationException) as err:
+        ModelCheckpoint(monitor="val/nope")._save_topk_checkpoint(
+            trainer, {"val/loss": torch.tensor(1.0), "train/loss": torch.tensor(2.0), "epoch": torch.tensor(0)})
+    assert compat.logged_metric_names(err.value) == ["val/loss", "train/loss"]
+    assert compat.logged_metric_names(ValueError("other")) is None
+
+
+def test_quiet_upstream_drops_lightnings_tips():
+    import logging
+
+    compat.quiet_upstream()
+    logger = logging.getLogger("lightning.pytorch.utilities.rank_zero")
+    tip = logging.LogRecord(logger.name, logging.INFO, __file__, 0, "💡 Tip: try litlogger", (), None)
+    info = logging.LogRecord(logger.name, logging.INFO, __file__, 0, "GPU available: False", (), None)
+    assert not logger.filter(tip) and logger.filter(info)
