@@ -16,7 +16,7 @@ from encons.errors import ConfigError
 #: (imports under ``if TYPE_CHECKING:`` are annotations and those under ``if __name__ == "__main__":``
 #: a script's entry, not dependencies: neither is counted).
 LAYERS = [
-    ["errors", "paths", "compat", "trust", "batching", "progress", "io", "checkpoints", "checkpoint_io", "threads"],
+    ["errors", "paths", "compat", "trust", "batching", "progress", "io", "checkpoints", "lightning_io", "threads"],
     ["systems"],
     ["integrators"],
     ["data"],
