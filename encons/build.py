@@ -288,14 +288,17 @@ def _route_lightning_logs() -> None:
 
 def build_trainer(cfg: DictConfig, request: Request = Request()):
     """The Lightning Trainer of ``cfg.trainer`` with the configured loggers and callbacks; every
-    checkpoint it writes carries the resolved run config (``encons.checkpoints``)."""
+    checkpoint it writes carries the resolved run config (``encons.checkpoints``) and is written
+    atomically (``encons.lightning_io``)."""
     from encons.callbacks import RunConfigInCheckpoints
     from encons.compat import drop_wandb_anonymous
+    from encons.lightning_io import AtomicCheckpointIO
 
     loggers = [instantiate_node(cfg, f"logger.{name}", request) for name in (cfg.get("logger") or {})]
     for lg in loggers:
         drop_wandb_anonymous(lg)
     callbacks = [instantiate_node(cfg, f"callbacks.{name}", request) for name in (cfg.get("callbacks") or {})]
     callbacks.append(RunConfigInCheckpoints(run_config(cfg)))
-    trainer = instantiate_node(cfg, "trainer", request, logger=loggers or False, callbacks=callbacks)
+    trainer = instantiate_node(cfg, "trainer", request, logger=loggers or False, callbacks=callbacks,
+                               plugins=[AtomicCheckpointIO()])
     return trainer, loggers

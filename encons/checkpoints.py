@@ -9,6 +9,7 @@ allowed globals. A checkpoint's saved config is data: it is built only through
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from encons.errors import ConfigError
 
+log = logging.getLogger(__name__)
 CONFIG_KEY = "encons_config"  # where a checkpoint carries its resolved run config
 #: The config keys a resume must share with the checkpoint's run (budget and paths may differ).
 RESUME_KEYS = ("system", "model", "data", "integrator", "regulariser", "objective", "optimizer", "scheduler",
@@ -53,7 +55,8 @@ def find(run_dir: Path, which: str = "best") -> Path:
 def resume_from(cfg: DictConfig) -> str | None:
     """The checkpoint to resume from: ``cfg.ckpt_path``, or for ``last`` the newest ``last.ckpt`` among
     the earlier runs beside this one whose saved config matches this run's :data:`RESUME_KEYS`.
-    Every candidate is read (and so validated) here, before Lightning opens it."""
+    Every candidate is read (and so validated) here, before Lightning opens it; a damaged one is
+    skipped with one warning."""
     if cfg.ckpt_path != "last":
         if cfg.ckpt_path is not None and not Path(cfg.ckpt_path).is_file():
             raise ConfigError(f"ckpt_path={cfg.ckpt_path!r} does not exist; allowed: a .ckpt file, last or null")
@@ -67,10 +70,19 @@ def resume_from(cfg: DictConfig) -> str | None:
                           f"allowed: a .ckpt file, or null to start afresh")
     differences = []
     for path in found:
-        diff = difference(cfg, path)
+        try:
+            diff = difference(cfg, path)
+        except ConfigError:  # a damaged file (a run killed mid-write before writes were atomic, a full disk)
+            log.warning("ckpt_path=last: skipped %s: not a readable checkpoint; trying the earlier runs' last.ckpt",
+                        path)
+            continue
         if diff is None:
             return str(path)
         differences.append(f"{path.parent.parent.name} has {diff}")
+    if not differences:
+        others = f", nor is any of the {len(found) - 1} other last.ckpt under {runs}" if len(found) > 1 else ""
+        raise ConfigError(f"ckpt_path=last: {str(found[0])!r} is not a readable checkpoint{others}; allowed: "
+                          f"a .ckpt file, or null to start afresh")
     raise ConfigError(f"ckpt_path=last: no earlier run under {runs} has this run's config (newest: {differences[0]}); "
                       f"allowed: the same system/model/data/optimizer config, ckpt_path=PATH, or null")
 

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import DictConfig, ListConfig, OmegaConf, open_dict
 
 from encons import trust
 from encons.errors import ConfigError
@@ -46,19 +46,30 @@ BOUNDS: dict[str, tuple[Any, str]] = {
     "observation.depth": _COUNT, "observation.weight_reconstruction": _at_least(0),
     "observation.weight_prediction": _at_least(0), "observation.weight_velocity": _at_least(0),
     "system.frame_size": _at_least(4), "system.rate_scale": _at_least(0),
+    "system.n_links": _COUNT, "system.g": _at_least(0), "system.mass": _POSITIVE, "system.masses": _POSITIVE,
+    "system.length": _POSITIVE, "system.lengths": _POSITIVE, "system.cart_mass": _POSITIVE,
+    "system.pole_mass": _POSITIVE, "system.half_length": _POSITIVE, "system.ell": _POSITIVE,
+    "system.inertias": _POSITIVE, "system.inertia": _at_least(0), "system.d": _POSITIVE, "system.k": _POSITIVE,
+    "system.stiffness": _POSITIVE, "system.a": _at_least(0), "system.damping": _at_least(0),
+    "system.gamma1": _at_least(0), "system.gamma2": _at_least(0), "system.init_scale": _POSITIVE,
+    "system.init_range": _at_least(0), "system.u_max": _at_least(0), "system.angle_range": _at_least(0),
+    "system.phi_rate_range": _at_least(0), "system.theta_rate_range": _at_least(0),
+    "system.spin_mean": ((lambda v: True), "a finite number"), "system.spin_scale": _at_least(0),
+    "system.min_sin_theta": ((lambda v: 0 < v < 1), "in (0, 1)"),
 }
 
 
 def check_bounds(cfg: DictConfig) -> None:
-    """Refuse a value outside its range in :data:`BOUNDS`, naming key, value and the range."""
+    """Refuse a value outside its range in :data:`BOUNDS` (for a list, any entry), naming key, value and the range."""
     for key, (fits, allowed) in BOUNDS.items():
         value = OmegaConf.select(cfg, key, default=None)
-        if isinstance(value, (str, bool)):  # a constructor annotation may not say (torch's lr: float | Tensor)
-            raise ConfigError(f"{key}={value!r} has type {type(value).__name__}; allowed: a number {allowed}")
-        if value is None or not isinstance(value, (int, float)):
-            continue
-        if not (math.isfinite(value) and fits(value)):
-            raise ConfigError(f"{key}={value}; allowed: {allowed}")
+        value = OmegaConf.to_container(value) if isinstance(value, ListConfig) else value
+        every = " (every entry)" if isinstance(value, list) else ""
+        for entry in value if isinstance(value, list) else [value]:
+            if isinstance(entry, (str, bool)):  # a constructor annotation may not say (torch's lr: float | Tensor)
+                raise ConfigError(f"{key}={value!r} has type {type(entry).__name__}; allowed: a number {allowed}{every}")
+            if isinstance(entry, (int, float)) and not (math.isfinite(entry) and fits(entry)):
+                raise ConfigError(f"{key}={value}; allowed: {allowed}{every}")
 
 
 def _type_name(hint: Any) -> str:

@@ -20,6 +20,7 @@ from omegaconf import DictConfig, OmegaConf
 from encons import checkpoints, compat
 from encons.build import Request, build, build_trainer, run_config
 from encons.errors import ConfigError, Interrupted
+from encons.io import write_yaml
 
 if TYPE_CHECKING:
     from encons.data.datamodule import TrajectoryDataModule
@@ -74,7 +75,7 @@ def _best_checkpoint(trainer):
     return next((cb for cb in trainer.checkpoint_callbacks if cb.monitor and cb.best_model_path), None)
 
 
-def train(cfg: DictConfig, summary: bool = True, request: Request | None = None) -> Run:
+def train(cfg: DictConfig | str | list[str], summary: bool = True, request: Request | None = None) -> Run:
     """Train one model on one system, then test the best-by-validation checkpoint (the one kept).
 
     Returns a :class:`Run` whose module holds the tested weights, whose ``metrics`` are every
@@ -84,16 +85,30 @@ def train(cfg: DictConfig, summary: bool = True, request: Request | None = None)
     With no monitored checkpoint (``callbacks=null``) the last-epoch weights are tested.
     ``summary=False`` leaves the metrics table out of the console (it still goes to the log files).
     ``request`` (default: the one ``cfg``'s ``hydra`` node carries) names what the user chose.
+    ``cfg`` may also be its overrides (``["model=hnn"]``, or one string), composed as ``encons.compose`` does.
     """
     from encons.errors import EnconsError
     from encons.report import to_log_files
 
+    if not isinstance(cfg, DictConfig):
+        cfg = _composed(cfg)
     try:
         with log_file(Path(cfg.paths.output_dir) / "train.log"):
             return _train(cfg, summary, Request.of(cfg) if request is None else request)
     except EnconsError as err:
         to_log_files(f"encons: error: {err}", logging.ERROR)  # the CLI prints the same line on stderr
         raise
+
+
+def _composed(overrides: object) -> DictConfig:
+    """The config of ``overrides`` (a ``key=value`` string or a list of them), as ``encons.compose`` gives it."""
+    from encons.build import compose
+
+    items = [overrides] if isinstance(overrides, str) else overrides
+    if not isinstance(items, (list, tuple)) or not all(isinstance(o, str) for o in items):
+        raise ConfigError(f"cfg={overrides!r} has type {type(overrides).__name__}; allowed: a config from "
+                          f"encons.compose(...), or its overrides as key=value strings")
+    return compose(list(items))
 
 
 def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
@@ -114,7 +129,7 @@ def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
     run_dir = Path(cfg.paths.output_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     config = run_config(cfg)
-    OmegaConf.save(config, run_dir / "config.yaml")
+    write_yaml(run_dir / "config.yaml", config)
     for lg in loggers:
         lg.log_hyperparams(OmegaConf.to_container(config))
     tested = None

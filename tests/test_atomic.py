@@ -149,3 +149,45 @@ def test_the_csv_logger_keeps_its_last_whole_table_when_the_disk_fills(tmp_path,
         logger.save()
     assert table.read_text() == before and before.splitlines() == ["step,train/loss", "0,1.0"]
     assert sorted(p.name for p in table.parent.iterdir()) == ["hparams.yaml", "metrics.csv"]
+
+
+def test_a_disk_that_fills_during_training_keeps_the_last_good_checkpoints(tmp_path, full_disk):
+    from encons import api
+
+    cfg = api.compose("debug=fast", "trainer.max_epochs=3", output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    full_disk(room=20_000, suffix=".ckpt", after=2)  # epoch 0 writes best and last; epoch 1's first write fills it
+    with pytest.raises(WriteError) as caught:
+        api.train(cfg)
+    folder = tmp_path / "run" / "checkpoints"
+    line = str(caught.value)
+    assert "\n" not in line and line.startswith(f"folder={str(folder)!r}: cannot write ") and "No space left" in line
+    assert sorted(p.name for p in folder.iterdir()) == ["best-epoch0000.ckpt", "last.ckpt"]  # no partial file
+    for kept in folder.iterdir():
+        assert torch.load(kept, weights_only=True)["epoch"] == 0
+
+
+def test_resume_skips_a_damaged_last_checkpoint_with_one_warning(tmp_path, caplog):
+    import shutil
+
+    from encons import api, checkpoints
+
+    def compose(name, *overrides):
+        return api.compose("debug=fast", "trainer.max_epochs=1", *overrides, output_dir=tmp_path / "runs" / name,
+                           cache_dir=tmp_path / "cache")
+
+    api.train(compose("good"), summary=False)
+    shutil.copytree(tmp_path / "runs" / "good", tmp_path / "runs" / "cut")
+    damaged = tmp_path / "runs" / "cut" / "checkpoints" / "last.ckpt"
+    damaged.write_bytes(damaged.read_bytes()[:5000])  # the newest: tried first
+    cfg = compose("resumed", "trainer.max_epochs=2", "ckpt_path=last")
+    with caplog.at_level("WARNING"):
+        assert checkpoints.resume_from(cfg) == str(tmp_path / "runs" / "good" / "checkpoints" / "last.ckpt")
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING" and str(damaged) in r.getMessage()]
+    assert len(warnings) == 1 and "\n" not in warnings[0], caplog.text
+    api.train(cfg, summary=False)  # resumes from it
+
+    for name in ("good", "resumed"):
+        shutil.rmtree(tmp_path / "runs" / name)
+    with pytest.raises(EnconsError) as caught:  # nothing readable left: refused in one line
+        api.train(compose("again", "ckpt_path=last"), summary=False)
+    assert "\n" not in str(caught.value) and "ckpt_path=last" in str(caught.value) and "; allowed: " in str(caught.value)

@@ -106,14 +106,8 @@ OTHER = [  # (module, argv, text the error line must hold)
 ]
 
 
-#: cases not yet refused in one line (strict: each fails the suite once it passes, so it is moved out)
-PENDING = {"system=cartpole model=node system.u_max=nan",
-           "system=cartpole model=node system.init_range=[0.5,inf,0.05,3.0]", "system=pendulum system.g=-9.81"}
-
-
 def _cases(cases, ids):
-    return [pytest.param(*case, id=i, marks=[pytest.mark.xfail(strict=True)] if i in PENDING else [])
-            for case, i in zip(cases, ids)]
+    return [pytest.param(*case, id=i) for case, i in zip(cases, ids)]
 
 
 @pytest.fixture(scope="module")
