@@ -244,8 +244,18 @@ def build(cfg: DictConfig) -> tuple[TrajectoryDataModule, DynamicsModule]:
         regulariser = instantiate_node(cfg, "regulariser") if cfg.get("regulariser") else None
         module = DynamicsModule(model, system, data.dt, instantiate_node(cfg, "integrator"), objective=objective,
                                 regulariser=regulariser, observation=observation, horizon=cfg.horizon,
-                                output_dir=cfg.paths.output_dir, model_name=cfg.get("model_name"), **cfg.optim)
+                                output_dir=cfg.paths.output_dir, model_name=cfg.get("model_name"),
+                                evaluation=evaluation_of(cfg), **cfg.optim)
     return data, module
+
+
+def evaluation_of(cfg: DictConfig):
+    """The run's ``evaluation`` node as an ``encons.evaluation.Evaluation``; a config saved before the
+    node existed gets the default."""
+    from encons.config import instantiate_node
+    from encons.evaluation import Evaluation
+
+    return instantiate_node(cfg, "evaluation") if cfg.get("evaluation") else Evaluation()
 
 
 def build_trainer(cfg: DictConfig):
@@ -371,7 +381,8 @@ def _train(cfg: DictConfig, summary: bool) -> Run:
     results["wall_time_s"] = time.perf_counter() - started
     results["threads"] = float(torch.get_num_threads())  # what wall_time_s ran on (encons.threads)
     if trainer.is_global_zero:
-        print_summary(module.run_title(), results, run_dir, note=_which(tested, results), console=summary)
+        print_summary(module.run_title(), results, run_dir, note=f"{_which(tested, results)}; {module.evaluation.describe()}",
+                      console=summary)
     return Run(module, data, config, run_dir, tested, results)
 
 
@@ -472,7 +483,7 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
         module.load_state_dict(state["state_dict"])
     except RuntimeError:
         raise ConfigError(f"overrides {list(overrides)} change the model, so the weights of {ckpt_file.name} no "
-                          f"longer fit; allowed: overrides of data.*, horizon, integrator.*") from None
+                          f"longer fit; allowed: overrides of data.*, horizon, integrator.*, evaluation.*") from None
     module.eval()
     return Run(module, data, cfg, run_dir, ckpt_file)
 
@@ -496,7 +507,7 @@ def evaluate(run: Run | str | Path, overrides: Iterable[str] = (), ckpt: str = "
         trainer, _ = build_trainer(config)
         trainer.test(run.module, datamodule=run.data, verbose=False)
     run.metrics = {f"test/{k}": v for k, v in run.module.test_metrics.items()}
-    note = f"tested: {run.checkpoint.name if run.checkpoint else 'in-memory weights'}"
+    note = f"tested: {run.checkpoint.name if run.checkpoint else 'in-memory weights'}; {run.module.evaluation.describe()}"
     steps = run.data.states["test"].shape[1] - 1
     if steps > run.module.horizon:
         note += (f"; traj_rel_err sums the first {run.module.horizon} of {steps} test steps "

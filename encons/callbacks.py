@@ -94,9 +94,10 @@ class SantosMetrics(pl.Callback):
     def one_step_mse(module: pl.LightningModule, arrays: dict[str, Tensor]) -> float:
         states, u, history, n = arrays["states"], arrays.get("u"), module.model.history, module.model.n
         windows = states.unfold(1, history + 1, 1)[:, 2 - history:].movedim(-1, -2).flatten(0, 1)
-        batch = {"states": windows.to(module.device)}
+        dtype = next(module.model.parameters()).dtype  # test states are float64, the model need not be
+        batch = {"states": windows.to(module.device, dtype)}
         if u is not None:
-            batch["u"] = u.unfold(1, history + 1, 1)[:, 2 - history:].movedim(-1, -2).flatten(0, 1).to(module.device)
+            batch["u"] = u.unfold(1, history + 1, 1)[:, 2 - history:].movedim(-1, -2).flatten(0, 1).to(module.device, dtype)
         pred = module.predict(batch)[:, -1, :n]
         return metrics.configuration_mse(pred.double().cpu(), windows[:, -1, :n].double()).item()
 

@@ -42,6 +42,8 @@ BOUNDS: dict[str, tuple[Any, str]] = {
     "optim.lr": _POSITIVE, "optim.weight_decay": _at_least(0), "optim.patience": _at_least(0),
     "optim.factor": ((lambda v: 0 < v < 1), "in (0, 1)"),
     "regulariser.weight": _at_least(0), "integrator.rtol": _POSITIVE, "integrator.atol": _POSITIVE,
+    "evaluation.rtol": _POSITIVE, "evaluation.atol": _POSITIVE, "evaluation.substeps": _COUNT,
+    "evaluation.vpt_threshold": _POSITIVE,
     "model.hidden": _COUNT, "model.depth": _COUNT, "trainer.gradient_clip_val": _at_least(0),
     "observation.latent": _at_least(2), "observation.stack": _COUNT, "observation.hidden": _COUNT,
     "observation.depth": _COUNT, "observation.weight_reconstruction": _at_least(0),

@@ -3,21 +3,21 @@
     python -m encons.control RUN_DIR|CKPT [ckpt=best|last|PATH] [starts=100] [seed=0] [duration=SECONDS]
 
 Zhong et al. conclude that the learned structure "can be leveraged to design energy-based controllers"
-(paper 000, §5) and Santos et al. motivate SyMo by prediction and control (paper 002, §1). This module
+(paper 000, §5) and Santos et al. motivate SyMo by prediction and control (paper 002, abstract). This module
 builds, for the controlled systems of Santos et al. §7 (``pendulum_control``, ``cartpole``), a
 swing-up controller from what a model learned — M(q), V(q) (so the energy E = ½ q̇ᵀ M q̇ + V, eq. (1))
 and the continuous forced Euler–Lagrange field ṡ = f(s, u) of eq. (4) — and the same controller from
 the true system (the oracle row), and scores both on the true simulator from one seeded set of starts.
 
-- ``pendulum_control``: energy pumping (Åström & Furuta, Automatica 36 (2000), §3): the torque
-  u = u_max sat(k_E (E* − E)) sgn(q̇) drives dE/dt = q̇ u towards E* = V(0), the learned energy of
-  rest upright; LQR near upright.
+- ``pendulum_control``: energy pumping (Åström & Furuta, "Swinging up a pendulum by energy control",
+  Automatica 36 (2000)): the torque u = u_max sat(k_E (E* − E)) sgn(q̇) drives dE/dt = q̇ u towards
+  E* = V(0), the learned energy of rest upright; LQR near upright.
 - ``cartpole``: energy shaping fits the learned structure through the pole's energy with the cart at
   rest, E_p = E(q, (0, θ̇)): with the cart's acceleration a as the input, dE_p/dt = −M_xθ(q) θ̇ a, so
-  a = k_E (E_p − E*) M_xθ θ̇ − k_x x − k_v ẋ (Åström & Furuta §4, cos θ replaced by the learned M_xθ;
-  the cart terms keep it near the origin), turned into the force u by collocated partial feedback
-  linearisation of the learned control-affine field (ẍ = a₀(s) + b₀(s) u, two field evaluations); LQR
-  near upright. Model-predictive shooting is not needed: every model that takes inputs and has an
+  a = k_E (E_p − E*) M_xθ θ̇ − k_x x − k_v ẋ (Åström & Furuta's pivot-acceleration law, cos θ
+  replaced by the learned M_xθ; the cart terms keep it near the origin), turned into the force u by
+  collocated partial feedback linearisation of the learned control-affine field (ẍ = a₀(s) + b₀(s) u,
+  two field evaluations); LQR near upright. Model-predictive shooting is not needed: every model that takes inputs and has an
   energy (L-NODE, SyMo, E2E-SyMo) gives M, V and f.
 
 LQR (both systems): f linearised at the upright equilibrium s* = 0, u = 0 by ``torch.func.jacrev``
@@ -49,8 +49,6 @@ import math
 import sys
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
-from pathlib import Path
-
 import numpy as np
 import scipy.linalg
 import torch
@@ -182,13 +180,14 @@ class SwingUp:
             return self.u_max * torch.clamp(k * (self.target - self.plant.energy(s))[..., None], -1, 1) * sign
         x, theta, xd, thetad = s.unbind(-1)
         q = s[..., :2]
-        pole = self.plant.energy(torch.stack([x, theta, torch.zeros_like(xd), thetad], -1))  # cart at rest
-        upright = self.plant.energy(torch.stack([x, torch.zeros_like(x), torch.zeros_like(x), torch.zeros_like(x)], -1))
+        pole = self.plant.energy(torch.stack([x, theta, torch.zeros_like(xd), thetad], -1))  # the cart at rest
+        zero = torch.zeros_like(x)
+        upright = self.plant.energy(torch.stack([x, zero, zero, zero], -1))  # at rest upright, here
         coupling = self.plant.mass(q)[..., 0, 1]
         kx, kv = self.settings.cart_gains
         accel = k * (pole - upright) * coupling * thetad - kx * x - kv * xd
         free = self.plant.field(s, torch.zeros_like(s[..., :1]))[..., 2]
-        per_unit = self.plant.field(s, torch.ones_like(s[..., :1]))[..., 2] - free  # control-affine: ẍ = a₀ + b₀ u
+        per_unit = self.plant.field(s, torch.ones_like(s[..., :1]))[..., 2] - free  # ẍ = a₀ + b₀ u: b₀
         return torch.clamp((accel - free) / per_unit, -self.u_max, self.u_max)[..., None]
 
     def near(self, x: Tensor) -> Tensor:
@@ -217,7 +216,8 @@ def closed_loop(system: ControlledMechanical, controller: Callable[[Tensor], Ten
     return torch.stack(states, 1), torch.stack(inputs, 1)
 
 
-def score(plant: Plant, states: Tensor, inputs: Tensor, settings: Settings, h: float) -> tuple[dict[str, float], Tensor]:
+def score(plant: Plant, states: Tensor, inputs: Tensor, settings: Settings,
+          h: float) -> tuple[dict[str, float], Tensor]:
     """Success rate, mean time to upright (successful starts; nan if none), mean effort ∫ u² dt and the
     largest |u| of one closed-loop set (``Settings`` tolerance and hold), and each start's time to
     upright (N,) (inf where it failed)."""
@@ -290,7 +290,8 @@ def compare(run, starts: int = 100, seed: int = 0, duration: float | None = None
     metrics = {f"control/{k}": v for k, v in learned_metrics.items()}
     metrics["control/pred_rmse"] = prediction_error(run, oracle_plant, *learned, h)
     truth = controllers[1].linear
-    metrics["control/linear_rel_err"] = (torch.linalg.norm(controllers[0].linear - truth) / torch.linalg.norm(truth)).item()
+    metrics["control/linear_rel_err"] = (torch.linalg.norm(controllers[0].linear - truth)
+                                         / torch.linalg.norm(truth)).item()
     metrics.update({f"oracle/{k}": v for k, v in oracle_metrics.items()})
     return Outcome(torch.arange(steps + 1) * h, learned, oracle, (learned_up, oracle_up), metrics)
 
@@ -316,7 +317,8 @@ def score_control(run, starts: int = 100, seed: int = 0, duration: float | None 
     out = run.run_dir / "control"
     system = run.module.system
     write_json(out / "control_metrics.json", {**outcome.metrics, "starts": starts, "seed": seed,
-                                               "duration_s": float(outcome.t[-1]), "control_period_s": float(run.module.dt),
+                                               "duration_s": float(outcome.t[-1]),
+                                               "control_period_s": float(run.module.dt),
                                                "settings": settings_record(SETTINGS[type(system)])})
     oracle = true_plant(system)
     plots.control_figures(outcome.t, outcome.learned, outcome.oracle, outcome.t_up, oracle.energy,

@@ -26,23 +26,27 @@ FIXED_STEP = tuple(sorted(m for m, solver in SOLVERS.items() if issubclass(solve
 
 @dataclass(frozen=True)
 class Integrator:
-    """A torchdiffeq method; fixed-step methods step once per ``substeps``-th of the data dt."""
+    """A torchdiffeq method; fixed-step methods step once per ``substeps``-th of the data dt, adaptive ones
+    at ``rtol``/``atol`` with at most ``max_steps`` steps per data dt (then torchdiffeq raises)."""
 
     method: str = "rk4"
     substeps: int = 1
     rtol: float = 1e-7
     atol: float = 1e-9
+    max_steps: int = 1000
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ConfigError(f"integrator.method={self.method!r} is unknown; allowed: {', '.join(METHODS)}")
-        if self.substeps < 1:
-            raise ConfigError(f"integrator.substeps={self.substeps}; allowed: >= 1")
+        if self.substeps < 1 or self.max_steps < 1:
+            raise ConfigError(f"integrator.substeps={self.substeps}, integrator.max_steps={self.max_steps}; "
+                              f"allowed: both >= 1")
 
     def options(self, t: Tensor) -> dict:
         if self.method in FIXED_STEP:
             return {"method": self.method, "options": {"step_size": float(t[1] - t[0]) / self.substeps}}
-        return {"method": self.method, "rtol": self.rtol, "atol": self.atol}
+        return {"method": self.method, "rtol": self.rtol, "atol": self.atol,
+                "options": {"max_num_steps": self.max_steps * (len(t) - 1)}}
 
 
 def odeint_held(field: Callable[[Tensor, Tensor, Tensor], Tensor], z0: Tensor, t: Tensor, u: Tensor,
@@ -67,6 +71,11 @@ def rollout(model: DynamicsModel, start: Tensor, t: Tensor, integrator: Integrat
     continuous model index 0 along time is ``start`` itself (``decode(encode(start))`` in exact
     arithmetic; not computed, so a learned decoder costs T − 1 evaluations).
     """
+    weight = next(model.parameters(), None)
+    if weight is not None and weight.is_floating_point() and weight.dtype != start.dtype:
+        raise ConfigError(f"start dtype={str(start.dtype).removeprefix('torch.')} differs from the model's "
+                          f"{str(weight.dtype).removeprefix('torch.')}; allowed: start.to({weight.dtype}) or a model "
+                          f"of the start's dtype (model.to(start.dtype))")
     t = t.to(start)
     if model.discrete:
         return model.rollout(start, t, u)

@@ -27,6 +27,17 @@ def geometric_mean_relative_error(pred: Tensor, true: Tensor) -> Tensor:
     return err[..., 1:].clamp_min(1e-30).log().mean(-1).exp()
 
 
+def valid_prediction_time(pred: Tensor, true: Tensor, dt: float, threshold: float) -> Tensor:
+    """Valid prediction time per trajectory (N,): the last time t_k = k·dt such that the relative error
+    ‖ŝ_τ − s_τ‖₂ / ‖s_τ‖₂ stays ≤ ``threshold`` at every step τ ≤ k (Jin et al. 2020's VPT; Botev et al.
+    2021 use the same definition on a normalised MSE). A rollout that never exceeds it scores its horizon
+    t_{T−1}: the value is censored there, so compare VPTs only over one horizon. A non-finite error
+    counts as exceeding.
+    """
+    within = (relative_error(pred, true) <= threshold).long()        # NaN compares False
+    return (within.cumprod(-1).sum(-1) - 1).clamp_min(0).double() * dt
+
+
 def energy_abs_error(pred_energy: Tensor, true_energy: Tensor) -> Tensor:
     """|E(ŝ_t) − E(s_t)| in the true energy (Zhong et al. §4.1); shape (N, T)."""
     return (pred_energy - true_energy).abs()
@@ -47,19 +58,24 @@ def percentiles(values: Tensor, qs: tuple[float, ...] = (0.025, 0.5, 0.975)) -> 
 
 
 def summarise(pred: Tensor, true: Tensor, pred_energy: Tensor | None, true_energy: Tensor | None,
-              horizon: int = 4) -> dict[str, float]:
-    """Scalar test metrics of rollouts ``pred`` against ``true`` in one common chart.
+              horizon: int = 4, dt: float = 1.0, vpt_threshold: float = 0.1) -> dict[str, float]:
+    """Scalar test metrics of rollouts ``pred`` against ``true`` in one common chart, sampled every ``dt``.
 
     ``diverged`` is the fraction of rollouts with a non-finite state; the means over trajectories
-    are then NaN on purpose (the horizon-``horizon`` ``traj_rel_err`` may still be finite).
+    are then NaN on purpose (the horizon-``horizon`` ``traj_rel_err`` may still be finite). ``vpt``
+    is the mean ``valid_prediction_time`` at ``vpt_threshold``, ``vpt_censored`` the fraction of
+    rollouts still valid at the last step (their VPT is the horizon).
     """
     tre = trajectory_relative_error(pred, true, horizon)
+    vpt = valid_prediction_time(pred, true, dt, vpt_threshold)
     out = {
         "diverged": (~pred.isfinite().all(-1).all(-1)).double().mean().item(),
         "traj_rel_err": tre.mean().item(),
         "traj_rel_err_std": tre.std().item() if tre.numel() > 1 else 0.0,
         "rel_err_final": relative_error(pred, true)[..., -1].mean().item(),
         "geom_rel_err": geometric_mean_relative_error(pred, true).mean().item(),
+        "vpt": vpt.mean().item(),
+        "vpt_censored": (vpt == (pred.shape[-2] - 1) * dt).double().mean().item(),
     }
     if pred_energy is not None and true_energy is not None:
         out["energy_abs_err"] = energy_abs_error(pred_energy, true_energy).mean().item()

@@ -27,6 +27,7 @@ from torch import Tensor
 
 from encons import metrics, plots
 from encons.errors import ConfigError, DivergenceError
+from encons.evaluation import Evaluation
 from encons.integrators import Integrator, rollout, state_derivative
 from encons.io import save_npz, write_json
 from encons.models.base import DynamicsModel
@@ -48,7 +49,7 @@ class DynamicsModule(pl.LightningModule):
                  patience: int = 50, factor: float = 0.7,
                  objective: str | None = None, regulariser: Regulariser | None = None,
                  horizon: int = 4, output_dir: str | None = None, observation: Observation | None = None,
-                 model_name: str | None = None):
+                 model_name: str | None = None, evaluation: Evaluation | None = None):
         super().__init__()
         self.model_name = model_name  # the model's config name (hnn_angle, not the class HNN) for titles
         objective = objective or model.objectives[0]
@@ -71,6 +72,7 @@ class DynamicsModule(pl.LightningModule):
         self.lr, self.weight_decay, self.scheduler_name, self.warmup = lr, weight_decay, scheduler, warmup
         self.patience, self.factor = patience, factor
         self.objective, self.regulariser, self.horizon = objective, regulariser, horizon
+        self.evaluation = evaluation or Evaluation()  # test rollouts: their own integrator (encons.evaluation)
         self.output_dir = Path(output_dir) if output_dir else None
         self.test_metrics: dict[str, float] = {}
         self._test_batches: list[tuple[Tensor, ...]] = []
@@ -83,12 +85,14 @@ class DynamicsModule(pl.LightningModule):
         x = batch[self.observation.key]
         return x, self.observation.encode(x)
 
-    def predict(self, batch: Batch, states: Tensor | None = None) -> Tensor:
+    def predict(self, batch: Batch, states: Tensor | None = None, evaluation: Evaluation | None = None) -> Tensor:
         """Roll out from the first state (``history`` states) of each window's (encoded) states over the
-        window's length T: (N, T, 2n)."""
+        window's length T: (N, T, 2n); by ``evaluation`` if given, else by the training integrator."""
         x, states = (batch[self.observation.key], states) if states is not None else self.encode(batch)
         history = self.model.history
         start = states[:, 0] if history == 1 else states[:, :history]
+        if evaluation is not None:
+            return evaluation.rollout(self.model, start, self.times(x.shape[1], states), batch.get("u"))
         return rollout(self.model, start, self.times(x.shape[1], states), self.integrator, batch.get("u"))
 
     def rollout_loss(self, x: Tensor, states: Tensor, pred: Tensor) -> Tensor:
@@ -160,9 +164,12 @@ class DynamicsModule(pl.LightningModule):
 
     def test_step(self, batch: Batch, batch_idx: int) -> None:
         x, states = self.encode(batch)
-        pred = self.predict(batch, states)
-        kept = (x, pred) if self.observation.identity else (x, states, pred)
-        self._test_batches.append(tuple(p.detach() for p in kept))
+        pred = self.predict(batch, states, self.evaluation)
+        if not self.observation.identity:
+            return self._test_batches.append(tuple(p.detach() for p in (x, states, pred.to(states.dtype))))
+        oracle = (self.evaluation.oracle(self.system, self.model.chart, x[:, 0], self.times(x.shape[1], x), batch.get("u"))
+                  if self.system.known_physics else None)  # the floor: the true field, same starts and integrator
+        self._test_batches.append(tuple(p.detach() for p in (x, pred) + ((oracle,) if oracle is not None else ())))
 
     def _gathered(self) -> list[Tensor]:
         """The test batches concatenated; under DDP, every process's share."""
@@ -175,16 +182,21 @@ class DynamicsModule(pl.LightningModule):
     def on_test_epoch_end(self) -> None:
         if not self.observation.identity:
             return self._test_observations(*self._gathered())
-        true, pred = (p.double() for p in self._gathered())
+        true, pred, *oracle = (p.double() for p in self._gathered())
         energy = (lambda x: self.system.energy(x, self.model.chart)) if self.system.known_physics else None
         if energy is None:
             log.info("energy metrics skipped: system '%s' has no known energy", self.system.name)
         energies = [energy(x) for x in (pred, true)] if energy else None
         true_c, pred_c = self.to_common(true), self.to_common(pred)
-        self.test_metrics = metrics.summarise(pred_c, true_c, *(energies or (None, None)), horizon=self.horizon)
+        score = dict(horizon=self.horizon, dt=self.dt, vpt_threshold=self.evaluation.vpt_threshold)
+        self.test_metrics = metrics.summarise(pred_c, true_c, *(energies or (None, None)), **score)
         scalars, curves = metrics.long_rollout_errors(true, pred, self.trainer.datamodule.states["train"].to(true),
                                                       self.dt, self.to_common, energy, self.horizon)
         self.test_metrics.update(scalars)
+        if oracle:  # the floor, scored by the same metrics
+            floor = metrics.summarise(self.to_common(oracle[0]), true_c, energy(oracle[0]) if energy else None,
+                                      energies[1] if energies else None, **score)
+            self.test_metrics.update({f"oracle/{k}": v for k, v in floor.items()})
         log.info("%s", metrics.curves_table(self.times(true.shape[1], true), curves))
         self.log_dict({f"test/{k}": v for k, v in self.test_metrics.items()}, sync_dist=True)
         if self.output_dir is not None and self.trainer.is_global_zero:

@@ -42,7 +42,7 @@ def test_notebook_workflow_round_trips_a_run(tmp_path):
     assert encons.load(run.run_dir).checkpoint == run.checkpoint  # a run folder: its best checkpoint
 
     # roll the loaded model out from the first test state: matches the module's own prediction
-    states = loaded.data.states["test"][:2]
+    states = loaded.data.states["test"][:2].float()  # test states are float64; the model float32
     t = torch.arange(states.shape[1], dtype=states.dtype) * loaded.data.dt
     with torch.no_grad():
         pred = encons.rollout(loaded.model, states[:, 0], t, loaded.module.integrator)

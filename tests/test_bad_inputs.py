@@ -17,7 +17,8 @@ from hydra.core.global_hydra import GlobalHydra
 from encons.errors import EnconsError
 
 # placeholders: {tmp} this test's folder, {file} a plain file in it, {empty} an empty folder in it,
-# {run} a finished tiny training run, {ckpt} its best checkpoint, {bad_ckpt} a truncated checkpoint
+# {run} a finished tiny training run, {ckpt} its best checkpoint, {bad_ckpt} a truncated checkpoint,
+# {rows} a benchmark folder whose one result row is cut short
 TRAIN = [  # (overrides, text the error line must hold)
     # system
     (["system=from_file"], "system.path"),
@@ -66,6 +67,14 @@ TRAIN = [  # (overrides, text the error line must hold)
     (["ckpt_path={tmp}/nope.ckpt"], "ckpt_path="),
     (["ckpt_path={empty}"], "ckpt_path="),
     (["ckpt_path={bad_ckpt}"], "ckpt_path="),
+    (["ckpt_path=last"], "ckpt_path=last"),
+    (["system=from_file", "system.path={file}"], "file.txt"),
+    (["data.n_val=0"], "data.n_val=0"),
+    (["observation=nope"], "observation=nope"),
+    (["regulariser=hamiltonian", "model=symo"], "regulariser="),
+    (["compile=maybe"], "compile="),
+    (["trainer.devices=0"], "trainer.devices=0"),
+    (["hydra.run.dir={file}/run"], "file.txt"),
     (["debug=nope"], "debug=nope"),
     (["experiment=nope"], "experiment=nope"),
     # sweeps
@@ -95,6 +104,8 @@ OTHER = [  # (module, argv, text the error line must hold)
     ("encons.report", ["{file}"], "file.txt"),
     ("encons.report", ["{empty}"], "empty"),
     ("encons.report", ["{tmp}/nope"], "nope"),
+    ("encons.report", ["{rows}"], "result.json"),
+    ("encons.benchmark", ["models=[nope]", "out={tmp}/bench"], "model=nope"),
     ("encons.sweep", ["sqlite:///{tmp}/nope/x.db", "study"], "sweeps.storage="),
     ("encons.sweep", ["sqlite:///{tmp}/x.db", "study"], "study='study'"),
 ]
@@ -127,10 +138,13 @@ def finished_run(tmp_path_factory):
 def places(tmp_path, finished_run):
     (tmp_path / "file.txt").write_text("not what was asked for")
     (tmp_path / "empty").mkdir()
+    (tmp_path / "rows" / "runs" / "a").mkdir(parents=True)
+    (tmp_path / "rows" / "runs" / "a" / "result.json").write_text('{"system": "pend')
     bad = tmp_path / "bad.ckpt"
     bad.write_bytes(finished_run.checkpoint.read_bytes()[:5000])
     return {"tmp": str(tmp_path), "file": str(tmp_path / "file.txt"), "empty": str(tmp_path / "empty"),
-            "run": str(finished_run.run_dir), "ckpt": str(finished_run.checkpoint), "bad_ckpt": str(bad)}
+            "run": str(finished_run.run_dir), "ckpt": str(finished_run.checkpoint), "bad_ckpt": str(bad),
+            "rows": str(tmp_path / "rows")}
 
 
 def _main(module: str, argv: list[str], monkeypatch) -> SimpleNamespace:
@@ -159,9 +173,8 @@ def _assert_one_line(proc, key: str) -> None:
 @pytest.mark.parametrize("args, key", _cases(TRAIN, [" ".join(a) for a, _ in TRAIN]))
 def test_train_cli(places, tmp_path, monkeypatch, args, key):
     monkeypatch.chdir(tmp_path)
-    proc = _main("encons.train", ["debug=fast", *(a.format(**places) for a in args),
-                                  f"hydra.run.dir={tmp_path / 'run'}", f"hydra.sweep.dir={tmp_path / 'multi'}"],
-                 monkeypatch)
+    proc = _main("encons.train", ["debug=fast", f"hydra.run.dir={tmp_path / 'run'}", f"hydra.sweep.dir={tmp_path / 'multi'}",
+                                  *(a.format(**places) for a in args)], monkeypatch)
     _assert_one_line(proc, key.format(**places))
 
 
