@@ -38,7 +38,7 @@ def meta_odeint(func, y0, t, method="rk4", options=None, **_):
 
 
 def step_loss(module, batch: dict) -> torch.Tensor:
-    """``DynamicsModule.training_step``'s loss, without its logging and its finiteness check (a value read)."""
+    """``TrainingModule.training_step``'s loss, without its logging and its finiteness check (a value read)."""
     loss = module.loss(batch)
     if module.regulariser is not None:
         with torch.no_grad():

@@ -18,7 +18,7 @@ from encons.systems.pendulum import NPendulum
 def saved(monkeypatch):
     """The figures ``plots`` saves, by file name, inspected before they are closed."""
     figures = {}
-    original = plots._save
+    original = plots.save_png
 
     def keep(fig, path, layout=True):
         figures[path.name] = fig
@@ -29,7 +29,7 @@ def saved(monkeypatch):
                               "legend_labels": [t.get_text() for lg in fig.legends for t in lg.get_texts()]}
         return original(fig, path, layout)
 
-    monkeypatch.setattr(plots, "_save", keep)
+    monkeypatch.setattr(plots, "save_png", keep)
     return figures
 
 

@@ -10,7 +10,8 @@ import torch
 from hydra.utils import execution_whitelist
 
 from encons import api
-from encons.config import build_model, build_system
+from encons.build import build_model, build_system
+from encons.trust import trusted_targets
 from encons.models.glnn import GLNN
 from encons.models.lnn import guarded_solve, lagrangian_derivatives
 from encons.systems.base import split_state
@@ -37,7 +38,7 @@ def physical_states(system, n=256):
 @pytest.mark.parametrize("model_name", ["lnn", "lnn_angle", "glnn"])
 def test_true_lagrangian_gives_the_true_acceleration_at_default_settings(model_name, name):
     cfg = api.compose(f"model={model_name}", f"system={name}", output_dir=".")
-    with execution_whitelist(api.trusted_targets()):
+    with execution_whitelist(trusted_targets()):
         system = build_system(cfg)
         model = build_model(cfg, system).double()
     model.lagrangian_derivatives = partial(lagrangian_derivatives, true_lagrangian(system))
