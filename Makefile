@@ -28,7 +28,7 @@ bench:  ## speed per model (steps/s, peak memory, × floor, × naive), dataset g
 	$(BIN)/python benchmarks/pixel_speed.py --threads 1
 	$(BIN)/python benchmarks/time_to_accuracy.py
 
-benchmark:  ## a benchmark profile, e.g. make benchmark ARGS="profile=quick" (smoke|quick|zhong|finzi|lim_kasim|pixels|control)
+benchmark:  ## a benchmark profile, e.g. make benchmark ARGS="profile=quick" (smoke|quick|zhong|finzi|lim_kasim|pixels|santos|xiao|control)
 	$(BIN)/python -m encons.benchmark $(ARGS)
 
 report:  ## rebuild a benchmark's tables and figures without training, e.g. make report ARGS=benchmarks/results/quick
