@@ -16,7 +16,7 @@ import time
 import torch
 
 from encons import api, metrics, threads
-from encons.config import build_system
+from encons.build import build_system
 from encons.data.simulate import sample_trajectories
 from encons.evaluation import Evaluation
 

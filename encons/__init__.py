@@ -12,7 +12,7 @@ The public surface (``encons.api``), imported on first use so ``import encons`` 
 
 from importlib import metadata
 
-__all__ = ["Run", "build", "catalogue", "compose", "evaluate", "load", "rollout", "score_control", "train"]
+__all__ = ["Run", "catalogue", "compose", "evaluate", "load", "rollout", "score_control", "train"]
 
 try:
     __version__ = metadata.version("encons")

@@ -137,7 +137,7 @@ def test_santos_profile_at_smoke_size_writes_figures_3_4_and_resumes(tmp_path, c
         assert (out / name).stat().st_size > 0, name
     capsys.readouterr()
     main(args)
-    assert capsys.readouterr().err.count("finished before, skipped") == 24
+    assert "".join(capsys.readouterr()).count("finished before, skipped") == 24
 
 
 @pytest.mark.slow
@@ -160,4 +160,4 @@ def test_xiao_profile_at_smoke_size_writes_tables_3_4_and_mse_curves_and_resumes
         assert (out / name).stat().st_size > 0, name
     capsys.readouterr()
     main(args)
-    assert capsys.readouterr().err.count("finished before, skipped") == 16
+    assert "".join(capsys.readouterr()).count("finished before, skipped") == 16

@@ -18,11 +18,11 @@ from encons.errors import ConfigError
 
 #: a subprocess that builds a tiny run through the API and prints torch's threads before and after
 BUILD = """
-import sys, torch, encons
+import sys, torch, encons, encons.api
 before = torch.get_num_threads()
 cfg = encons.compose("debug=fast", "system=pendulum1", *sys.argv[2:], output_dir=sys.argv[1] + "/run",
                      cache_dir=sys.argv[1] + "/cache")
-encons.build(cfg)
+encons.api.build(cfg)
 print(before, torch.get_num_threads())
 """
 
