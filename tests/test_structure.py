@@ -16,8 +16,8 @@ from encons.errors import ConfigError
 #: (imports under ``if TYPE_CHECKING:`` are annotations and those under ``if __name__ == "__main__":``
 #: a script's entry, not dependencies: neither is counted).
 LAYERS = [
-    ["errors", "paths", "compat", "trust", "batching", "progress", "io", "checkpoints", "lightning_io", "threads",
-     "help"],
+    ["errors", "bounds", "paths", "compat", "trust", "batching", "progress", "io", "checkpoints", "lightning_io", "threads",
+     "help", "schedules"],
     ["systems"],
     ["integrators"],
     ["data"],

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from encons.bounds import Declared
 from encons.errors import ChartError, ConfigError
 
 
@@ -62,7 +63,7 @@ def apply_point_matrix(mp: Tensor, v: Tensor, dim: int) -> Tensor:
     return torch.einsum("pq,...qd->...pd", mp, shaped).flatten(-2)
 
 
-class System(abc.ABC):
+class System(Declared, abc.ABC):
     """True physics of one system.
 
     Subclasses set ``name``, ``charts`` (the first is the chart in which initial conditions
@@ -70,6 +71,7 @@ class System(abc.ABC):
     models), and implement the abstract methods for each chart they list.
     """
 
+    config_key = "system"
     name: str
     charts: tuple[str, ...]
     common_chart: str

@@ -18,6 +18,7 @@ import torch
 from torch import Tensor
 from torch.func import jvp
 
+from encons.bounds import Finite, Fraction, NonNegative, Positive
 from encons.errors import ConfigError
 from encons.systems.base import CartesianLayout, System, apply_point_matrix, point_mass_matrix, split_state
 from encons.systems.constrained import DistanceConstraints, constrained_acceleration, full_mass_matrix
@@ -48,20 +49,14 @@ class Gyroscope(System):
     charts = ("angle", "cartesian")
     common_chart = "cartesian"
 
-    def __init__(self, mass: float = 0.1, ell: float = 0.2217,
-                 inertias: Sequence[float] = (0.024138, 0.024138, 0.003694), g: float = 9.81,
-                 angle_range: float = 1.5, phi_rate_range: float = 4.5, theta_rate_range: float = 0.3,
-                 spin_mean: float = 7.0, spin_scale: float = 1.5, min_sin_theta: float = 0.1):
+    def __init__(self, mass: Positive = 0.1, ell: Positive = 0.2217,
+                 inertias: Sequence[Positive] = (0.024138, 0.024138, 0.003694), g: Positive = 9.81,
+                 angle_range: Positive = 1.5, phi_rate_range: NonNegative = 4.5, theta_rate_range: NonNegative = 0.3,
+                 spin_mean: Finite = 7.0, spin_scale: Positive = 1.5, min_sin_theta: Fraction = 0.1):
         inertias = [float(i) for i in inertias]
-        if len(inertias) != 3 or min(inertias) <= 0 or inertias[0] != inertias[1]:
+        if len(inertias) != 3 or inertias[0] != inertias[1]:
             raise ConfigError(f"system.inertias={inertias}; allowed: 3 positive numbers with I_1 = I_2 "
                               f"(a symmetric top)")
-        positive = dict(mass=mass, ell=ell, g=g, angle_range=angle_range, spin_scale=spin_scale)
-        for key, value in positive.items():
-            if value <= 0:
-                raise ConfigError(f"system.{key}={value}; allowed: > 0")
-        if not 0 <= min_sin_theta < 1:
-            raise ConfigError(f"system.min_sin_theta={min_sin_theta}; allowed: [0, 1)")
         self.m, self.ell, self.g = float(mass), float(ell), float(g)
         self.inertias = torch.tensor(inertias, dtype=torch.float64)
         self.j_perp = inertias[0] + inertias[2] + self.m * self.ell**2  # about the pivot

@@ -23,7 +23,7 @@ class LatentSystem(System):
     known_physics = False
 
     def __init__(self, size: int, observed: System):
-        if size < 2 or size % 2:
+        if size % 2:
             raise ConfigError(f"observation.latent={size}; allowed: an even integer >= 2 (latent states are (q, q̇)-like pairs)")
         self.n = size // 2
         self.name = f"{observed.name} latent"

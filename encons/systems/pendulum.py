@@ -10,21 +10,25 @@ picture, ``encons.systems.render``): ``system=pixel_pendulum`` (Lim & Kasim 2023
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Annotated
 
 import torch
 from torch import Tensor
 
+from encons.bounds import Count, NonNegative, Positive, Range
 from encons.errors import ConfigError
 from encons.systems.base import CartesianLayout, System, point_mass_matrix, split_state
 from encons.systems.constrained import DistanceConstraints, constrained_acceleration, full_mass_matrix
 from encons.systems.render import render_rods
 
 RENDER_BLOCK = 4096  # frames drawn per batched expression (bounds the renderer's memory)
+PerLink = Positive | Sequence[Positive]  # one value for every link, or one per link
+Pixels = Annotated[int, Range(ge=4, says=">= 4 pixels")]
 
 
 def _per_link(value: float | Sequence[float], n: int, what: str) -> Tensor:
     vals = [float(value)] * n if isinstance(value, (int, float)) else [float(v) for v in value]
-    if len(vals) != n or min(vals) <= 0:
+    if len(vals) != n:
         raise ConfigError(f"system.{what}={value!r} does not fit {n} link(s); allowed: one positive number "
                           f"or {n} of them")
     return torch.tensor(vals, dtype=torch.float64)
@@ -36,13 +40,8 @@ class NPendulum(System):
     charts = ("angle", "cartesian")
     common_chart = "cartesian"
 
-    def __init__(self, n_links: int = 2, masses: float | Sequence[float] = 1.0,
-                 lengths: float | Sequence[float] = 1.0, g: float = 9.81, init_scale: float = 1.0,
-                 frame_size: int | None = None, rate_scale: float | None = None):
-        if n_links < 1:
-            raise ConfigError(f"system.n_links={n_links} is not a number of links; allowed: an integer >= 1")
-        if frame_size is not None and frame_size < 4:
-            raise ConfigError(f"system.frame_size={frame_size}; allowed: null (no frames) or an integer >= 4 pixels")
+    def __init__(self, n_links: Count = 2, masses: PerLink = 1.0, lengths: PerLink = 1.0, g: NonNegative = 9.81,
+                 init_scale: Positive = 1.0, frame_size: Pixels | None = None, rate_scale: NonNegative | None = None):
         self.frame_shape = None if frame_size is None else (frame_size, frame_size)
         self.name = f"pendulum{n_links}" if frame_size is None else f"pixel_pendulum{'' if n_links == 1 else n_links}"
         self.n = n_links
