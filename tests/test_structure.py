@@ -70,6 +70,11 @@ def test_no_module_imports_from_a_layer_above_it():
     assert arrows == []
 
 
+def test_models_take_system_helpers_from_the_seam_not_from_another_model():
+    imports = encons_imports(PACKAGE / "models" / "lnode.py")
+    assert "models.base" in imports and "models.symo" not in imports
+
+
 def test_the_layer_check_sees_a_back_arrow(tmp_path):
     bad = tmp_path / "bad.py"
     bad.write_text("def f():\n    from encons.report import write_report\n")
