@@ -47,20 +47,20 @@ def test_node_with_true_field_rolls_out_the_truth(system_and_states):
     assert (pred - truth).abs().max() < 1e-6
 
 
-def test_hnn_encode_decode_round_trip(system_and_states):
+def test_hnn_momentum_map_round_trip(system_and_states):
     system, s = system_and_states
     model = HNN(system, hidden=8, depth=1, angular=True).double()
-    assert torch.allclose(model.decode(model.encode(s)), s, atol=1e-10)
+    assert torch.allclose(model.from_internal(model.to_internal(s)), s, atol=1e-10)
 
 
-def test_a_rollout_starts_at_its_start_and_decodes_only_the_later_states(system_and_states, monkeypatch):
+def test_a_rollout_starts_at_its_start_and_maps_back_only_the_later_states(system_and_states, monkeypatch):
     """Index 0 is the given state itself, not decode(encode(start)) recomputed: a learned decoder
     (HNN's M(q)⁻¹ p) runs on the T − 1 later states only."""
     system, s = system_and_states
     model = HNN(system, hidden=8, depth=1).double()
     decoded = []
-    decode = model.decode
-    monkeypatch.setattr(model, "decode", lambda z: decoded.append(z.shape[0]) or decode(z))
+    decode = model.from_internal
+    monkeypatch.setattr(model, "from_internal", lambda z: decoded.append(z.shape[0]) or decode(z))
     t = torch.arange(6, dtype=torch.float64) * 0.03
     pred = rollout(model, s, t, Integrator("rk4"))
     assert torch.equal(pred[:, 0], s) and pred.shape == (64, 6, 4)

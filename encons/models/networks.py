@@ -67,11 +67,9 @@ SLOPES: dict[type, Callable[[Tensor], tuple[Tensor, Callable[[], Tensor]]]] = {
 
 
 def _narrow(width: int) -> bool:
-    """Whether a product whose output is ``width`` columns wide (of ≥ 16 rows) runs faster transposed.
-
-    Measured on these machines (MKL, torch 2.13, CPU): (200, 256) @ (256, 9) takes 79 µs, the same
-    values as ((9, 256) @ (256, 200))ᵀ 20 µs; an output of 2–15 columns is 3–5× slower than its
-    transpose, one of 1 or ≥ 16 columns as fast or faster directly.
+    """Whether a product whose output is ``width`` columns wide (of ≥ 16 rows) is computed transposed:
+    MKL on CPU (torch 2.13) ran outputs of 2–15 columns slower than their transposes, and those of 1 or
+    ≥ 16 columns as fast or faster directly (``benchmarks/speed.py`` measures the models that use it).
     """
     return 1 < width < 16
 
@@ -180,7 +178,7 @@ class LayerCurvature(torch.autograd.Function):
     the same values and derivatives as the plain expression, faster to train through.
 
     Hand-written only for speed: autograd of the plain expression runs per layer two small
-    batched products (one in the orientation MKL runs ~7× slower on CPU), a slice's backward and
+    batched products (one in the orientation MKL runs slowest on CPU, ``_narrow``), a slice's backward and
     a sum for the rows shared with the columns; this backward runs one product per layer:
     P_k = (Ḡ⁺ + Ḡ⁺ᵀ) T_k with Ḡ⁺ the cotangent padded to (J, J), T̄_k = P_k ⊙ w_k,
     w̄_k = ½ Σ_j T_k,j ⊙ P_k,j. Double backward, ``vmap`` and ``jvp`` follow from torch ops.
