@@ -216,10 +216,11 @@ def test_a_users_evaluator_from_a_searchpath_yaml_adds_its_metric(tmp_path, monk
     assert "traj_rel_err" in saved and "oracle/traj_rel_err" in saved
 
 
-def test_an_evaluator_that_does_not_apply_is_refused_in_one_line(tmp_path):
-    cfg = encons.compose("debug=fast", "logger=none", "system=pixel_pendulum", "evaluators=[states]",
+@pytest.mark.parametrize("chosen", ["states", "santos"])
+def test_an_evaluator_that_does_not_apply_is_refused_in_one_line(tmp_path, chosen):
+    cfg = encons.compose("debug=fast", "logger=none", "system=pixel_pendulum", f"evaluators=[{chosen}]",
                          output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
-    with pytest.raises(ConfigError, match=r"^evaluators.states does not apply to observation=Autoencoder .*; "
+    with pytest.raises(ConfigError, match=rf"^evaluators.{chosen} does not apply to observation=Autoencoder .*; "
                                           r"allowed: evaluators=\[pixels\]$"):
         encons.api.build(cfg)
 

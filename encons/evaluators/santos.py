@@ -42,6 +42,11 @@ class SantosMetrics(Evaluator):
                               f"allowed: n_trajectories >= 1 and steps >= 2")
         self.n_trajectories, self.steps, self.seed = n_trajectories, steps, seed
 
+    def check(self, module: TrainingModule) -> None:
+        if not module.observation.identity:
+            raise ConfigError(f"evaluators.santos does not apply to observation={type(module.observation).__name__} "
+                              f"(§7's metrics are on the system's states); allowed: evaluators=[pixels]")
+
     def compute(self, module: TrainingModule) -> Result:
         self.drawn = None
         if not module.system.known_physics:
