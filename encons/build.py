@@ -242,8 +242,9 @@ def _instantiate(cfg: DictConfig, request: Request):
     optimizer, scheduler = build_optimizer(cfg, model, request)
     module = TrainingModule(model, system, data.dt, instantiate_node(cfg, "integrator", request), optimizer,
                             scheduler, objective=objective, regulariser=regulariser, observation=observation,
-                            horizon=cfg.horizon, output_dir=cfg.paths.output_dir, model_name=cfg.get("model_name"),
-                            evaluation=build_evaluation(cfg, request))
+                            horizon=cfg.horizon, model_name=cfg.get("model_name"),
+                            evaluation=build_evaluation(cfg, request),
+                            evaluators=build_evaluators(cfg, observation.identity, request))
     return data, module
 
 
@@ -253,6 +254,18 @@ def build_evaluation(cfg: DictConfig, request: Request = Request()):
     from encons.evaluation import Evaluation
 
     return instantiate_node(cfg, "evaluation", request) if cfg.get("evaluation") else Evaluation()
+
+
+def build_evaluators(cfg: DictConfig, identity: bool = True, request: Request = Request()) -> dict:
+    """The run's evaluators (``encons.evaluators``), name → object, from the ``evaluators`` node that
+    ``conf/evaluators`` composes (``evaluators=[states,santos]``); a config saved before the node existed
+    gets the one its test ran then (``states``, or ``pixels`` through an observation model: ``identity``
+    false)."""
+    from encons.evaluators import Pixels, States
+
+    if "evaluators" not in cfg:
+        return {"states": States()} if identity else {"pixels": Pixels()}
+    return {name: instantiate_node(cfg, f"evaluators.{name}", request) for name in cfg.evaluators or {}}
 
 
 @declare("optimizer", lr=Positive, weight_decay=NonNegative)
@@ -294,8 +307,9 @@ def _route_lightning_logs() -> None:
 def build_trainer(cfg: DictConfig, request: Request = Request()):
     """The Lightning Trainer of ``cfg.trainer`` with the configured loggers and callbacks; every
     checkpoint it writes carries the resolved run config (``encons.checkpoints``) and is written
-    atomically (``encons.lightning_io``)."""
-    from encons.callbacks import RunConfigInCheckpoints
+    atomically (``encons.lightning_io``); a test's results go to ``cfg.paths.output_dir``
+    (``encons.callbacks.TestResults``)."""
+    from encons.callbacks import RunConfigInCheckpoints, TestResults
     from encons.compat import drop_wandb_anonymous
     from encons.lightning_io import AtomicCheckpointIO
 
@@ -303,7 +317,7 @@ def build_trainer(cfg: DictConfig, request: Request = Request()):
     for lg in loggers:
         drop_wandb_anonymous(lg)
     callbacks = [instantiate_node(cfg, f"callbacks.{name}", request) for name in (cfg.get("callbacks") or {})]
-    callbacks.append(RunConfigInCheckpoints(run_config(cfg)))
+    callbacks += [RunConfigInCheckpoints(run_config(cfg)), TestResults(cfg.paths.output_dir)]
     trainer = instantiate_node(cfg, "trainer", request, logger=loggers or False, callbacks=callbacks,
                                plugins=[AtomicCheckpointIO()])
     return trainer, loggers

@@ -38,8 +38,8 @@ def builds(model: str, system: str, tmp_path) -> str | None:
 
 def trains(train_run, model: str, system: str) -> None:
     overrides = [f"model={model}", f"system={system}"]
-    if api.compose(f"system={system}", output_dir=".").get("callbacks", {}).get("santos"):
-        overrides += ["callbacks.santos.steps=20", "callbacks.santos.n_trajectories=4"]  # §7's 500 × 16: minutes
+    if api.compose(f"system={system}", output_dir=".").get("evaluators", {}).get("santos"):
+        overrides += ["evaluators.santos.steps=20", "evaluators.santos.n_trajectories=4"]  # §7's 500 × 16: minutes
     results = train_run(overrides)  # a DivergenceError fails the test
     assert math.isfinite(results["test/traj_rel_err"])
     assert math.isfinite(results["best/val/traj_rel_err"])
