@@ -7,7 +7,9 @@ import pytest
 import torch
 
 from encons.data.simulate import simulate
+from encons.errors import ConfigError
 from encons.integrators import Integrator, rollout, state_derivative
+from encons.models.base import DynamicsModel
 from encons.models.hnn import HNN
 from encons.models.node import NODE
 from encons.systems.pendulum import NPendulum
@@ -66,3 +68,10 @@ def test_a_rollout_starts_at_its_start_and_maps_back_only_the_later_states(syste
     assert torch.equal(pred[:, 0], s) and pred.shape == (64, 6, 4)
     assert decoded == [5]
     assert not torch.allclose(pred[:, 1], s, atol=1e-3)  # and it moves
+
+
+def test_a_model_defining_the_old_encode_is_refused_with_the_new_names():
+    with pytest.raises(ConfigError, match=r"defines encode/decode; allowed: to_internal\(s\)/from_internal\(z\)"):
+        class Old(DynamicsModel):
+            def encode(self, s):
+                return s

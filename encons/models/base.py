@@ -43,6 +43,12 @@ class DynamicsModel(nn.Module, Declared):
     history: ClassVar[int] = 1                  # data states a rollout starts from
     objectives: ClassVar[tuple[str, ...]] = ("rollout", "derivative", "onestep")  # supported; the first is the default
 
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        if {"encode", "decode"} & vars(cls).keys():  # the names of this map before; the rollout would skip them
+            raise ConfigError(f"model class {cls.__module__}.{cls.__qualname__} defines encode/decode; allowed: "
+                              f"to_internal(s)/from_internal(z), a model's map to its internal state")
+
     def __init__(self, system: System | None = None, chart: str | None = None):
         if not hasattr(system, "check_chart"):  # a subclass's super().__init__() without the system encons passed it
             cls = type(self)
