@@ -26,11 +26,16 @@ def mlp(in_dim: int, out_dim: int, hidden: int = 256, depth: int = 3, activation
     return nn.Sequential(*layers)
 
 
-def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None) -> nn.Sequential:
+def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None, convex: bool = False) -> nn.Sequential:
     """Cranmer et al. 2020 (LNN, appendix "Optimal initialization") in place: zero biases, weights
     N(0, σ²) with σ = s/√w, w the larger side of the layer, s = 2.2 (first layer), 0.58·i (hidden
     layer i), w (output layer). Found for softplus MLPs L(q, q̇) so that the Euler–Lagrange q̈,
     which needs (∇²_q̇ L)⁻¹, starts O(1); the default init makes ∇²_q̇ L near-singular.
+
+    ``convex=True`` draws every weight after the first layer as |N(0, σ²)|, the same scales: with a
+    convex non-decreasing activation (softplus) the network starts convex in its inputs (an
+    input-convex network, Amos et al. 2017), so ∇²_q̇ L starts positive semi-definite everywhere instead
+    of indefinite on most states. Only the start: training may leave convexity.
     """
     linears = [layer for layer in net if isinstance(layer, nn.Linear)]
     with torch.no_grad():
@@ -38,6 +43,8 @@ def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None) 
             width = max(layer.weight.shape)
             scale = 2.2 if i == 0 else width if i == len(linears) - 1 else 0.58 * i
             layer.weight.normal_(0.0, scale / width**0.5, generator=generator)
+            if convex and i > 0:
+                layer.weight.abs_()
             layer.bias.zero_()
     return net
 
