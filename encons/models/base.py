@@ -39,6 +39,7 @@ class DynamicsModel(nn.Module):
     discrete: ClassVar[bool] = False            # False: a vector field rolled out by the integrator group
     history: ClassVar[int] = 1                  # data states a rollout starts from
     objectives: ClassVar[tuple[str, ...]] = ("rollout", "derivative", "onestep")  # supported; the first is the default
+    family: ClassVar[str | None] = None         # the structure it learns; a benchmark profile's per_family keys name it
 
     def __init__(self, system: System | None = None, chart: str | None = None):
         if not hasattr(system, "check_chart"):  # a subclass's super().__init__() without the system encons passed it

@@ -31,6 +31,7 @@ class CartesianModel(DynamicsModel):
 
     default_chart = "cartesian"
     needs_constraints = True
+    family = "constrained"
 
     def __init__(self, system: System, hidden: int = 256, depth: int = 3, activation: str = "softplus"):
         super().__init__(system)

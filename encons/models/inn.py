@@ -94,6 +94,8 @@ class INNNODE(DynamicsModel):
     coupling networks have one hidden layer of 100 (two linear layers).
     """
 
+    family = "unstructured"
+
     def __init__(self, system: System, chart: str | None = None, hidden: int = 200, depth: int = 2,
                  activation: str = "softplus", blocks: int = 8, block_hidden: int = 100, block_depth: int = 1,
                  clamp: float = 2.0):

@@ -87,6 +87,7 @@ class LNN(DynamicsModel):
 
     default_chart = "angle"
     objectives = SECOND_ORDER_OBJECTIVES
+    family = "lagrangian"
 
     def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
                  activation: str = "softplus", guard: float = 1e-3, angular: bool = False):

@@ -17,6 +17,7 @@ class NODE(DynamicsModel):
     (the NODE baseline of Santos et al. §4)."""
 
     supports_controls = True
+    family = "unstructured"
 
     def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
                  activation: str = "softplus"):

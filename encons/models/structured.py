@@ -19,6 +19,7 @@ class MassPotentialModel(DynamicsModel):
     """
 
     default_chart = "angle"
+    family = "mass_matrix"
 
     def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
                  activation: str = "softplus", mass_eps: float = 1e-3, angular: bool = False,
