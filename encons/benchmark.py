@@ -65,8 +65,12 @@ def expand(cfg: DictConfig) -> list[PlannedRun]:
             c[key] = catalogue(group)  # a model a system cannot serve fails with its one-line reason
     per_system = c.get("per_system") or {}
     per_model = c.get("per_model") or {}
-    entries = [(s, m, [f"model={m}", *per_model.get(m, [])], None, {}) for s in c["systems"] for m in c["models"]]
-    entries += [(r["system"], r["label"], list(r["overrides"]), None, r.get("paper", {})) for r in c["runs"]]
+    per_family = c.get("per_family") or {}
+    by_name = [m for m in (*c["models"], *c["n_train_models"]) if isinstance(m, str)]
+    family = {m: family_overrides(m, per_family) for m in dict.fromkeys(by_name)}  # placed after common: they refine it
+    # an entry: system, label, overrides before common, n_train, published numbers, overrides after common
+    entries = [(s, m, [f"model={m}", *per_model.get(m, [])], None, {}, family[m]) for s in c["systems"] for m in c["models"]]
+    entries += [(r["system"], r["label"], list(r["overrides"]), None, r.get("paper", {}), []) for r in c["runs"]]
     efficiency_systems = c["n_train_system"] if isinstance(c["n_train_system"], list) else [c["n_train_system"]]
     per_n = {int(k): list(v) for k, v in (c.get("per_n_train") or {}).items()}
     for n in c["n_train"]:
@@ -74,9 +78,9 @@ def expand(cfg: DictConfig) -> list[PlannedRun]:
             raise ConfigError(f"n_train={n}; allowed: training-set sizes >= 1")
         for system in efficiency_systems:
             for m in c["n_train_models"] or c["models"]:  # a model name, or {label, overrides} (e.g. an integrator)
-                label, ovr = ((m, [f"model={m}", *per_model.get(m, [])]) if isinstance(m, str)
-                              else (m["label"], list(m["overrides"])))
-                entries.append((system, label, [*ovr, f"data.n_train={n}", *per_n.get(n, [])], n, {}))
+                label, ovr, after = ((m, [f"model={m}", *per_model.get(m, [])], family[m]) if isinstance(m, str)
+                                     else (m["label"], list(m["overrides"]), []))
+                entries.append((system, label, [*ovr, f"data.n_train={n}", *per_n.get(n, [])], n, {}, after))
     if c.get("only"):  # a part of the profile: entries whose system or system/label is listed
         entries = [e for e in entries if e[0] in c["only"] or f"{e[0]}/{e[1]}" in c["only"]]
         if not entries:
@@ -84,9 +88,25 @@ def expand(cfg: DictConfig) -> list[PlannedRun]:
                               f"system/label pairs")
     if not entries:
         raise ConfigError("profile has no runs: give systems and models, runs or n_train")
-    return [PlannedRun(system, label, seed, [f"system={system}", *ovr, *c["common"], *per_system.get(system, []),
+    return [PlannedRun(system, label, seed, [f"system={system}", *ovr, *c["common"], *after, *per_system.get(system, []),
                                             f"seed={seed}", f"threads={json.dumps(c['threads'])}", *c["train"]], n, paper)
-            for system, label, ovr, n, paper in entries for seed in c["seeds"]]
+            for system, label, ovr, n, paper, after in entries for seed in c["seeds"]]
+
+
+def family_overrides(model: str, per_family: dict) -> list[str]:
+    """The overrides ``per_family`` gives ``model``'s family: the ``family`` its class declares
+    (``DynamicsModel.family``, e.g. ``constrained`` for CHNN and CLNN). A profile with ``per_family`` refuses a
+    model whose family it does not list, so no model falls back to another setting unseen."""
+    if not per_family:
+        return []
+    from encons import trust
+    from encons.build import compose
+
+    family = trust.locate(compose([f"model={model}"]).model._target_, "model").family
+    if family not in per_family:
+        raise ConfigError(f"per_family has no entry for model={model} (family {family}); allowed: one entry per "
+                          f"family of the profile's models, listed: {', '.join(per_family)}")
+    return list(per_family[family])
 
 
 def check_keys(c: dict) -> None:

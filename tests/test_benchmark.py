@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from pathlib import Path
 
 import pytest
 
-from encons.benchmark import expand
+from encons import trust
+from encons.benchmark import expand, optimiser
 from encons.build import compose
 from encons.cli import benchmark as main
 from encons.errors import ConfigError
@@ -83,6 +85,31 @@ def test_profiles_expand_and_carry_published_numbers():
     xiao = expand(compose(["profile=xiao"], config_name="benchmark"))
     assert len(xiao) == 16 and next(r for r in xiao if r.label == "glnn-h200-d3" and r.system == "damped_oscillator"
                                     ).paper == {"table_3_4": 1.94e-4}
+
+
+def test_quick_gives_every_model_one_optimiser_and_schedule():
+    """quick's table compares models, not optimisers: one optimiser, weight decay, schedule and budget for all
+    11 models, the same on every system; the peak lr is the one its family's sweep chose (per_family), so two
+    models of one family never differ."""
+    profile = compose(["profile=quick"], config_name="benchmark")
+    runs = expand(profile)
+    per_system = {}
+    for r in runs:
+        per_system.setdefault((r.label, r.seed), set()).add(tuple(o for o in r.overrides if not o.startswith("system=")))
+    assert len(per_system) == 11 * 3 and all(len(v) == 1 for v in per_system.values())
+    configs = {r.label: compose(r.overrides) for r in runs if r.system == "pendulum2" and r.seed == 0}
+    used = {m: optimiser(c) for m, c in configs.items()}
+    assert len({re.sub(r"lr [^,]+, ", "", u) for u in used.values()}) == 1, used
+    assert all("; constant lr; 20 epochs" in u for u in used.values()), used
+    family = {m: trust.locate(c.model._target_, "model").family for m, c in configs.items()}
+    assert set(family.values()) == set(profile.per_family)
+    chosen = {f: [float(o.split("=")[1]) for o in ovr if o.startswith("optimizer.lr=")] for f, ovr in profile.per_family.items()}
+    assert {m: [c.optimizer.lr] for m, c in configs.items()} == {m: chosen[family[m]] for m in configs}
+
+
+def test_a_family_the_profile_does_not_list_is_refused():
+    with pytest.raises(ConfigError, match="per_family has no entry for model=hnn \\(family canonical\\); allowed"):
+        expand(compose(["profile=smoke", '++per_family={unstructured: ["optimizer.lr=1e-2"]}'], config_name="benchmark"))
 
 
 def test_unknown_profile_is_one_line_error():

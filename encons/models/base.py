@@ -42,6 +42,7 @@ class DynamicsModel(nn.Module, Declared):
     discrete: ClassVar[bool] = False            # False: a vector field rolled out by the integrator group
     history: ClassVar[int] = 1                  # data states a rollout starts from
     objectives: ClassVar[tuple[str, ...]] = ("rollout", "derivative", "onestep")  # supported; the first is the default
+    family: ClassVar[str | None] = None         # the structure it learns; a benchmark profile's per_family keys name it
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)

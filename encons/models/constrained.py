@@ -32,6 +32,7 @@ class CartesianModel(DynamicsModel):
 
     default_chart = "cartesian"
     needs_constraints = True
+    family = "constrained"
 
     def __init__(self, system: System, hidden: Count = 256, depth: Count = 3, activation: str = "softplus"):
         super().__init__(system)

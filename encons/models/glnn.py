@@ -54,6 +54,7 @@ class SecondOrder(DynamicsModel):
 
     default_chart = "angle"
     objectives = SECOND_ORDER_OBJECTIVES
+    family = "unstructured"
 
     def __init__(self, system: System, chart: str | None = None, hidden: Count = 200, depth: Count = 3,
                  activation: str = "softplus", angular: bool = False):

@@ -23,6 +23,7 @@ class HamiltonianModel(DynamicsModel):
     """ż = J ∇H(z) on z = (q, p); subclasses set ``self.mass`` and define ``hamiltonian``."""
 
     default_chart = "angle"
+    family = "canonical"
 
     def hamiltonian(self, z: Tensor) -> Tensor:
         """H(q, p) of internal states (..., 2n)."""
@@ -75,6 +76,8 @@ class HNNStructure(HamiltonianModel, MassPotentialModel):
     ∇H in closed form: ∇_p H = M⁻¹ p = L⁻ᵀ w (w = L⁻¹ p), and ∇_q H pulls the cotangent of (L, V),
     ∂H/∂L = −M⁻¹p wᵀ and ∂H/∂V = 1, back through the head and the network(s) (``MLPTape``).
     """
+
+    family = "mass_matrix"  # learns M(q) and V(q) like LNNStructure, not an unstructured H
 
     def hamiltonian(self, z: Tensor) -> Tensor:
         q, p = split_state(z)

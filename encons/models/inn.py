@@ -91,6 +91,8 @@ class INNNODE(DynamicsModel):
     coupling networks have one hidden layer of 100 (two linear layers).
     """
 
+    family = "unstructured"
+
     def __init__(self, system: System, chart: str | None = None, hidden: Count = 200, depth: Count = 2,
                  activation: str = "softplus", blocks: Count = 8, block_hidden: Count = 100, block_depth: Count = 1,
                  clamp: Positive = 2.0):

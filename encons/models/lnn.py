@@ -94,6 +94,7 @@ class LNN(DynamicsModel):
 
     default_chart = "angle"
     objectives = SECOND_ORDER_OBJECTIVES
+    family = "lagrangian"
 
     def __init__(self, system: System, chart: str | None = None, hidden: Count = 256, depth: Count = 3,
                  activation: str = "softplus", guard: Guard = 1e-3, angular: bool = False):

@@ -18,6 +18,7 @@ class NODE(DynamicsModel):
     (the NODE baseline of Santos et al. §4)."""
 
     supports_controls = True
+    family = "unstructured"
 
     def __init__(self, system: System, chart: str | None = None, hidden: Count = 256, depth: Count = 3,
                  activation: str = "softplus"):

@@ -22,6 +22,8 @@ from encons.systems.base import System
 class NSF(DynamicsModel):
     """Learned 1-form and Hamiltonian; sizes default to Lim & Kasim's (2 hidden layers × 200)."""
 
+    family = "symplectic_form"
+
     def __init__(self, system: System, chart: str | None = None, hidden: Count = 200, depth: Count = 2,
                  activation: str = "softplus"):
         super().__init__(system, chart)

@@ -20,6 +20,7 @@ class MassPotentialModel(DynamicsModel):
     """
 
     default_chart = "angle"
+    family = "mass_matrix"
 
     def __init__(self, system: System, chart: str | None = None, hidden: Count = 256, depth: Count = 3,
                  activation: str = "softplus", mass_eps: float = 1e-3, angular: bool = False,
