@@ -15,6 +15,8 @@ from torch import Tensor
 from torch.func import jvp
 from torchdiffeq import odeint
 
+from encons import bounds
+from encons.bounds import Count, Positive
 from encons.compat import ode_methods
 from encons.errors import ConfigError
 
@@ -30,17 +32,15 @@ class Integrator:
     at ``rtol``/``atol`` with at most ``max_steps`` steps per data dt (then torchdiffeq raises)."""
 
     method: str = "rk4"
-    substeps: int = 1
-    rtol: float = 1e-7
-    atol: float = 1e-9
-    max_steps: int = 1000
+    substeps: Count = 1
+    rtol: Positive = 1e-7
+    atol: Positive = 1e-9
+    max_steps: Count = 1000
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ConfigError(f"integrator.method={self.method!r} is unknown; allowed: {', '.join(METHODS)}")
-        if self.substeps < 1 or self.max_steps < 1:
-            raise ConfigError(f"integrator.substeps={self.substeps}, integrator.max_steps={self.max_steps}; "
-                              f"allowed: both >= 1")
+        bounds.check(vars(self), bounds.hints(Integrator), "integrator", types=False)
 
     def options(self, t: Tensor) -> dict:
         if self.method in FIXED_STEP:

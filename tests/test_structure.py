@@ -16,8 +16,8 @@ from encons.errors import ConfigError
 #: (imports under ``if TYPE_CHECKING:`` are annotations and those under ``if __name__ == "__main__":``
 #: a script's entry, not dependencies: neither is counted).
 LAYERS = [
-    ["errors", "paths", "compat", "trust", "batching", "progress", "io", "checkpoints", "lightning_io", "threads",
-     "help"],
+    ["errors", "bounds", "paths", "compat", "trust", "batching", "progress", "io", "checkpoints", "lightning_io", "threads",
+     "help", "schedules"],
     ["systems"],
     ["integrators"],
     ["data"],
@@ -69,6 +69,11 @@ def test_no_module_imports_from_a_layer_above_it():
             if layer(imported) > layer(module):
                 arrows.append(f"encons.{module} -> encons.{imported}")
     assert arrows == []
+
+
+def test_models_take_system_helpers_from_the_seam_not_from_another_model():
+    imports = encons_imports(PACKAGE / "models" / "lnode.py")
+    assert "models.base" in imports and "models.symo" not in imports
 
 
 def test_the_layer_check_sees_a_back_arrow(tmp_path):

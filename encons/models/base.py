@@ -20,11 +20,12 @@ from typing import Callable, ClassVar, Iterator
 import torch
 from torch import Tensor, nn
 
+from encons.bounds import Declared
 from encons.errors import ConfigError
 from encons.systems.base import System
 
 
-class DynamicsModel(nn.Module):
+class DynamicsModel(nn.Module, Declared):
     """Base of every model; subclasses of it alone are continuous vector fields.
 
     Subclasses set ``default_chart`` (``None``: the system's base chart) and the capability
@@ -33,6 +34,7 @@ class DynamicsModel(nn.Module):
     default to the identity.
     """
 
+    config_key = "model"
     default_chart: ClassVar[str | None] = None
     needs_constraints: ClassVar[bool] = False   # uses the system's holonomic constraints Φ(x) = 0
     supports_controls: ClassVar[bool] = False   # accepts exogenous inputs u

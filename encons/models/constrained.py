@@ -14,6 +14,7 @@ from typing import Iterator
 import torch
 from torch import Tensor
 
+from encons.bounds import Count
 from encons.models.base import DynamicsModel
 from encons.models.networks import MLPTape, PointMasses, Potential
 from encons.systems.base import System, split_state
@@ -32,7 +33,7 @@ class CartesianModel(DynamicsModel):
     default_chart = "cartesian"
     needs_constraints = True
 
-    def __init__(self, system: System, hidden: int = 256, depth: int = 3, activation: str = "softplus"):
+    def __init__(self, system: System, hidden: Count = 256, depth: Count = 3, activation: str = "softplus"):
         super().__init__(system)
         self.dim = system.layout.dim
         self.constraints = system.constraints

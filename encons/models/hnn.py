@@ -11,6 +11,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from encons.bounds import Count
 from encons.batching import batched_grad
 from encons.models.base import DynamicsModel
 from encons.models.networks import AngleEmbedding, CholeskyMass, MLPTape, embed_angles, mlp
@@ -47,7 +48,7 @@ class HamiltonianModel(DynamicsModel):
 class HNN(HamiltonianModel):
     """Unstructured H(q, p) network (Greydanus et al. 2019; Zhong et al. eq. (6))."""
 
-    def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
+    def __init__(self, system: System, chart: str | None = None, hidden: Count = 256, depth: Count = 3,
                  activation: str = "softplus", mass_eps: float = 1e-3, angular: bool = False):
         super().__init__(system, chart)
         n, self.angular = self.n, angular

@@ -13,6 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from encons.bounds import Count, Positive
 from encons.errors import ConfigError
 from encons.models.base import DynamicsModel
 from encons.models.networks import mlp
@@ -38,8 +39,6 @@ class CouplingBlock(nn.Module):
         super().__init__()
         if dim < 2:
             raise ConfigError(f"model=inn_node on a state of {dim} entry; allowed: systems with >= 2 state entries")
-        if clamp <= 0:
-            raise ConfigError(f"model.clamp={clamp}; allowed: > 0")
         self.split, self.clamp = dim - dim // 2, float(clamp)
         self.coupling = mlp(self.split, 2 * (dim // 2), hidden, depth, activation)
         nn.init.zeros_(self.coupling[-1].weight)
@@ -72,8 +71,6 @@ class InvertibleNet(nn.Module):
     def __init__(self, dim: int, blocks: int = 8, hidden: int = 100, depth: int = 1,
                  activation: str = "softplus", clamp: float = 2.0):
         super().__init__()
-        if blocks < 1:
-            raise ConfigError(f"model.blocks={blocks}; allowed: an integer >= 1")
         self.blocks = nn.ModuleList(CouplingBlock(dim, hidden, depth, activation, clamp) for _ in range(blocks))
 
     def forward(self, x: Tensor) -> Tensor:
@@ -94,9 +91,9 @@ class INNNODE(DynamicsModel):
     coupling networks have one hidden layer of 100 (two linear layers).
     """
 
-    def __init__(self, system: System, chart: str | None = None, hidden: int = 200, depth: int = 2,
-                 activation: str = "softplus", blocks: int = 8, block_hidden: int = 100, block_depth: int = 1,
-                 clamp: float = 2.0):
+    def __init__(self, system: System, chart: str | None = None, hidden: Count = 200, depth: Count = 2,
+                 activation: str = "softplus", blocks: Count = 8, block_hidden: Count = 100, block_depth: Count = 1,
+                 clamp: Positive = 2.0):
         super().__init__(system, chart)
         self.inn = InvertibleNet(2 * self.n, blocks, block_hidden, block_depth, activation, clamp)
         self.net = mlp(2 * self.n, 2 * self.n, hidden, depth, activation)

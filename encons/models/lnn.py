@@ -7,14 +7,14 @@ angle as (cos q, sin q).
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Annotated, Callable
 
 import torch
 from torch import Tensor
 from torch.func import grad, jvp, vjp, vmap
 
+from encons.bounds import Count, Range
 from encons.batching import batched_grad
-from encons.errors import ConfigError
 from encons.models.base import DynamicsModel
 from encons.models.networks import AngleEmbedding, MLPTape, cranmer_init_, embed_angles, mlp, narrow_in
 from encons.models.structured import MassPotentialModel
@@ -70,6 +70,7 @@ def guarded_solve(hessian: Tensor, rhs: Tensor, guard: float) -> Tensor:
 #: Objectives of models whose field is (q̇, q̈) by construction: q̈ alone is a complete target
 #: (``acceleration``, Xiao et al. §3), beside the rollout and full-derivative ones.
 SECOND_ORDER_OBJECTIVES = ("rollout", "acceleration", "derivative", "onestep")
+Guard = Annotated[float, Range(ge=0, lt=1, says="a float in [0, 1) (0: plain Hessian solve)")]
 
 
 class LNN(DynamicsModel):
@@ -88,11 +89,9 @@ class LNN(DynamicsModel):
     default_chart = "angle"
     objectives = SECOND_ORDER_OBJECTIVES
 
-    def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
-                 activation: str = "softplus", guard: float = 1e-3, angular: bool = False):
+    def __init__(self, system: System, chart: str | None = None, hidden: Count = 256, depth: Count = 3,
+                 activation: str = "softplus", guard: Guard = 1e-3, angular: bool = False):
         super().__init__(system, chart)
-        if not 0 <= guard < 1:
-            raise ConfigError(f"model.guard={guard}; allowed: a float in [0, 1) (0: plain Hessian solve)")
         self.guard, self.angular = guard, angular
         self.lagrangian_net = cranmer_init_(mlp(3 * self.n if self.angular else 2 * self.n, 1, hidden, depth, activation))
 
