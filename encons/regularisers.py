@@ -4,7 +4,7 @@ A regulariser is called as ``regulariser(model, s, u)`` on data-chart states ``s
 (and their inputs ``u`` (B, m), or None) and
 returns ``weight`` times its constraint averaged over the batch. It acts on the field a model
 exposes through ``DynamicsModel.constrained_field`` (by default the internal field at
-``encode(s)``), whose Jacobians come from ``torch.func`` (jacfwd or jacrev under vmap) and stay
+``to_internal(s)``), whose Jacobians come from ``torch.func`` (jacfwd or jacrev under vmap) and stay
 differentiable with respect to the model's parameters.
 """
 

@@ -91,11 +91,11 @@ class CLNN(CartesianModel):
 class CHNN(CartesianModel):
     """Constrained Hamiltonian dynamics on z = (x, p), p = M ẋ, Zhong et al. eq. (20) (Finzi et al. 2020)."""
 
-    def encode(self, s: Tensor) -> Tensor:
+    def to_internal(self, s: Tensor) -> Tensor:
         x, v = split_state(s)
         return torch.cat([x, v @ full_mass_matrix(self.point_masses(), self.dim)], -1)
 
-    def decode(self, z: Tensor) -> Tensor:
+    def from_internal(self, z: Tensor) -> Tensor:
         x, p = split_state(z)
         return torch.cat([x, p @ self.mass_terms()[0]], -1)
 

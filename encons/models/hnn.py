@@ -28,11 +28,11 @@ class HamiltonianModel(DynamicsModel):
         """H(q, p) of internal states (..., 2n)."""
         raise NotImplementedError
 
-    def encode(self, s: Tensor) -> Tensor:
+    def to_internal(self, s: Tensor) -> Tensor:
         q, qd = split_state(s)
         return torch.cat([q, (self.mass(q) @ qd.unsqueeze(-1)).squeeze(-1)], -1)
 
-    def decode(self, z: Tensor) -> Tensor:
+    def from_internal(self, z: Tensor) -> Tensor:
         q, p = split_state(z)
         return torch.cat([q, self.mass.solve(q, p)], -1)
 

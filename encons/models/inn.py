@@ -3,7 +3,7 @@
 z = g(s) (eq. (5)), g a stack of Glow-style blocks (Kingma & Dhariwal 2018; the layout of
 FrEIA's ``AllInOneBlock`` the authors used): an affine coupling with soft-clamped log-scales,
 a global affine scaling and a fixed random rotation. The latent field ż = f(z) is an MLP.
-Rollouts integrate z and decode with g⁻¹, which is integrating the pushed-back field
+Rollouts integrate z and map back with g⁻¹ (``from_internal``), which is integrating the pushed-back field
 ṡ = (∂g⁻¹/∂z) f(g(s)) of eq. (6) (``encons.integrators.state_derivative`` evaluates it);
 regularisers act on f at g(s), eq. (7).
 """
@@ -98,10 +98,10 @@ class INNNODE(DynamicsModel):
         self.inn = InvertibleNet(2 * self.n, blocks, block_hidden, block_depth, activation, clamp)
         self.net = mlp(2 * self.n, 2 * self.n, hidden, depth, activation)
 
-    def encode(self, s: Tensor) -> Tensor:
+    def to_internal(self, s: Tensor) -> Tensor:
         return self.inn(s)
 
-    def decode(self, z: Tensor) -> Tensor:
+    def from_internal(self, z: Tensor) -> Tensor:
         return self.inn.inverse(z)
 
     def forward(self, t: Tensor, z: Tensor) -> Tensor:

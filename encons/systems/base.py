@@ -174,7 +174,8 @@ class PointSystem(System):
     them), and the Cartesian chart of ``layout``'s points under ``constraints`` Φ(x) = 0, where the mass
     matrix over points (``point_masses``) is constant. The Cartesian field is Zhong et al. eq. (15)
     (``constrained_acceleration``) and the Cartesian energy ½ ẋᵀ M ẋ + V(x), the same for every subclass;
-    a subclass gives M(q), V(q), q̈ of the angle chart, the masses, V(x) and ∇V(x), and the chart maps.
+    a subclass gives M(q), V(q) (``mass_matrix``, ``potential``) and q̈ of the angle chart, the masses,
+    V(x) and ∇V(x), and the chart maps.
     """
 
     charts = ("angle", "cartesian")
@@ -186,12 +187,6 @@ class PointSystem(System):
     def coord_dim(self, chart: str) -> int:
         self.check_chart(chart)
         return self.n if chart == "angle" else self.layout.size
-
-    @abc.abstractmethod
-    def mass_matrix(self, q: Tensor) -> Tensor: ...
-
-    @abc.abstractmethod
-    def potential(self, q: Tensor) -> Tensor: ...
 
     @abc.abstractmethod
     def acceleration(self, q: Tensor, qd: Tensor) -> Tensor:
