@@ -1,5 +1,6 @@
-"""The ``--help`` of ``encons-train``: the config groups a user picks from, not internal bases
-(``_chain``, ``_base``), the benchmark's ``profile`` group or the sweeps' sub-groups."""
+"""The ``--help`` of ``encons-train``: the config groups a user picks from, in the order of
+``conf/train.yaml``'s defaults list, not internal bases (``_chain``, ``_base``), Hydra's and the paths'
+groups, the benchmark's ``profile`` group or the sweeps' sub-groups."""
 
 from __future__ import annotations
 
@@ -7,8 +8,16 @@ from pathlib import Path
 
 from encons.paths import config_dir
 
-GROUPS = ("system", "model", "integrator", "regulariser", "observation", "optim", "trainer", "logger", "debug",
-          "experiment")
+NOT_CHOSEN = ("hydra", "paths", "sweeps")  # Hydra's own, the run folders, and the sweeps (listed apart)
+
+
+def groups() -> dict[str, object]:
+    """The groups ``conf/train.yaml``'s defaults list picks from, in its order, less ``NOT_CHOSEN``, with
+    their default choice (a list for a group of which a run takes several, e.g. ``evaluators``)."""
+    from omegaconf import OmegaConf
+
+    entries = OmegaConf.to_container(OmegaConf.load(Path(config_dir()) / "train.yaml").defaults)
+    return {k: v for e in entries if isinstance(e, dict) for k, v in e.items() if k not in NOT_CHOSEN}
 
 
 def groups_text() -> str:
@@ -17,7 +26,10 @@ def groups_text() -> str:
         return ", ".join(sorted(p.stem for p in (Path(config_dir()) / group).glob("*.yaml")
                                 if not p.name.startswith("_")))
 
-    lines = [f"{group}: {options(group)}" for group in GROUPS]
+    def name(group: str, default: object) -> str:
+        return f"{group} (a list, default [{','.join(default)}])" if isinstance(default, list) else group
+
+    lines = [f"{name(group, default)}: {options(group)}" for group, default in groups().items()]
     lines += ["", "with -m (a multirun): sweeps: " + options("sweeps"),
               "(folders on hydra.searchpath add options of their own)"]
     return "\n".join(lines)

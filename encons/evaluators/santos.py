@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated
 
 import torch
 from matplotlib.figure import Figure
 from torch import Tensor
 
 from encons import metrics, plots
+from encons.bounds import Count, Declared, Range, Seed
 from encons.data.simulate import simulate
 from encons.errors import ConfigError
 from encons.evaluators.base import Evaluator, Result
@@ -18,7 +19,7 @@ if TYPE_CHECKING:
     from encons.module import TrainingModule
 
 
-class SantosMetrics(Evaluator):
+class SantosMetrics(Evaluator, Declared):
     """Santos, Ekal & Ventura §7, on a system of known physics (none otherwise):
 
     - ``mse_train`` / ``mse_test``: one-step configuration MSE, each state k ≥ max(2, ``history``) of every
@@ -36,10 +37,9 @@ class SantosMetrics(Evaluator):
     come from ``seed`` (not the data seed), simulated as the data are. Figure: ``integration``.
     """
 
-    def __init__(self, n_trajectories: int = 16, steps: int = 500, seed: int = 1):
-        if n_trajectories < 1 or steps < 2:
-            raise ConfigError(f"evaluators.santos.n_trajectories={n_trajectories}, evaluators.santos.steps={steps}; "
-                              f"allowed: n_trajectories >= 1 and steps >= 2")
+    config_key = "evaluators.santos"
+
+    def __init__(self, n_trajectories: Count = 16, steps: Annotated[int, Range(ge=2)] = 500, seed: Seed = 1):
         self.n_trajectories, self.steps, self.seed = n_trajectories, steps, seed
 
     def check(self, module: TrainingModule) -> None:
