@@ -81,10 +81,13 @@ class LNN(DynamicsModel):
 
     The network starts from Cranmer et al.'s initialisation scales with the weights after the first
     layer drawn non-negative (``cranmer_init_(convex=True)``): L starts convex, so ∇²_q̇ L starts positive
-    definite. Cranmer et al.'s signed start made it indefinite on 12-98 % of the data states of
-    debug=fast networks, crossing zero among them (q̈ up to 1e4), so fresh LNN / LNN-angle / GLNN
-    rollouts left the data, their softplus curvature underflowed and training reached NaN in its first
-    steps (pendulum1/2, gyroscope; measured). q̈ takes ``guarded_solve`` with ``guard`` = 1e-3: the
+    definite (−L would do as well; mixed signs do not). Cranmer et al.'s signed start made it indefinite
+    on 12-100 % of the data states of debug=fast networks (n ≥ 2; for n = 1 it changed sign among them),
+    crossing zero there (q̈ up to 1e4), so fresh LNN / LNN-angle / GLNN rollouts left the data, their
+    softplus curvature underflowed and training reached NaN in its first steps (measured on pendulum1/2,
+    the gyroscope and Lim & Kasim's systems). Limit: a softplus L's curvature still fades as |q̇| grows,
+    so a fresh network's own rollout can run away where the data's dt or velocities are large (measured
+    at debug=fast: lnn on mass_spring, glnn on pendulum, lnn_angle on the gyroscope at seed 2). q̈ takes ``guarded_solve`` with ``guard`` = 1e-3: the
     plain inverse unless the solution exceeds ‖r‖/(1e-3·‖∇²_q̇ L‖_F) (tested: on sampled states of
     pendulum1/2/4, the gyroscope, the damped oscillator and the compound pendulum the true L gives the
     true q̈ to 1e-6), damped least squares where it is near singular; 1e-2 damped true gyroscope states
