@@ -89,11 +89,11 @@ class NaiveCartesian(DynamicsModel):
         self.model, self.system = model, system
         self.hamiltonian = isinstance(model, CHNN)
 
-    def encode(self, s: Tensor) -> Tensor:
-        return self.model.encode(s)
+    def to_internal(self, s: Tensor) -> Tensor:
+        return self.model.to_internal(s)
 
-    def decode(self, z: Tensor) -> Tensor:
-        return self.model.decode(z)
+    def from_internal(self, z: Tensor) -> Tensor:
+        return self.model.from_internal(z)
 
     def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
         layout, phi = self.system.layout, self.model.constraints
@@ -306,7 +306,7 @@ def main() -> None:
                 row.update(naive_cpu_ms=naive_cpu, speedup_vs_naive=naive_cpu / cpu)
             if model_name in args.compile:
                 compiled = copy.deepcopy(model)
-                compiled.compile()  # what compile=true does (encons.config.build_model)
+                compiled.compile()  # what compile=true does (encons.build.build_model)
                 compiled_step = stepper(compiled, list(compiled.parameters()), system, batch, dt)
                 start = time.perf_counter()
                 compiled_step()  # compiles

@@ -12,12 +12,13 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 from hydra.errors import InstantiationException
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from encons import trust
+from encons.bounds import Count, Fraction, NonNegative, Positive, Range, Seed, declare
 from encons.errors import ConfigError, EnconsError
 from encons.paths import config_dir
 
@@ -127,11 +128,11 @@ def instantiate_node(cfg: DictConfig, key: str, request: Request = Request(), **
     """
     from hydra.utils import instantiate
 
-    from encons.config import check_node_types
+    from encons.config import check_node
 
     node = OmegaConf.select(cfg, key)
     values = OmegaConf.to_container(node, resolve=True)
-    check_node_types(cfg, key)
+    check_node(cfg, key)
     try:
         with trust.whitelist():
             return instantiate(node, **kwargs)
@@ -184,6 +185,7 @@ def build_model(cfg: DictConfig, system: System, observation: Observation | None
     return model
 
 
+@declare("", seed=Seed, horizon=Count, compile=bool, test=bool)  # ``test``: read by encons.runs.train
 def build(cfg: DictConfig, request: Request | None = None) -> tuple[TrajectoryDataModule, TrainingModule]:
     """System → data → model → LightningModule from a composed config, seeded by ``cfg.seed``.
 
@@ -240,8 +242,9 @@ def _instantiate(cfg: DictConfig, request: Request):
     optimizer, scheduler = build_optimizer(cfg, model, request)
     module = TrainingModule(model, system, data.dt, instantiate_node(cfg, "integrator", request), optimizer,
                             scheduler, objective=objective, regulariser=regulariser, observation=observation,
-                            horizon=cfg.horizon, output_dir=cfg.paths.output_dir, model_name=cfg.get("model_name"),
-                            evaluation=build_evaluation(cfg, request))
+                            horizon=cfg.horizon, model_name=cfg.get("model_name"),
+                            evaluation=build_evaluation(cfg, request),
+                            evaluators=build_evaluators(cfg, observation.identity, request))
     return data, module
 
 
@@ -253,6 +256,20 @@ def build_evaluation(cfg: DictConfig, request: Request = Request()):
     return instantiate_node(cfg, "evaluation", request) if cfg.get("evaluation") else Evaluation()
 
 
+def build_evaluators(cfg: DictConfig, identity: bool = True, request: Request = Request()) -> dict:
+    """The run's evaluators (``encons.evaluators``), name → object, from the ``evaluators`` node that
+    ``conf/evaluators`` composes (``evaluators=[states,santos]``); a config saved before the node existed
+    gets the one its test ran then (``states``, or ``pixels`` through an observation model: ``identity``
+    false)."""
+    from encons.evaluators import Pixels, States
+
+    if "evaluators" not in cfg:
+        return {"states": States()} if identity else {"pixels": Pixels()}
+    return {name: instantiate_node(cfg, f"evaluators.{name}", request) for name in cfg.evaluators or {}}
+
+
+@declare("optimizer", lr=Positive, weight_decay=NonNegative)
+@declare("scheduler", patience=Annotated[int, Range(ge=0)], factor=Fraction, pct_start=Fraction)
 def build_optimizer(cfg: DictConfig, model: DynamicsModel, request: Request = Request()):
     """The ``optimizer`` and ``scheduler`` partials (``conf/optimizer``, ``conf/scheduler``; the scheduler
     None when unset), each built once here on ``model``'s parameters so that a value its constructor
@@ -286,11 +303,13 @@ def _route_lightning_logs() -> None:
             lightning.removeHandler(handler)
 
 
+@declare("trainer", max_epochs=Annotated[int, Range(ge=1, says="an integer >= 1")] | None, gradient_clip_val=NonNegative | None)
 def build_trainer(cfg: DictConfig, request: Request = Request()):
     """The Lightning Trainer of ``cfg.trainer`` with the configured loggers and callbacks; every
     checkpoint it writes carries the resolved run config (``encons.checkpoints``) and is written
-    atomically (``encons.lightning_io``)."""
-    from encons.callbacks import RunConfigInCheckpoints
+    atomically (``encons.lightning_io``); a test's results go to ``cfg.paths.output_dir``
+    (``encons.callbacks.TestResults``)."""
+    from encons.callbacks import RunConfigInCheckpoints, TestResults
     from encons.compat import drop_wandb_anonymous
     from encons.lightning_io import AtomicCheckpointIO
 
@@ -298,7 +317,7 @@ def build_trainer(cfg: DictConfig, request: Request = Request()):
     for lg in loggers:
         drop_wandb_anonymous(lg)
     callbacks = [instantiate_node(cfg, f"callbacks.{name}", request) for name in (cfg.get("callbacks") or {})]
-    callbacks.append(RunConfigInCheckpoints(run_config(cfg)))
+    callbacks += [RunConfigInCheckpoints(run_config(cfg)), TestResults(cfg.paths.output_dir)]
     trainer = instantiate_node(cfg, "trainer", request, logger=loggers or False, callbacks=callbacks,
                                plugins=[AtomicCheckpointIO()])
     return trainer, loggers

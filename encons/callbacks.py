@@ -1,5 +1,5 @@
-"""Lightning callbacks: the run config in every checkpoint, a per-epoch progress line, and evaluation steps
-run at the end of testing."""
+"""Lightning callbacks: the run config in every checkpoint, a per-epoch progress line, and the one writer of
+a test's results."""
 
 from __future__ import annotations
 
@@ -10,15 +10,10 @@ import time
 from pathlib import Path
 
 import lightning.pytorch as pl
-import torch
-from torch import Tensor
-
 from omegaconf import DictConfig, OmegaConf
 
-from encons import checkpoints, metrics, plots
-from encons.data.simulate import simulate
-from encons.errors import ConfigError
-from encons.integrators import rollout
+from encons import checkpoints, plots
+from encons.io import save_npz, write_json
 from encons.progress import duration, to_log_files
 
 log = logging.getLogger(__name__)
@@ -85,102 +80,21 @@ class EpochLine(pl.Callback):
             to_log_files(line)          # the log files only: the progress bar shows it live
 
 
-class SantosMetrics(pl.Callback):
-    """The metrics of Santos, Ekal & Ventura §7, added to the test metrics (``test/…``) after testing.
+class TestResults(pl.Callback):
+    """The one writer of a test's results, after every evaluator (``encons.evaluators``) has scored:
+    ``test_metrics.json`` and ``test_curves.npz`` (the module's merged ``test_metrics`` and ``test_curves``)
+    and each evaluator's figures as ``figures/<stem>.png``, in ``output_dir``, each file atomically, once
+    per test, by the global-zero process; figures also go to loggers that take images (wandb)."""
 
-    - ``mse_train`` / ``mse_test``: one-step configuration MSE, each state k ≥ max(2, ``history``) of every
-      train / test trajectory predicted from the ``history`` states before it (the same targets for every
-      model of history 1 or 2);
-    - ``mse_integration``: configuration MSE of ``n_trajectories`` unforced (u = 0) initial conditions
-      rolled out ``steps`` steps of the data dt from their first ``history`` true states;
-    - ``energy_mse_integration``: per-trajectory MSE of the true energy along those rollouts against the
-      initial energy (conserved without inputs), averaged over trajectories;
-    - the model's solver counters over those rollouts (``diagnostics``, e.g. ``newton_unconverged_integration``);
-    - ``mass_mse``: MSE of the model's M(q) (its ``mass``) against the true M along the true integration
-      trajectories; only for models with a ``mass`` network in the system's generalised coordinates.
-
-    The integration trajectories come from ``seed`` (not the data seed), simulated as the data are.
-    Also saves ``figures/integration.png`` (configuration and energy against time).
-    """
-
-    def __init__(self, n_trajectories: int = 16, steps: int = 500, seed: int = 1):
-        if n_trajectories < 1 or steps < 2:
-            raise ConfigError(f"callbacks.santos.n_trajectories={n_trajectories}; allowed: >= 1 and "
-                              f"callbacks.santos.steps={steps} >= 2")
-        self.n_trajectories, self.steps, self.seed = n_trajectories, steps, seed
+    def __init__(self, output_dir: str | Path):
+        self.output_dir = Path(output_dir)
 
     def on_test_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
-        model, system, data = module.model, module.system, trainer.datamodule
-        if not system.known_physics:
+        if not trainer.is_global_zero:
             return
-        was_training = model.training
-        model.eval()
-        with torch.no_grad():
-            results = {f"mse_{split}": self.one_step_mse(module, data.arrays[split]) for split in ("train", "test")}
-            results.update(self.integration(module, data.substeps))
-        model.train(was_training)
-        module.test_metrics.update(results)
+        paths = [plots.save_png(fig, self.output_dir / "figures" / f"{stem}.png", layout=False)
+                 for evaluator in module.evaluators.values() for stem, fig in evaluator.figures(module).items()]
         for logger in trainer.loggers:
-            logger.log_metrics({f"test/{k}": v for k, v in results.items()})
-
-    @staticmethod
-    def one_step_mse(module: pl.LightningModule, arrays: dict[str, Tensor]) -> float:
-        states, u, history, n = arrays["states"], arrays.get("u"), module.model.history, module.model.n
-        windows = one_step_windows(states, history)
-        dtype = next(module.model.parameters()).dtype  # test states are float64, the model need not be
-        batch = {"states": windows.to(module.device, dtype)}
-        if u is not None:
-            batch["u"] = one_step_windows(u, history).to(module.device, dtype)
-        pred = module.predict(batch)[:, -1, :n]
-        return metrics.configuration_mse(pred.double().cpu(), windows[:, -1, :n].double()).item()
-
-    def integration(self, module: pl.LightningModule, substeps: int) -> dict[str, float]:
-        model, system = module.model, module.system
-        t = torch.arange(self.steps + 1, dtype=torch.float64) * module.dt
-        s0 = system.sample_initial(self.n_trajectories, torch.Generator().manual_seed(self.seed))
-        true = system.to_chart(simulate(system, s0, t, substeps), system.base_chart, model.chart)
-        start = true[:, 0] if model.history == 1 else true[:, : model.history]
-        u = torch.zeros(self.n_trajectories, len(t), system.n_controls) if system.n_controls else None
-        dtype = next(model.parameters()).dtype
-        model.reset_diagnostics()
-        pred = rollout(model, start.to(module.device, dtype), t.to(module.device, dtype), module.integrator,
-                       None if u is None else u.to(module.device, dtype)).double().cpu()
-        n = model.n
-        energy_pred, energy_true = system.energy(pred, model.chart), system.energy(true, model.chart)
-        out = {"mse_integration": metrics.configuration_mse(pred[..., :n], true[..., :n]).item(),
-               "energy_mse_integration": metrics.energy_mse(energy_pred, energy_true[:, :1]).item(),
-               **{f"{k}_integration": v for k, v in model.diagnostics().items()}}
-        if isinstance(getattr(model, "mass", None), torch.nn.Module) and model.chart == system.base_chart:
-            q = true[..., :n]
-            learned = model.mass(q.to(module.device, dtype)).double().cpu()
-            out["mass_mse"] = metrics.mass_matrix_mse(learned, system.mass_matrix(q)).item()
-        if module.output_dir is not None:
-            self.figure(module, t, pred, true, energy_pred, energy_true)
-        return out
-
-    @staticmethod
-    def figure(module, t: Tensor, pred: Tensor, true: Tensor, energy_pred: Tensor, energy_true: Tensor) -> None:
-        fig, (ax_q, ax_e) = plots.subplots(1, 2, figsize=(10, 3.8))
-        for d in range(module.model.n):
-            line, = ax_q.plot(t, true[0, :, d], lw=1.4, label=f"q{d + 1} truth")
-            ax_q.plot(t, pred[0, :, d], "--", color=line.get_color(), lw=1.1, label=f"q{d + 1} model")
-        ax_q.set_xlabel("time (s)")
-        ax_q.set_ylabel(f"configuration ({module.model.chart} chart; rad or m)")
-        ax_q.set_title("unforced integration, trajectory 0", fontsize=9)
-        ax_q.legend(fontsize=7)
-        ax_e.plot(t, energy_true[0], lw=1.4, label="truth")
-        ax_e.plot(t, energy_pred[0], "--", lw=1.1, label="model")
-        ax_e.set_xlabel("time (s)")
-        ax_e.set_ylabel("true energy E (J)")
-        ax_e.set_title("energy along the integration, trajectory 0", fontsize=9)
-        ax_e.legend(fontsize=7)
-        fig.suptitle(module.run_title())
-        path = plots.save_png(fig, module.output_dir / "figures" / "integration.png")
-        plots.log_figures(module.logger, [path])
-
-
-def one_step_windows(values: Tensor, history: int) -> Tensor:
-    """The windows of ``history`` + 1 steps of ``values`` (N, T, d) whose last step k is ≥ max(2, history),
-    flattened over trajectories: (N · (T − max(2, history)), history + 1, d)."""
-    first = max(0, 2 - history)  # window s predicts step s + history
-    return values.unfold(1, history + 1, 1)[:, first:].movedim(-1, -2).flatten(0, 1)
+            plots.log_figures(logger, paths)
+        write_json(self.output_dir / "test_metrics.json", module.test_metrics)
+        save_npz(self.output_dir / "test_curves.npz", **module.test_curves)

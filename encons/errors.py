@@ -20,7 +20,12 @@ class ConfigError(EnconsError):
 
 
 class ChartError(ConfigError):
-    """A system was asked for a chart or structure it does not provide."""
+    """A system was asked for a chart it does not have, or for a chart map it does not provide."""
+
+
+class PhysicsError(ConfigError):
+    """A system was asked for physics it does not know: a true field, energy or initial states (a system
+    known only through data), a mass matrix, potential, constraints or frames it does not declare."""
 
 
 class DataError(EnconsError):

@@ -28,7 +28,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from encons.errors import ConfigError
+from encons import bounds
+from encons.bounds import Count, Positive
 from encons.integrators import FIXED_STEP, Integrator, rollout
 from encons.models.base import DynamicsModel
 from encons.systems.base import System
@@ -56,18 +57,17 @@ class Evaluation:
     a paper whose test integration a profile reproduces (printed with the metrics)."""
 
     method: str = "dopri5"
-    substeps: int = 1
-    rtol: float = 1e-10
-    atol: float = 1e-12
-    max_steps: int = 100
+    substeps: Count = 1
+    rtol: Positive = 1e-10
+    atol: Positive = 1e-12
+    max_steps: Count = 100
     float64: bool = True
-    vpt_threshold: float = 0.1
+    vpt_threshold: Positive = 0.1
     source: str = ""
 
     def __post_init__(self) -> None:
-        self.integrator  # noqa: B018 - validates method and substeps
-        if not self.vpt_threshold > 0:
-            raise ConfigError(f"evaluation.vpt_threshold={self.vpt_threshold}; allowed: > 0")
+        bounds.check(vars(self), bounds.hints(Evaluation), "evaluation", types=False)
+        self.integrator  # noqa: B018 - validates method
 
     @property
     def integrator(self) -> Integrator:

@@ -15,6 +15,8 @@ from torch import Tensor
 from torch.func import jvp
 from torchdiffeq import odeint
 
+from encons import bounds
+from encons.bounds import Count, Positive
 from encons.compat import ode_methods
 from encons.errors import ConfigError
 
@@ -30,17 +32,15 @@ class Integrator:
     at ``rtol``/``atol`` with at most ``max_steps`` steps per data dt (then torchdiffeq raises)."""
 
     method: str = "rk4"
-    substeps: int = 1
-    rtol: float = 1e-7
-    atol: float = 1e-9
-    max_steps: int = 1000
+    substeps: Count = 1
+    rtol: Positive = 1e-7
+    atol: Positive = 1e-9
+    max_steps: Count = 1000
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ConfigError(f"integrator.method={self.method!r} is unknown; allowed: {', '.join(METHODS)}")
-        if self.substeps < 1 or self.max_steps < 1:
-            raise ConfigError(f"integrator.substeps={self.substeps}, integrator.max_steps={self.max_steps}; "
-                              f"allowed: both >= 1")
+        bounds.check(vars(self), bounds.hints(Integrator), "integrator", types=False)
 
     def options(self, t: Tensor) -> dict:
         if self.method in FIXED_STEP:
@@ -68,7 +68,7 @@ def rollout(model: DynamicsModel, start: Tensor, t: Tensor, integrator: Integrat
 
     ``start`` is the data-chart state (..., 2n) for a continuous model, the first ``history``
     states (..., history, 2n) for a discrete one. Returns data-chart states (..., T, 2n); for a
-    continuous model index 0 along time is ``start`` itself (``decode(encode(start))`` in exact
+    continuous model index 0 along time is ``start`` itself (``from_internal(to_internal(start))`` in exact
     arithmetic; not computed, so a learned decoder costs T − 1 evaluations).
     """
     weight = next(model.parameters(), None)
@@ -85,14 +85,14 @@ def rollout(model: DynamicsModel, start: Tensor, t: Tensor, integrator: Integrat
     options = integrator.options(t)
     with model.rollout_scope():
         if u is None:  # models without inputs may define forward(t, z) only
-            z = odeint(model, model.encode(start), t, **options)
+            z = odeint(model, model.to_internal(start), t, **options)
         else:
-            z = odeint_held(model, model.encode(start), t, u.to(start), **options)
-        return torch.cat([start.unsqueeze(0), model.decode(z[1:])]).movedim(0, -2)
+            z = odeint_held(model, model.to_internal(start), t, u.to(start), **options)
+        return torch.cat([start.unsqueeze(0), model.from_internal(z[1:])]).movedim(0, -2)
 
 
 def state_derivative(model: DynamicsModel, s: Tensor, u: Tensor | None = None) -> Tensor:
-    """ds/dt in the data chart: the model's field pushed through ``decode`` (chain rule by jvp)."""
-    z = model.encode(s)
+    """ds/dt in the data chart: the model's field pushed through ``from_internal`` (chain rule by jvp)."""
+    z = model.to_internal(s)
     t = torch.zeros(())
-    return jvp(model.decode, (z,), (model(t, z) if u is None else model(t, z, u),))[1]
+    return jvp(model.from_internal, (z,), (model(t, z) if u is None else model(t, z, u),))[1]

@@ -7,7 +7,8 @@ present, inputs ``u``, ``rates`` and frames ``obs``.
 The ``observation`` (``encons.models.observation``) maps the batch entry it reads to the states the
 model rolls out, and adds its own loss terms: the identity by default; with an autoencoder the
 rollout objective acts on encoded latent states, the regulariser on the latent field at them, and
-validation and test compare decoded frames with the true ones (pixel MSE, frames, latent portraits).
+validation compares decoded frames with the true ones. Testing feeds the ``evaluators``
+(``encons.evaluators``), which score; ``encons.callbacks.TestResults`` writes what they scored.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from __future__ import annotations
 import inspect
 import logging
 from functools import partial
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Callable
 
@@ -24,11 +26,11 @@ import torch
 from torch import Tensor
 from torch.optim import Optimizer
 
-from encons import checkpoints, metrics, plots
+from encons import checkpoints, metrics
 from encons.errors import ConfigError, DivergenceError
 from encons.evaluation import Evaluation
+from encons.evaluators.base import Evaluator, TestBatch
 from encons.integrators import Integrator, rollout
-from encons.io import save_npz, write_json
 from encons.models.base import DynamicsModel
 from encons.models.observation import Observation
 from encons.objectives import OBJECTIVES
@@ -40,13 +42,14 @@ Batch = dict[str, Tensor]
 
 
 class TrainingModule(pl.LightningModule):
-    """Trains ``model`` on windows of ``system`` trajectories sampled every ``dt``."""
+    """Trains ``model`` on windows of ``system`` trajectories sampled every ``dt``; tests by ``evaluators``
+    (name → ``encons.evaluators.Evaluator``; none: testing scores nothing), each checked against the run here."""
 
     def __init__(self, model: DynamicsModel, system: System, dt: float, integrator: Integrator,
                  optimizer: Callable[..., Optimizer] | None = None, scheduler: Callable[..., Any] | None = None,
                  objective: str | None = None, regulariser: Regulariser | None = None,
-                 horizon: int = 4, output_dir: str | None = None, observation: Observation | None = None,
-                 model_name: str | None = None, evaluation: Evaluation | None = None):
+                 horizon: int = 4, observation: Observation | None = None, model_name: str | None = None,
+                 evaluation: Evaluation | None = None, evaluators: Mapping[str, Evaluator] | None = None):
         super().__init__()
         self.model_name = model_name  # the model's config name (hnn_angle, not the class HNN) for titles
         objective = objective or model.objectives[0]
@@ -62,10 +65,11 @@ class TrainingModule(pl.LightningModule):
         self.scheduler = scheduler
         self.objective, self.regulariser, self.horizon = objective, regulariser, horizon
         self.evaluation = evaluation or Evaluation()  # test rollouts: their own integrator (encons.evaluation)
-        self.output_dir = Path(output_dir) if output_dir else None
+        self.evaluators = dict(evaluators or {})
+        for evaluator in self.evaluators.values():
+            evaluator.check(self)
         self.test_metrics: dict[str, float] = {}
         self.test_curves: dict[str, np.ndarray] = {}  # per-step curves of the last test, saved beside the metrics
-        self._test_batches: list[tuple[Tensor, ...]] = []
 
     def times(self, length: int, like: Tensor) -> Tensor:
         return torch.arange(length, dtype=like.dtype, device=like.device) * self.dt
@@ -142,96 +146,28 @@ class TrainingModule(pl.LightningModule):
 
     def on_test_epoch_start(self) -> None:
         self.model.reset_diagnostics()
+        for evaluator in self.evaluators.values():
+            evaluator.reset()
 
     def test_step(self, batch: Batch, batch_idx: int) -> None:
-        x, states = self.observe(batch)
-        pred = self.predict(batch, states, self.evaluation)
-        if not self.observation.identity:
-            return self._test_batches.append(tuple(p.detach() for p in (x, states, pred.to(states.dtype))))
-        oracle = (self.evaluation.oracle(self.system, self.model.chart, x[:, 0], self.times(x.shape[1], x), batch.get("u"))
-                  if self.system.known_physics else None)  # the floor: the true field, same starts and integrator
-        self._test_batches.append(tuple(p.detach() for p in (x, pred) + ((oracle,) if oracle is not None else ())))
-
-    def _gathered(self) -> list[Tensor]:
-        """The test batches concatenated; under DDP, every process's share."""
-        parts = [torch.cat(p) for p in zip(*self._test_batches)]
-        self._test_batches.clear()
-        if self.trainer.world_size > 1:  # DDP: each process rolled out its share of the test set
-            parts = [self.all_gather(p).flatten(0, 1) for p in parts]
-        return parts
+        """Feed the batch to every evaluator; the rollout they read is made once (``TestBatch.pred``)."""
+        test_batch = TestBatch(self, batch)
+        for evaluator in self.evaluators.values():
+            evaluator.update(self, test_batch)
 
     def on_test_epoch_end(self) -> None:
-        if not self.observation.identity:
-            return self._test_observations(*self._gathered())
-        true, pred, *oracle = (p.double() for p in self._gathered())
-        energy = (lambda x: self.system.energy(x, self.model.chart)) if self.system.known_physics else None
-        if energy is None:
-            log.info("energy metrics skipped: system '%s' has no known energy", self.system.name)
-        energies = [energy(x) for x in (pred, true)] if energy else None
-        true_c, pred_c = self.to_common(true), self.to_common(pred)
-        score = dict(horizon=self.horizon, dt=self.dt, vpt_threshold=self.evaluation.vpt_threshold)
-        self.test_metrics = metrics.summarise(pred_c, true_c, *(energies or (None, None)), **score)
-        scalars, curves = metrics.long_rollout_errors(true, pred, self.trainer.datamodule.states["train"].to(true),
-                                                      self.dt, self.to_common, energy, self.horizon)
-        self.test_metrics.update(scalars)
-        self.test_metrics.update(self.model.diagnostics())  # e.g. SyMo's non-converged root-finds
-        if oracle:  # the floor, scored by the same metrics
-            floor = metrics.summarise(self.to_common(oracle[0]), true_c, energy(oracle[0]) if energy else None,
-                                      energies[1] if energies else None, **score)
-            self.test_metrics.update({f"oracle/{k}": v for k, v in floor.items()})
-        log.info("%s", metrics.curves_table(self.times(true.shape[1], true), curves))
+        """Every evaluator's scores, merged into ``test_metrics`` and ``test_curves`` and logged as
+        ``test/<name>``; ``encons.callbacks.TestResults`` saves them."""
+        self.test_metrics, self.test_curves = {}, {}
+        for name, evaluator in self.evaluators.items():
+            result = evaluator.compute(self)
+            for kind, merged, new in (("metric", self.test_metrics, result.metrics),
+                                      ("curve", self.test_curves, result.curves)):
+                if clash := sorted(set(merged) & set(new)):
+                    raise ConfigError(f"evaluators.{name} gives the {kind} {clash[0]!r} another evaluator of this "
+                                      f"run gives too; allowed: evaluators whose {kind} names differ")
+                merged.update(new)
         self.log_dict({f"test/{k}": v for k, v in self.test_metrics.items()}, sync_dist=True)
-        self.test_curves = {"t": self.times(true.shape[1], true).cpu().numpy(),
-                            "rel_err": metrics.relative_error(pred_c, true_c).cpu().numpy(),
-                            **{f"{k}_{name}": v.cpu().numpy() for name, c in curves.items() for k, v in c.items()}}
-        if energies:
-            self.test_curves["energy_err"] = metrics.energy_abs_error(*energies).cpu().numpy()
-        if self.output_dir is not None and self.trainer.is_global_zero:
-            units = self.system.units(self.system.common_chart)
-            figures = plots.mse_figure(self.times(true.shape[1], true).cpu(), curves, self.output_dir / "figures",
-                                       title=self.run_title(), units=units)
-            linear = metrics.fit_linear_ode(self.trainer.datamodule.states["train"].to(true), self.dt)
-            baseline = self.to_common(metrics.linear_ode_rollout(linear, true[:, 0], self.times(true.shape[1], true)))
-            figures += plots.rollout_figures(self.times(true.shape[1], true).cpu(), pred_c.cpu(), true_c.cpu(),
-                                         [e.cpu() for e in energies] if energies else None,
-                                         self.output_dir / "figures", title=self.run_title(), units=units,
-                                         baseline=baseline.cpu())
-            plots.log_figures(self.logger, figures)
-
-    def _test_observations(self, x: Tensor, states: Tensor, pred: Tensor) -> None:
-        """Test metrics and figures of a run seen through an observation model: pixel MSE of decoded
-        predictions against the true frames over time, the latent phase portrait, predicted vs true frames."""
-        frames = self.observation.decode(pred).double()
-        x = x.double()
-        mse = (frames - x).square().mean((-1, -2))                                       # (N, T)
-        t = self.times(x.shape[1], x).cpu()
-        tre = metrics.trajectory_relative_error(frames.flatten(2), x.flatten(2), self.horizon)
-        finite = torch.isfinite(mse).all(-1)
-        self.test_metrics = {"traj_rel_err": tre.mean().item(), "traj_rel_err_std": tre.std().item(),
-                             "pixel_mse": mse.mean().item(), "pixel_mse_final": mse[:, -1].mean().item(),
-                             "pixel_mse_final_median": mse[:, -1].median().item(),
-                             "diverged": 1.0 - finite.double().mean().item()}
-        log.info("pixel MSE of predicted frames: %s", ", ".join(
-            f"t={t[k]:.0f}: {mse[:, k].mean().item():.4g}" for k in sorted({0, len(t) // 4, len(t) // 2, len(t) - 1})))
-        self.log_dict({f"test/{k}": v for k, v in self.test_metrics.items()}, sync_dist=True)
-        self.test_curves = {"t": t.numpy(), "pixel_mse": mse.cpu().numpy(),
-                            "rel_err": metrics.relative_error(frames.flatten(2), x.flatten(2)).cpu().numpy(),
-                            "latent_pred": pred.cpu().numpy(), "latent_encoded": states.cpu().numpy()}
-        if self.output_dir is None or not self.trainer.is_global_zero:
-            return
-        out, title = self.output_dir / "figures", self.run_title()
-        figures = plots.pixel_mse_figure(t, mse.cpu(), out, title)
-        figures += plots.latent_phase_figure(pred.detach().cpu(), states.detach().cpu(), out, title)
-        figures += plots.frames_figure(t, frames.cpu(), x.cpu(), out, title)
-        plots.log_figures(self.logger, figures)
-
-    def on_test_end(self) -> None:
-        """The one writer of the test results: ``test_metrics.json`` and ``test_curves.npz`` in
-        ``output_dir``, each atomically, once, after every evaluation (callbacks' ``on_test_end``, e.g.
-        ``SantosMetrics``, run before this hook and add to ``test_metrics``)."""
-        if self.output_dir is not None and self.trainer.is_global_zero:
-            write_json(self.output_dir / "test_metrics.json", self.test_metrics)
-            save_npz(self.output_dir / "test_curves.npz", **self.test_curves)
 
     def run_title(self) -> str:
         """Figure title: model (+ regulariser, e.g. ``NODE + C_H``) on system (chart or observation)."""

@@ -61,16 +61,16 @@ def _band(ax, t: Tensor, values: Tensor, ylabel: str) -> None:
     ax.legend()
 
 
-def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] | None, out_dir: Path,
-                 title: str, units: tuple[str, ...] | None = None, baseline: Tensor | None = None) -> list[Path]:
+def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] | None, title: str,
+                    units: tuple[str, ...] | None = None, baseline: Tensor | None = None) -> dict[str, Figure]:
     """Rollout vs truth (every coordinate, positions and velocities) of three test trajectories — the
     best, median and worst by relative error summed over the rollout, each labelled so — with the
     linear-ODE ``baseline``'s rollout if given; relative error vs time and (if known) energy error vs
     time. States are in the system's common chart, whose coordinate ``units`` label the axes
-    (default: unitless)."""
+    (default: unitless). Figures by file stem, laid out: ``rollout``, ``relative_error``, ``energy_error``."""
     from matplotlib.lines import Line2D
 
-    paths = []
+    figures = {}
     names = coordinate_names(true.shape[-1])
     n = true.shape[-1] // 2
     units = tuple(units) if units is not None else ("–",) * n
@@ -100,19 +100,19 @@ def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor
     fig.legend(handles=handles, loc="center right", fontsize=7, title="common chart", title_fontsize=8)
     fig.suptitle(title)
     fig.tight_layout(rect=(0, 0, 1 - 1.9 / fig.get_figwidth(), 1))
-    paths.append(save_png(fig, out_dir / "rollout.png", layout=False))
+    figures["rollout"] = fig
 
     fig, ax = subplots(figsize=(6, 4))
     _band(ax, t[1:], metrics.relative_error(pred, true)[:, 1:], REL_ERR)
     ax.set_title(f"{title}\nrelative error of the state", fontsize=9)
-    paths.append(save_png(fig, out_dir / "relative_error.png"))
+    figures["relative_error"] = laid_out(fig)
 
     if energies is not None:
         fig, ax = subplots(figsize=(6, 4))
         _band(ax, t[1:], metrics.energy_abs_error(*energies)[:, 1:].clamp_min(1e-12), ENERGY_ERR)
         ax.set_title(f"{title}\nabsolute error in true energy", fontsize=9)
-        paths.append(save_png(fig, out_dir / "energy_error.png"))
-    return paths
+        figures["energy_error"] = laid_out(fig)
+    return figures
 
 
 def plain_log_ticks(axis, values=None) -> None:
@@ -214,6 +214,12 @@ def _curve_keys(row: dict) -> list[str]:
         return list(f.files)
 
 
+def laid_out(fig: Figure) -> Figure:
+    """``fig`` after ``tight_layout``: a figure handed to a writer is laid out where it is drawn."""
+    fig.tight_layout()
+    return fig
+
+
 def save_png(fig, path: Path, layout: bool = True) -> Path:
     """``fig`` as a PNG at ``path`` (atomically, ``encons.io.save_figure``), laid out tight unless ``layout`` is false."""
     if layout:
@@ -280,36 +286,43 @@ def control_success_figure(summary: list[dict], out_dir: Path) -> list[Path]:
     return [save_png(fig, out_dir / "control_success_rate.png")]
 
 
+def _against_n_train(ax, entries: list[dict], key: str, spread) -> set[int]:
+    """One line per model (first-seen order, colour ``C<k>``) of ``key`` against ``n_train`` over ``entries``
+    (summary rows of one system), bars ± ``spread(row)`` (the lower one cut at 95 % of the value, so that
+    it stays on a log axis), on log axes; returns the sizes drawn."""
+    sizes = set()
+    for k, model in enumerate(dict.fromkeys(e["model"] for e in entries)):
+        rows = sorted((e for e in entries if e["model"] == model and key in e), key=lambda e: e["n_train"])
+        if not rows:
+            continue
+        mean = [e[key] for e in rows]
+        bars = [spread(e) for e in rows]
+        ax.errorbar([e["n_train"] for e in rows], mean, yerr=[[min(b, 0.95 * m) for b, m in zip(bars, mean)], bars],
+                    marker="o", capsize=3, color=f"C{k}", label=model)
+        sizes.update(e["n_train"] for e in rows)
+    ax.set_yscale("log")
+    ax.legend(fontsize=7)
+    return sizes
+
+
 def data_efficiency_figure(summary: list[dict], out_dir: Path) -> list[Path]:
     """Zhong et al. Fig. 5: test trajectory relative error against the number of training
     trajectories, one line per model (mean over seeds), one panel per system. Bars: ± 1 std over seeds
     where a point has two or more seeds, else ± 1 std over test trajectories (cut at the axis where it
     reaches below 0)."""
-    import numpy as np
-
     systems = list(dict.fromkeys(e["system"] for e in summary))
     seeds = min(e.get("runs", 1) for e in summary)
     fig, axes = subplots(1, len(systems), figsize=(6.5 * len(systems), 4.2), squeeze=False)
     for ax, system in zip(axes[0], systems):
-        sizes = set()
-        for model in dict.fromkeys(e["model"] for e in summary if e["system"] == system):
-            rows = sorted((e for e in summary if e["system"] == system and e["model"] == model
-                           and "test/traj_rel_err" in e), key=lambda e: e["n_train"])
-            mean = np.array([e["test/traj_rel_err"] for e in rows])
-            spread = np.array([e["test/traj_rel_err_sd"] if seeds >= 2 else e.get("test/traj_rel_err_std", 0.0)
-                               for e in rows])
-            ax.errorbar([e["n_train"] for e in rows], mean, yerr=[np.minimum(spread, 0.95 * mean), spread],
-                        marker="o", capsize=3, label=model)
-            sizes.update(e["n_train"] for e in rows)
+        sizes = _against_n_train(ax, [e for e in summary if e["system"] == system], "test/traj_rel_err",
+                                 lambda e: e["test/traj_rel_err_sd"] if seeds >= 2 else e.get("test/traj_rel_err_std", 0.0))
         ax.set_xscale("log")
-        ax.set_yscale("log")
         plain_log_ticks(ax.xaxis, sizes)
         plain_log_ticks(ax.yaxis)
         ax.set_xlabel("training trajectories")
         ax.set_ylabel("trajectory relative error (T = 4) [–]")
         ax.set_title(f"data efficiency on {system}\nmean over {seeds} seed(s); bars: ± 1 std over "
                      + ("seeds" if seeds >= 2 else "test trajectories"), fontsize=9)
-        ax.legend(fontsize=7)
     return [save_png(fig, out_dir / "data_efficiency.png")]
 
 
@@ -328,26 +341,43 @@ def santos_figures(summary: list[dict], out_dir: Path) -> list[Path]:
         entries = [e for e in summary if e["system"] == system]
         fig, axes = subplots(1, len(SANTOS_PANELS), figsize=(4 * len(SANTOS_PANELS), 3.8))
         for ax, (key, label) in zip(axes, SANTOS_PANELS.items()):
-            for k, model in enumerate(dict.fromkeys(e["model"] for e in entries)):  # one colour per model
-                rows = sorted((e for e in entries if e["model"] == model and key in e), key=lambda e: e["n_train"])
-                if rows:
-                    ax.errorbar([e["n_train"] for e in rows], [e[key] for e in rows],
-                                yerr=[e[f"{key}_sd"] for e in rows], marker="o", capsize=3, color=f"C{k}", label=model)
+            _against_n_train(ax, entries, key, lambda e, key=key: e[f"{key}_sd"])
             ax.set_xscale("log", base=2)
-            ax.set_yscale("log")
             ax.set_xlabel("training trajectories N_train")
             ax.set_ylabel(label)
-            ax.legend(fontsize=7)
         fig.suptitle(f"Santos et al. §7 metrics against N_train on {system}")
         paths.append(save_png(fig, out_dir / f"santos_{system}.png"))
     return paths
 
 
-def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], out_dir: Path, title: str,
-               units: tuple[str, ...] | None = None) -> list[Path]:
+def integration_figure(t: Tensor, pred: Tensor, true: Tensor, energy_pred: Tensor, energy_true: Tensor,
+                       chart: str, title: str) -> dict[str, Figure]:
+    """Santos et al. §7's unforced integration, its trajectory 0: configuration (every q, truth and
+    model) and true energy against time (``integration``). States (N, T, 2n), energies (N, T)."""
+    n = true.shape[-1] // 2
+    fig, (ax_q, ax_e) = subplots(1, 2, figsize=(10, 3.8))
+    for d in range(n):
+        line, = ax_q.plot(t, true[0, :, d], lw=1.4, label=f"q{d + 1} truth")
+        ax_q.plot(t, pred[0, :, d], "--", color=line.get_color(), lw=1.1, label=f"q{d + 1} model")
+    ax_q.set_xlabel("time (s)")
+    ax_q.set_ylabel(f"configuration ({chart} chart; rad or m)")
+    ax_q.set_title("unforced integration, trajectory 0", fontsize=9)
+    ax_q.legend(fontsize=7)
+    ax_e.plot(t, energy_true[0], lw=1.4, label="truth")
+    ax_e.plot(t, energy_pred[0], "--", lw=1.1, label="model")
+    ax_e.set_xlabel("time (s)")
+    ax_e.set_ylabel("true energy E (J)")
+    ax_e.set_title("energy along the integration, trajectory 0", fontsize=9)
+    ax_e.legend(fontsize=7)
+    fig.suptitle(title)
+    return {"integration": laid_out(fig)}
+
+
+def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], title: str,
+               units: tuple[str, ...] | None = None) -> dict[str, Figure]:
     """State MSE and (if known) energy MSE against time of the model and the baselines on the test
     windows (Xiao et al. Figs. 3 and 5; curves from ``metrics.long_rollout_errors``), from the first step
-    (at t = 0 every rollout starts on the truth): ``mse_vs_time.png``. The axis spans the curves within
+    (at t = 0 every rollout starts on the truth): ``mse_vs_time``. The axis spans the curves within
     1e6 of the model's range; a curve wholly below it (the constant predictor's energy error, ~1e-14:
     no motion keeps the energy of s₀) is named in the legend with its largest value instead."""
     keys = list(curves["model"])
@@ -375,29 +405,29 @@ def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], out_dir: Path, t
         ax.set_ylabel(labels[key])
         ax.legend(title="mean over test windows", fontsize=8)
     fig.suptitle(f"{title}\nlong-rollout error against time, model vs trivial baselines", fontsize=9)
-    return [save_png(fig, out_dir / "mse_vs_time.png")]
+    return {"mse_vs_time": laid_out(fig)}
 
 
 PIXEL_MSE = "pixel MSE [intensity², intensity in 0–1]"
 DATA_TIME = "time t [the data's time unit]"
 
 
-def pixel_mse_figure(t: Tensor, mse: Tensor, out_dir: Path, title: str) -> list[Path]:
+def pixel_mse_figure(t: Tensor, mse: Tensor, title: str) -> dict[str, Figure]:
     """Pixel MSE (N, T) of decoded predictions against the true frames over time, median and 2.5–97.5 %
-    band over test videos, with the mean (``pixel_mse.png``)."""
+    band over test videos, with the mean (``pixel_mse``)."""
     fig, ax = subplots(figsize=(6.5, 4))
     _band(ax, t, mse.clamp_min(1e-12), PIXEL_MSE)
     ax.plot(t, mse.mean(0), "k--", lw=1, label="mean over test videos")
     ax.set_xlabel(DATA_TIME)
     ax.legend(fontsize=8)
     ax.set_title(f"{title}\npredicted frames from the first encoded state", fontsize=9)
-    return [save_png(fig, out_dir / "pixel_mse.png")]
+    return {"pixel_mse": laid_out(fig)}
 
 
-def latent_phase_figure(pred: Tensor, encoded: Tensor, out_dir: Path, title: str, n_show: int = 5) -> list[Path]:
+def latent_phase_figure(pred: Tensor, encoded: Tensor, title: str, n_show: int = 5) -> dict[str, Figure]:
     """Lim & Kasim Fig. 4: latent rollouts (N, T, d) of a few test videos in their phase plane — for
     d = 2 the latent (z₁, z₂) itself, else its first two principal components over the encoded test
-    states — with the encoder's states of the true frames (``latent_phase.png``)."""
+    states — with the encoder's states of the true frames (``latent_phase``)."""
     d = pred.shape[-1]
     if d == 2:
         project, names = (lambda z: z), ("latent z₁ (position-like) [–]", "latent z₂ (velocity-like) [–]")
@@ -418,12 +448,12 @@ def latent_phase_figure(pred: Tensor, encoded: Tensor, out_dir: Path, title: str
     ax.set_ylabel(names[1])
     ax.legend(fontsize=8, title=f"{shown} test videos (○ start)", title_fontsize=8)
     ax.set_title(f"{title}\nlatent phase portrait (Lim & Kasim Fig. 4)", fontsize=9)
-    return [save_png(fig, out_dir / "latent_phase.png")]
+    return {"latent_phase": laid_out(fig)}
 
 
-def frames_figure(t: Tensor, pred: Tensor, true: Tensor, out_dir: Path, title: str, n_times: int = 6) -> list[Path]:
+def frames_figure(t: Tensor, pred: Tensor, true: Tensor, title: str, n_times: int = 6) -> dict[str, Figure]:
     """Lim & Kasim Figs. 5–6: true (top) and predicted (bottom) frames of the first test video at
-    ``n_times`` times from 0 to the end (``frames.png``)."""
+    ``n_times`` times from 0 to the end (``frames``)."""
     picks = torch.linspace(0, len(t) - 1, n_times).round().long().tolist()
     fig, axes = subplots(2, n_times, figsize=(1.6 * n_times, 3.8), squeeze=False)
     for col, k in enumerate(picks):
@@ -437,7 +467,7 @@ def frames_figure(t: Tensor, pred: Tensor, true: Tensor, out_dir: Path, title: s
             if row == 1:
                 ax.set_xlabel(f"t = {t[k]:.0f}")
     fig.suptitle(f"{title}\ntest video 0: true vs predicted frames (grey level = pixel intensity, 0–1)", fontsize=9)
-    return [save_png(fig, out_dir / "frames.png")]
+    return {"frames": laid_out(fig)}
 
 
 def control_figures(t: Tensor, learned: tuple[Tensor, Tensor], oracle: tuple[Tensor, Tensor],

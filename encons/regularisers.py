@@ -4,7 +4,7 @@ A regulariser is called as ``regulariser(model, s, u)`` on data-chart states ``s
 (and their inputs ``u`` (B, m), or None) and
 returns ``weight`` times its constraint averaged over the batch. It acts on the field a model
 exposes through ``DynamicsModel.constrained_field`` (by default the internal field at
-``encode(s)``), whose Jacobians come from ``torch.func`` (jacfwd or jacrev under vmap) and stay
+``to_internal(s)``), whose Jacobians come from ``torch.func`` (jacfwd or jacrev under vmap) and stay
 differentiable with respect to the model's parameters.
 """
 
@@ -17,6 +17,7 @@ import torch
 from torch import Tensor
 from torch.func import jacfwd, jacrev, vmap
 
+from encons.bounds import Declared, NonNegative
 from encons.errors import ConfigError
 from encons.models.base import DynamicsModel
 
@@ -56,12 +57,12 @@ def dissipative_violation(jac: Tensor, bound: Tensor) -> Tensor:
     return (torch.relu(real - bound) ** 2).sum(-1)
 
 
-class JacobianPenalty:
+class JacobianPenalty(Declared):
     """``weight`` × batch mean of a constraint on the Jacobian of the model's constrained field."""
 
-    def __init__(self, weight: float = 1.0, jacobian: str = "reverse"):
-        if weight < 0:
-            raise ConfigError(f"regulariser.weight={weight}; allowed: >= 0")
+    config_key = "regulariser"
+
+    def __init__(self, weight: NonNegative = 1.0, jacobian: str = "reverse"):
         if jacobian not in JACOBIANS:
             raise ConfigError(f"regulariser.jacobian={jacobian!r} is unknown; allowed: {', '.join(JACOBIANS)}")
         self.weight, self.jacobian = float(weight), jacobian
@@ -93,7 +94,7 @@ class Dissipative(JacobianPenalty):
 
     label = "C_D"
 
-    def __init__(self, weight: float = 1.0, bound: float | Sequence[float] = 0.0, jacobian: str = "reverse"):
+    def __init__(self, weight: NonNegative = 1.0, bound: float | Sequence[float] = 0.0, jacobian: str = "reverse"):
         super().__init__(weight, jacobian)
         self.bound = torch.as_tensor(bound if isinstance(bound, (int, float)) else list(bound), dtype=torch.float64)
 

@@ -268,8 +268,9 @@ def evaluate(run: Run | str | Path, overrides: Iterable[str] = (), ckpt: str = "
         run = load(run.checkpoint if isinstance(run, Run) else run, overrides, ckpt)
     config = run.config.copy()
     config.logger, config.callbacks = None, None
-    run.module.output_dir = run.run_dir / "evaluation"
-    with log_file(run.module.output_dir / "evaluate.log"):
+    out = run.run_dir / "evaluation"
+    config.paths.output_dir = str(out)
+    with log_file(out / "evaluate.log"):
         from encons.build import _route_lightning_logs
 
         _route_lightning_logs()
@@ -281,5 +282,5 @@ def evaluate(run: Run | str | Path, overrides: Iterable[str] = (), ckpt: str = "
     if steps > run.module.horizon:
         note += (f"; traj_rel_err sums the first {run.module.horizon} of {steps} test steps "
                  f"(add horizon={steps} to score the whole trajectory)")
-    print_summary(run.module.run_title(), run.metrics, run.module.output_dir, note=note)
+    print_summary(run.module.run_title(), run.metrics, out, note=note)
     return run.metrics

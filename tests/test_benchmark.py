@@ -140,7 +140,7 @@ def test_help_lists_the_profiles_and_trains_nothing(tmp_path, capsys):
 
 
 TINY_SANTOS = ['train=["data.n_val=2","data.n_test=2","model.hidden=8","trainer.max_epochs=1",'
-               '"callbacks.santos.steps=4","callbacks.santos.n_trajectories=2"]', "n_train=[2,4]",
+               '"evaluators.santos.steps=4","evaluators.santos.n_trajectories=2"]', "n_train=[2,4]",
                "per_n_train={}"]
 
 

@@ -105,11 +105,13 @@ def test_hnn_and_lnn_closed_forms_are_autodiff_ones(system_name, angular):
     system, s = SYSTEMS[system_name](), states(SYSTEMS[system_name]())
     torch.manual_seed(1)
     hnn = HNN(system, hidden=16, depth=3, angular=angular).double()
-    z = hnn.encode(s)
+    z = hnn.to_internal(s)
     assert gap(hnn.hamiltonian_gradient(z), batched_grad(hnn.hamiltonian, z)) < 1e-12
     lnn = LNN(system, hidden=16, depth=3, angular=angular).double()
+    # LNN's convex start drives its deeper units to pre-activations ~10-20 (L ~ 2e3 on the gyroscope's states):
+    # the two orders of rounding differ by up to 3e-10 there (measured), 5e-9 for ∇²_q̇L
     for fast, slow in zip(lnn.lagrangian_derivatives(s), lagrangian_derivatives(lnn.lagrangian, s)):
-        assert gap(fast, slow) < 1e-12
+        assert gap(fast, slow) < 1e-8
 
 
 @pytest.mark.parametrize("shared_trunk", [True, False])
@@ -119,7 +121,7 @@ def test_structured_closed_forms_are_autodiff_ones(system_name, angular, shared_
     system, s = SYSTEMS[system_name](), states(SYSTEMS[system_name]())
     torch.manual_seed(2)
     hnn = HNNStructure(system, hidden=16, depth=3, angular=angular, shared_trunk=shared_trunk).double()
-    z = hnn.encode(s)
+    z = hnn.to_internal(s)
     assert gap(hnn.hamiltonian_gradient(z), batched_grad(hnn.hamiltonian, z)) < 1e-12
     lnn = LNNStructure(system, hidden=16, depth=3, angular=angular, shared_trunk=shared_trunk).double()
     q, qd = split_state(s)

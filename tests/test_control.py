@@ -29,16 +29,23 @@ def test_forced_euler_lagrange_of_the_true_mass_and_potential_is_the_true_field(
     torch.testing.assert_close(field, system.vector_field(s, "angle", u), rtol=1e-10, atol=1e-10)
 
 
+def true_swing_up(system, h: float, starts: int):
+    """The controller built from the true model on ``system``, run on it from ``starts`` seeded (0) starts
+    over its ``Settings`` duration at control period ``h``: plant, settings, closed-loop states and inputs,
+    metrics and each start's time to upright (``control.score``)."""
+    settings = control.SETTINGS[type(system)]
+    plant = control.true_plant(system)
+    init = system.sample_initial(starts, torch.Generator().manual_seed(0))
+    states, inputs = control.closed_loop(system, control.SwingUp(plant, system, h), init, h,
+                                         round(settings.duration / h))
+    return plant, settings, states, inputs, *control.score(plant, states, inputs, settings, h)
+
+
 def test_true_pendulum_controller_swings_up_and_holds_95_percent_within_time_and_input_limit():
     """Energy pumping + LQR from the true model: ≥ 95 % of 100 seeded starts upright (|θ| ≤ 0.1 rad,
     |θ̇| ≤ 0.5 rad/s) and held the last 2 s of 10 s, with |u| ≤ u_max = 2 N·m."""
     system, h = ControlledPendulum(), 0.1
-    settings = control.SETTINGS[ControlledPendulum]
-    plant = control.true_plant(system)
-    starts = system.sample_initial(100, torch.Generator().manual_seed(0))
-    states, inputs = control.closed_loop(system, control.SwingUp(plant, system, h), starts, h,
-                                         round(settings.duration / h))
-    metrics, t_up = control.score(plant, states, inputs, settings, h)
+    plant, settings, states, inputs, metrics, t_up = true_swing_up(system, h, 100)
     assert metrics["success_rate"] >= 0.95
     assert inputs.abs().max() <= system.u_max
     assert t_up[torch.isfinite(t_up)].max() <= settings.duration - settings.hold
@@ -72,13 +79,8 @@ def test_cartpole_lqr_from_the_linearised_true_model_matches_the_closed_form_ric
 
 
 def test_true_cartpole_controller_swings_up():
-    system, h = CartPole(), 0.05
-    settings = control.SETTINGS[CartPole]
-    plant = control.true_plant(system)
-    starts = system.sample_initial(40, torch.Generator().manual_seed(0))
-    states, inputs = control.closed_loop(system, control.SwingUp(plant, system, h), starts, h,
-                                         round(settings.duration / h))
-    metrics, _ = control.score(plant, states, inputs, settings, h)
+    system = CartPole()
+    *_, metrics, _ = true_swing_up(system, 0.05, 40)
     assert metrics["success_rate"] >= 0.95 and metrics["max_abs_u"] <= system.u_max
 
 
@@ -97,7 +99,7 @@ def test_a_run_on_a_system_without_inputs_is_refused_in_one_line():
         control.learned_plant(HNNStructure(system), system, "encons.models.hnn.HNNStructure")
 
 
-FAST = ["debug=fast", "logger=none", "trainer.enable_progress_bar=false", "~callbacks.santos"]
+FAST = ["debug=fast", "logger=none", "trainer.enable_progress_bar=false", "~evaluators/santos"]
 
 
 @pytest.mark.slow

@@ -42,7 +42,7 @@ def step_loss(module, batch: dict) -> torch.Tensor:
     loss = module.loss(batch)
     if module.regulariser is not None:
         with torch.no_grad():
-            points = module.encode(batch)[1]
+            points = module.observe(batch)[1]
         u = batch.get("u")
         u = None if u is None else u[:, : points.shape[1]].flatten(0, 1)
         loss = loss + module.regulariser(module.model, points.flatten(0, 1), u)

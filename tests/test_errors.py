@@ -210,7 +210,7 @@ def test_a_sweep_dir_without_sweeps_dir_creates_the_study_folder(tmp_path):
     assert (tmp_path / "new" / "study" / "optuna.db").is_file()
 
 
-# ranges: one table (encons.config.BOUNDS), every value finite
+# ranges: declared beside each parameter (encons.bounds), every value finite
 @pytest.mark.parametrize("overrides, key", [
     (["seed=-1"], "seed=-1"),
     (["seed=4294967296"], "seed=4294967296"),

@@ -14,20 +14,26 @@ from encons.systems.mass_spring import MassSpring
 from encons.systems.pendulum import NPendulum
 
 
+def described(fig) -> dict:
+    """What a reader sees of a figure: its legends and, per axes, labels, title, limits, ticks and lines."""
+    fig.canvas.draw()
+    axes = [(ax.get_ylabel(), ax.get_title(), ax.get_legend() is not None, ax.get_ylim(),
+             [t.get_text() for t in ax.get_yticklabels()], [t.get_text() for t in ax.get_xticklabels()],
+             [line.get_label() for line in ax.get_lines()]) for ax in fig.axes]
+    return {"legends": len(fig.legends), "axes": axes,
+            "legend_labels": [t.get_text() for lg in fig.legends for t in lg.get_texts()]}
+
+
 @pytest.fixture
 def saved(monkeypatch):
-    """The figures ``plots`` saves, by file name, inspected before they are closed."""
+    """The figures ``plots`` saves, by file name, described before they are closed."""
     figures = {}
     original = plots.save_png
 
     def keep(fig, path, layout=True):
-        figures[path.name] = fig
-        axes = [(ax.get_ylabel(), ax.get_title(), ax.get_legend() is not None, ax.get_ylim(),
-                 [t.get_text() for t in ax.get_yticklabels()], [t.get_text() for t in ax.get_xticklabels()],
-                 [line.get_label() for line in ax.get_lines()]) for ax in fig.axes]
-        figures[path.name] = {"legends": len(fig.legends), "axes": axes,
-                              "legend_labels": [t.get_text() for lg in fig.legends for t in lg.get_texts()]}
-        return original(fig, path, layout)
+        path = original(fig, path, layout)
+        figures[path.name] = described(fig)
+        return path
 
     monkeypatch.setattr(plots, "save_png", keep)
     return figures
@@ -38,13 +44,14 @@ def test_colours_are_distinct_for_twelve_and_more_coordinates():
         assert len({tuple(round(c, 3) for c in colour) for colour in plots.colours(k)}) == k
 
 
-def test_rollout_figure_one_legend_units_and_a_labelled_choice(tmp_path, saved):
+def test_rollout_figure_one_legend_units_and_a_labelled_choice():
     t = torch.arange(11) * 0.1
     true = torch.randn(7, 11, 24)
     pred = true + torch.linspace(0.01, 1.0, 7)[:, None, None]       # trajectory 0 best, 6 worst
-    plots.rollout_figures(t, pred, true, None, tmp_path, "hnn_angle on gyroscope", units=("rad",) * 12,
-                       baseline=true * 0.5)
-    fig = saved["rollout.png"]
+    figures = plots.rollout_figures(t, pred, true, None, "hnn_angle on gyroscope", units=("rad",) * 12,
+                                    baseline=true * 0.5)
+    assert list(figures) == ["rollout", "relative_error"]          # no energies: no energy_error
+    fig = described(figures["rollout"])
     assert fig["legends"] == 1 and not any(has_legend for _, _, has_legend, *_ in fig["axes"])
     labels = fig["legend_labels"]
     assert "q₁₂ [rad], q̇₁₂ [rad/s]" in labels and "linear-ODE baseline" in labels and "model" in labels
@@ -61,14 +68,14 @@ def test_units_come_from_the_system():
     assert plots.unit_label(("m", "rad")) == "[see legend]" and plots.unit_label(("rad",), rate=True) == "[rad/s]"
 
 
-def test_mse_axis_is_not_stretched_by_a_constant_baseline_energy_error(tmp_path, saved):
+def test_mse_axis_is_not_stretched_by_a_constant_baseline_energy_error():
     t = torch.arange(21) * 0.1
     rising = torch.logspace(-3, 0, 21)
     curves = {"model": {"state_mse": rising, "energy_mse": rising},
               "baseline_constant": {"state_mse": rising * 3, "energy_mse": torch.full((21,), 1e-14)},
               "baseline_linear_ode": {"state_mse": rising * 2, "energy_mse": rising * 5}}
-    plots.mse_figure(t, curves, tmp_path, "node on pendulum", units=("rad",))
-    (state_label, _, _, state_lim, *_), (_, _, _, energy_lim, _, _, energy_lines) = saved["mse_vs_time.png"]["axes"]
+    figure = plots.mse_figure(t, curves, "node on pendulum", units=("rad",))["mse_vs_time"]
+    (state_label, _, _, state_lim, *_), (_, _, _, energy_lim, _, _, energy_lines) = described(figure)["axes"]
     assert state_label == "state MSE, mean over q [rad]² and q̇ [rad/s]²"
     assert energy_lim[0] > 1e-5 and energy_lim[1] / energy_lim[0] < 1e5          # not 14 decades
     assert "constant (below the axis: ≤ 1e-14)" in energy_lines

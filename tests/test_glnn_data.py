@@ -146,7 +146,7 @@ def test_readme_worked_example(tmp_path, train_run):
     assert command, "README lost its worked example"
     write_example(tmp_path / "example.npz")
     args = [a.replace("example.npz", str(tmp_path / "example.npz")) for a in command.group(1).replace("\\", "").split()]
-    m = train_run([*args, "trainer.max_epochs=1", "model.hidden=16", "logger=none"], fast=False)  # the README's data sizes
+    m = train_run([*args, "trainer.max_epochs=1", "model.hidden=16"])
     assert math.isfinite(m["test/state_mse_final"]) and "test/baseline_constant/state_mse_final" in m
 
 

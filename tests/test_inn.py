@@ -52,14 +52,14 @@ def latent_hamiltonian_model(seed: int = 0) -> INNNODE:
 
 def latent_energy(model: INNNODE, s: Tensor) -> Tensor:
     """H'(s) = H(g(s))."""
-    return model.net.h(model.encode(s)).squeeze(-1)
+    return model.net.h(model.to_internal(s)).squeeze(-1)
 
 
 def test_pushed_back_field_is_eq_6():
     """ṡ = G⁻¹ J G⁻ᵀ ∇H'(s) with G = ∂g/∂s, H' = H ∘ g (Lim & Kasim eq. (6))."""
     model = latent_hamiltonian_model()
     s = torch.randn(8, 4, dtype=torch.float64)
-    g_inv = torch.linalg.inv(vmap(jacrev(model.encode))(s))
+    g_inv = torch.linalg.inv(vmap(jacrev(model.to_internal))(s))
     j = torch.tensor([[0, 0, 1, 0], [0, 0, 0, 1], [-1, 0, 0, 0], [0, -1, 0, 0]], dtype=torch.float64)
     grad_h = vmap(grad(lambda x: latent_energy(model, x)))(s)
     expected = (g_inv @ j @ g_inv.transpose(-1, -2) @ grad_h.unsqueeze(-1)).squeeze(-1)

@@ -9,8 +9,9 @@ import pytest
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="under the unbiased guard (model.guard 1e-3) the 20-epoch LNN's val error no longer "
-                          "falls by 0.75x (the old absolute damping λ = 1 did, while biasing the true q̈)", strict=False)
+@pytest.mark.xfail(reason="the unbiased Euler-Lagrange solve learns slower than the old biased damping λ = 1: 20 epochs "
+                          "(40 steps) from the convex start left best val at 0.97x (pendulum2) and 1.0x (gyroscope); "
+                          "pendulum2 fell to 0.72x only after ~110 epochs (measured)", strict=False)
 @pytest.mark.parametrize("system", ["pendulum2", "gyroscope"])
 def test_lnn_twenty_epochs_finite_and_val_error_falls(train_run, system):
     default_net = ["model.hidden=256", "model.depth=3"]

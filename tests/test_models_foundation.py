@@ -7,7 +7,9 @@ import pytest
 import torch
 
 from encons.data.simulate import simulate
+from encons.errors import ConfigError
 from encons.integrators import Integrator, rollout, state_derivative
+from encons.models.base import DynamicsModel
 from encons.models.hnn import HNN
 from encons.models.node import NODE
 from encons.systems.pendulum import NPendulum
@@ -47,22 +49,29 @@ def test_node_with_true_field_rolls_out_the_truth(system_and_states):
     assert (pred - truth).abs().max() < 1e-6
 
 
-def test_hnn_encode_decode_round_trip(system_and_states):
+def test_hnn_momentum_map_round_trip(system_and_states):
     system, s = system_and_states
     model = HNN(system, hidden=8, depth=1, angular=True).double()
-    assert torch.allclose(model.decode(model.encode(s)), s, atol=1e-10)
+    assert torch.allclose(model.from_internal(model.to_internal(s)), s, atol=1e-10)
 
 
-def test_a_rollout_starts_at_its_start_and_decodes_only_the_later_states(system_and_states, monkeypatch):
+def test_a_rollout_starts_at_its_start_and_maps_back_only_the_later_states(system_and_states, monkeypatch):
     """Index 0 is the given state itself, not decode(encode(start)) recomputed: a learned decoder
     (HNN's M(q)⁻¹ p) runs on the T − 1 later states only."""
     system, s = system_and_states
     model = HNN(system, hidden=8, depth=1).double()
     decoded = []
-    decode = model.decode
-    monkeypatch.setattr(model, "decode", lambda z: decoded.append(z.shape[0]) or decode(z))
+    decode = model.from_internal
+    monkeypatch.setattr(model, "from_internal", lambda z: decoded.append(z.shape[0]) or decode(z))
     t = torch.arange(6, dtype=torch.float64) * 0.03
     pred = rollout(model, s, t, Integrator("rk4"))
     assert torch.equal(pred[:, 0], s) and pred.shape == (64, 6, 4)
     assert decoded == [5]
     assert not torch.allclose(pred[:, 1], s, atol=1e-3)  # and it moves
+
+
+def test_a_model_defining_the_old_encode_is_refused_with_the_new_names():
+    with pytest.raises(ConfigError, match=r"defines encode/decode; allowed: to_internal\(s\)/from_internal\(z\)"):
+        class Old(DynamicsModel):
+            def encode(self, s):
+                return s

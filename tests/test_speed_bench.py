@@ -41,7 +41,7 @@ def test_naive_field_is_the_model_field(cls, system_name):
                 p.normal_(0.0, 0.3)
     s0 = system.sample_initial(64, torch.Generator().manual_seed(1))
     s0 = s0[torch.sin(s0[:, 1]).abs() > 0.3][:8] if isinstance(system, Gyroscope) else s0[:8]
-    z = model.encode(system.to_chart(s0, system.base_chart, model.chart))
+    z = model.to_internal(system.to_chart(s0, system.base_chart, model.chart))
     t = torch.zeros((), dtype=torch.float64)
     fast, naive = model(t, z), speed.naive_of(model, system)(t, z)
     assert (fast - naive).abs().max() < 1e-8 * fast.abs().max()

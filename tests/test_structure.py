@@ -16,14 +16,15 @@ from encons.errors import ConfigError
 #: (imports under ``if TYPE_CHECKING:`` are annotations and those under ``if __name__ == "__main__":``
 #: a script's entry, not dependencies: neither is counted).
 LAYERS = [
-    ["errors", "paths", "compat", "trust", "batching", "progress", "io", "checkpoints", "lightning_io", "threads",
-     "help"],
+    ["errors", "bounds", "paths", "compat", "trust", "batching", "progress", "io", "checkpoints", "lightning_io", "threads",
+     "help", "schedules"],
     ["systems"],
     ["integrators"],
     ["data"],
     ["models"],
     ["regularisers", "metrics", "evaluation"],
     ["plots"],
+    ["evaluators"],
     ["objectives", "module", "callbacks"],
     ["config"],
     ["build"],
@@ -68,6 +69,11 @@ def test_no_module_imports_from_a_layer_above_it():
             if layer(imported) > layer(module):
                 arrows.append(f"encons.{module} -> encons.{imported}")
     assert arrows == []
+
+
+def test_models_take_system_helpers_from_the_seam_not_from_another_model():
+    imports = encons_imports(PACKAGE / "models" / "lnode.py")
+    assert "models.base" in imports and "models.symo" not in imports
 
 
 def test_the_layer_check_sees_a_back_arrow(tmp_path):
@@ -118,7 +124,7 @@ def test_santos_one_step_targets_are_every_state_from_two_on_for_any_history(his
     """The windows' last steps are the targets k ≥ max(2, history), each once (history 3 once kept only k = 5)."""
     import torch
 
-    from encons.callbacks import one_step_windows
+    from encons.evaluators.santos import one_step_windows
 
     states = torch.arange(6.0).reshape(1, 6, 1)           # state k holds the value k
     windows = one_step_windows(states, history)
@@ -137,19 +143,106 @@ def test_every_objective_a_model_declares_is_registered():
     assert declared == set(OBJECTIVES)
 
 
-def test_one_writer_saves_the_test_metrics_once_with_every_evaluators_results(tmp_path, monkeypatch):
-    """The states evaluation and the controlled-system metrics (a callback) both reach test_metrics.json,
-    written once, by the module's on_test_end."""
+@pytest.fixture
+def written(monkeypatch):
+    """Every path encons writes through ``encons.io`` (every writer does), in order."""
+    from encons import io
+
+    paths = []
+    real = io.atomic_open
+    monkeypatch.setattr(io, "atomic_open", lambda path, *a, **k: (paths.append(Path(path)), real(path, *a, **k))[1])
+    return paths
+
+
+def test_one_writer_saves_the_test_metrics_once_with_every_evaluators_results(tmp_path, written):
+    """The states and the controlled-system (Santos) evaluators both reach test_metrics.json, written once
+    per test, by one writer; so are test_curves.npz and each evaluator's figures."""
     import json
 
-    from encons import module
+    cfg = encons.compose("debug=fast", "model=lnode", "system=pendulum_control", "evaluators.santos.steps=10",
+                         "evaluators.santos.n_trajectories=2", output_dir=tmp_path / "run", cache_dir=tmp_path / "c")
+    assert list(cfg.evaluators) == ["states", "santos"]
+    run = encons.train(cfg)
+    results = [p.relative_to(tmp_path / "run") for p in written if p.suffix in (".json", ".npz", ".png")
+               and tmp_path / "run" in p.parents]
+    assert sorted(map(str, results)) == sorted(map(str, set(results)))      # each file once
+    assert {Path("test_metrics.json"), Path("test_curves.npz"), Path("figures/integration.png"),
+            Path("figures/rollout.png")} <= set(results)
+    saved = json.loads((tmp_path / "run" / "test_metrics.json").read_text())
+    assert {"traj_rel_err", "oracle/geom_rel_err", "mse_integration", "mse_test"} <= set(saved)
+    assert saved == {k.removeprefix("test/"): v for k, v in run.metrics.items() if k.startswith("test/")}
 
-    written = []
-    real = module.write_json
-    monkeypatch.setattr(module, "write_json", lambda path, values: (written.append(path), real(path, values)))
-    cfg = encons.compose("debug=fast", "model=lnode", "system=pendulum_control", "callbacks.santos.steps=10",
-                         "callbacks.santos.n_trajectories=2", output_dir=tmp_path / "run", cache_dir=tmp_path / "c")
-    encons.train(cfg)
-    assert written == [tmp_path / "run" / "test_metrics.json"]
-    saved = json.loads(written[0].read_text())
-    assert {"traj_rel_err", "mse_integration", "mse_test"} <= set(saved)
+
+USER_EVALUATOR = '''
+"""A user's evaluator: the largest absolute state of the test rollouts."""
+from encons.evaluators import Evaluator, Result
+
+
+class LargestState(Evaluator):
+    def __init__(self, scale: float = 1.0):
+        self.scale = scale
+
+    def reset(self):
+        self.largest = 0.0
+
+    def update(self, module, batch):
+        self.largest = max(self.largest, batch.pred.abs().max().item())
+
+    def compute(self, module):
+        return Result({"largest_state": self.scale * self.largest})
+'''
+
+
+def test_a_users_evaluator_from_a_searchpath_yaml_adds_its_metric(tmp_path, monkeypatch, written):
+    """One class and one YAML in the user's config folder: its metric joins test_metrics.json beside the
+    states evaluator's, from the same rollouts, in the one write of the file."""
+    import json
+
+    import torch
+
+    (tmp_path / "mypkg").mkdir()
+    (tmp_path / "mypkg" / "__init__.py").write_text("")
+    (tmp_path / "mypkg" / "largest.py").write_text(USER_EVALUATOR)
+    (tmp_path / "myconf" / "evaluators").mkdir(parents=True)
+    (tmp_path / "myconf" / "evaluators" / "largest.yaml").write_text(
+        "# @package evaluators.largest\n_target_: mypkg.largest.LargestState\nscale: 2.0\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("ENCONS_TRUSTED_TARGETS", "mypkg.*")
+    cfg = encons.compose("debug=fast", "logger=none", "model=node", "system=pendulum1",
+                         f"hydra.searchpath=[file://{tmp_path / 'myconf'}]", "evaluators=[states,largest]",
+                         output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    run = encons.train(cfg)
+    assert [p.name for p in written].count("test_metrics.json") == 1
+    saved = json.loads((tmp_path / "run" / "test_metrics.json").read_text())
+    module = run.module
+    with torch.no_grad():
+        pred = module.predict({"states": run.data.states["test"]}, evaluation=module.evaluation)
+    assert saved["largest_state"] == pytest.approx(2.0 * pred.abs().max().item(), rel=1e-12)
+    assert "traj_rel_err" in saved and "oracle/traj_rel_err" in saved
+
+
+@pytest.mark.parametrize("chosen", ["states", "santos"])
+def test_an_evaluator_that_does_not_apply_is_refused_in_one_line(tmp_path, chosen):
+    cfg = encons.compose("debug=fast", "logger=none", "system=pixel_pendulum", f"evaluators=[{chosen}]",
+                         output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    with pytest.raises(ConfigError, match=rf"^evaluators.{chosen} does not apply to observation=Autoencoder .*; "
+                                          r"allowed: evaluators=\[pixels\]$"):
+        encons.api.build(cfg)
+
+
+def test_two_evaluators_giving_one_metric_name_are_refused(tmp_path):
+    import lightning.pytorch as pl
+
+    from encons.evaluators import Evaluator, Result
+
+    class Twice(Evaluator):
+        def compute(self, module):
+            return Result({"traj_rel_err": 0.0})
+
+    cfg = encons.compose("debug=fast", "logger=none", "model=node", "system=pendulum1",
+                         output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    data, module = encons.api.build(cfg)
+    module.evaluators["twice"] = Twice()
+    trainer = pl.Trainer(logger=False, enable_progress_bar=False, enable_checkpointing=False)
+    with pytest.raises(ConfigError, match=r"^evaluators.twice gives the metric 'traj_rel_err' another evaluator"):
+        trainer.test(module, datamodule=data, verbose=False)

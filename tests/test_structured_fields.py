@@ -28,11 +28,11 @@ def model_and_states(cls, system_name, shared_trunk):
 @pytest.mark.parametrize("system_name", SYSTEMS)
 def test_hnn_structure_hamiltonian_is_the_textbook_one(system_name, shared_trunk):
     model, s = model_and_states(HNNStructure, system_name, shared_trunk)
-    z = model.encode(s)
+    z = model.to_internal(s)
     q, p = split_state(z)
     textbook = 0.5 * (p * torch.linalg.solve(model.mass(q), p)).sum(-1) + model.potential(q)
     assert (model.hamiltonian(z) - textbook).abs().max() < 1e-10 * textbook.abs().max()
-    assert (model.decode(z) - s).abs().max() < 1e-10 * s.abs().max()
+    assert (model.from_internal(z) - s).abs().max() < 1e-10 * s.abs().max()
 
 
 @pytest.mark.parametrize("shared_trunk", [True, False])

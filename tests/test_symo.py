@@ -234,6 +234,6 @@ def test_newton_backtracking_never_raises_the_residual():
 def test_newton_failures_reach_the_test_metrics(train_run):
     """End to end: a starved Newton shows up in the run's test metrics and §7 integration metrics."""
     results = train_run(["model=symo", "system=pendulum_control", "model.eval_iters=1", "model.eval_tol=1e-15",
-                         "callbacks.santos.steps=6", "callbacks.santos.n_trajectories=2", "trainer.max_epochs=1"])
+                         "evaluators.santos.steps=6", "evaluators.santos.n_trajectories=2", "trainer.max_epochs=1"])
     assert results["test/newton_unconverged"] == 1.0
     assert results["test/newton_unconverged_integration"] == 1.0

@@ -11,7 +11,7 @@ import torch
 from encons.errors import ConfigError
 
 SANTOS_KEYS = ("mse_train", "mse_test", "mse_integration", "energy_mse_integration")
-TINY = ["callbacks.santos.steps=20", "callbacks.santos.n_trajectories=4", "data.chunk_len=3"]
+TINY = ["evaluators.santos.steps=20", "evaluators.santos.n_trajectories=4", "data.chunk_len=3"]
 
 
 @pytest.mark.slow

@@ -38,8 +38,8 @@ def builds(model: str, system: str, tmp_path) -> str | None:
 
 def trains(train_run, model: str, system: str) -> None:
     overrides = [f"model={model}", f"system={system}"]
-    if api.compose(f"system={system}", output_dir=".").get("callbacks", {}).get("santos"):
-        overrides += ["callbacks.santos.steps=20", "callbacks.santos.n_trajectories=4"]  # §7's 500 × 16: minutes
+    if api.compose(f"system={system}", output_dir=".").get("evaluators", {}).get("santos"):
+        overrides += ["evaluators.santos.steps=20", "evaluators.santos.n_trajectories=4"]  # §7's 500 × 16: minutes
     results = train_run(overrides)  # a DivergenceError fails the test
     assert math.isfinite(results["test/traj_rel_err"])
     assert math.isfinite(results["best/val/traj_rel_err"])
@@ -49,11 +49,11 @@ def test_kinds_are_in_the_catalogue():
     assert set(KINDS) <= set(simulated_systems())
 
 
-#: Known regression of the unbiased solve (model.guard 1e-3, encons.models.lnn.guarded_solve): a fresh
-#: LNN/GLNN at debug=fast sizes can reach NaN in its first optimiser steps (the old absolute damping
-#: λ = 1 never did, but biased the true q̈). Not strict: which systems diverge depends on the draw.
-GUARD_NAN = {"lnn", "lnn_angle", "glnn"}
-GUARD_NAN_REASON = "fresh LNN/GLNN at debug=fast sizes can reach NaN under the unbiased guard 1e-3"
+#: A fresh debug=fast LNN whose own rollout runs away within a window (dt 0.22): ∇²_q̇L stays positive definite
+#: and well conditioned but fades as q̇ grows (softplus curvature), so q̈ grows with q̇ until float32 overflows.
+#: Not the solve (n = 1: no conditioning to guard); on main all three models reached NaN on mass_spring.
+RUNAWAY = {("lnn", "mass_spring")}
+RUNAWAY_REASON = "fresh debug=fast LNN's own rollout runs away on mass_spring (softplus curvature fades with q̇)"
 
 
 @pytest.mark.slow
@@ -63,8 +63,8 @@ def test_every_model_trains(train_run, tmp_path, model, system, request):
     reason = builds(model, system, tmp_path)
     if reason:
         pytest.skip(reason)
-    if model in GUARD_NAN:
-        request.applymarker(pytest.mark.xfail(reason=GUARD_NAN_REASON, strict=False))
+    if (model, system) in RUNAWAY:
+        request.applymarker(pytest.mark.xfail(reason=RUNAWAY_REASON, strict=True))
     trains(train_run, model, system)
 
 

@@ -67,3 +67,53 @@ def test_the_guard_acts_where_the_hessian_is_near_singular_and_bounds_the_soluti
     x.sum().backward()
     assert h.grad.isfinite().all()
     assert guarded_solve(1e6 * h.detach()[:2], 1e6 * r[:2], 1e-4).allclose(x[:2].detach())  # scale-free
+
+
+def test_the_guard_is_finite_where_the_hessian_vanishes_or_underflows():
+    """Far outside the data a softplus L saturates and ∇²_q̇L underflows to 0: q̈ stays finite (0 at H = 0:
+    the least-squares solution of minimum norm)."""
+    h = torch.stack([torch.zeros(2, 2), 1e-30 * torch.eye(2)])
+    r = torch.tensor([[4.0, 1.0], [70.0, 2.0]])
+    x = guarded_solve(h.requires_grad_(), r, 1e-3)
+    assert x.isfinite().all() and x[0].eq(0).all()
+    x.sum().backward()
+    assert h.grad.isfinite().all()
+
+
+RUNAWAY = pytest.mark.xfail(strict=True, reason="not the solve: this fresh network's ∇²_q̇L stays positive definite "
+                            "but fades as the spin ψ̇ grows (softplus curvature), so its own rollout runs away (measured)")
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("model_name", ["lnn", "lnn_angle", "glnn"])
+@pytest.mark.parametrize("name", ["pendulum1", "pendulum2", "gyroscope"])
+def test_fresh_networks_take_their_first_steps_without_nan(tmp_path, request, model_name, name, seed):
+    """debug=fast sizes: the loss of every training batch and its gradient stay finite at the start and over
+    four AdamW steps (from Cranmer et al.'s signed start 11 of these 27 reached NaN, on pendulum2 and the gyroscope)."""
+    from encons.build import build
+
+    if (name, model_name, seed) == ("gyroscope", "lnn_angle", 2):
+        request.applymarker(RUNAWAY)
+    cfg = api.compose("debug=fast", f"model={model_name}", f"system={name}", f"seed={seed}", output_dir=tmp_path,
+                      cache_dir=tmp_path / "cache")
+    with execution_whitelist(trusted_targets()):
+        data, module = build(cfg)
+    optimizer = module.optimizer(module.parameters())
+    for batch in [*data.train_dataloader(), *data.train_dataloader()]:
+        optimizer.zero_grad()
+        loss = module.loss(batch)
+        assert loss.isfinite(), loss
+        loss.backward()
+        assert all(p.grad.isfinite().all() for p in module.parameters() if p.grad is not None)
+        optimizer.step()
+
+
+@pytest.mark.parametrize("model_name", ["lnn", "lnn_angle"])
+def test_a_fresh_lagrangian_starts_convex_in_the_velocities(model_name):
+    """∇²_q̇L of a fresh network is positive definite on sampled states (Cranmer et al.'s start: indefinite)."""
+    cfg = api.compose(f"model={model_name}", "system=pendulum2", "model.hidden=16", "model.depth=2", output_dir=".")
+    with execution_whitelist(trusted_targets()):
+        system = build_system(cfg)
+        model = build_model(cfg, system)
+    hessian = model.lagrangian_derivatives(physical_states(system).float())[1]
+    assert torch.linalg.eigvalsh(hessian.detach()).min() > 0

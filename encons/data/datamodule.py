@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import Annotated
 
 import lightning.pytorch as pl
 import torch
@@ -33,11 +34,13 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 from encons.data import store
 from encons.data.recording import is_recording, load_recording
 from encons.data.simulate import sample_trajectories
+from encons.bounds import Declared, NonNegative, Positive, Range, Seed
 from encons.errors import ConfigError, DataError
 from encons.progress import Progress
 from encons.systems.base import System
 
 log = logging.getLogger(__name__)
+Size = Annotated[int, Range(ge=1)]
 
 
 class Windows(Dataset):
@@ -81,23 +84,18 @@ def _identity(batch: Tensor) -> Tensor:
     return batch
 
 
-class TrajectoryDataModule(pl.LightningDataModule):
+class TrajectoryDataModule(pl.LightningDataModule, Declared):
     """Trajectories of ``system`` served in ``chart``; simulated and cached, or read from ``path``."""
 
+    config_key = "data"
+
     def __init__(self, system: System, chart: str, system_config: dict | None = None, path: str | None = None,
-                 n_train: int = 800, n_val: int = 100, n_test: int = 100, n_steps: int = 100,
-                 test_steps: int | None = None, dt: float = 0.03,
-                 noise: float = 0.01, substeps: int = 10, chunk_len: int = 5, batch_size: int = 200,
-                 seed: int = 0, cache_dir: str = ".cache/encons", objective: str | None = "rollout",
+                 n_train: Size = 800, n_val: Annotated[int, Range(ge=0)] = 100, n_test: Size = 100,
+                 n_steps: Size = 100, test_steps: int | None = None, dt: Positive = 0.03,
+                 noise: NonNegative = 0.01, substeps: Size = 10, chunk_len: int = 5, batch_size: Size = 200,
+                 seed: Seed = 0, cache_dir: str = ".cache/encons", objective: str | None = "rollout",
                  recording: dict | None = None):
         super().__init__()
-        for key, value in dict(n_train=n_train, n_test=n_test, n_steps=n_steps, substeps=substeps,
-                               batch_size=batch_size).items():
-            if value < 1:
-                raise ConfigError(f"data.{key}={value}; allowed: >= 1")
-        for key, value, low in (("dt", dt, "> 0"), ("noise", noise, ">= 0"), ("n_val", n_val, ">= 0")):
-            if not (value > 0 if low == "> 0" else value >= 0):
-                raise ConfigError(f"data.{key}={value}; allowed: {low}")
         if test_steps is not None and test_steps < n_steps:
             raise ConfigError(f"data.test_steps={test_steps} is shorter than data.n_steps={n_steps}; allowed: "
                               f"null (= n_steps) or an integer >= {n_steps}")

@@ -9,19 +9,15 @@ the file's chart.
 from __future__ import annotations
 
 import numpy as np
-import torch
-from torch import Tensor
 
 from encons.data import store
 from encons.data.recording import describe, is_recording
-from encons.systems.base import System
+from encons.systems.base import DataOnlySystem
 
 
-class FileSystem(System):
+class FileSystem(DataOnlySystem):
     """Dimensions and chart read from a file: split trajectories (``encons.data.store``) or a
     recording (``encons.data.recording``; a text one read through ``columns`` and ``delimiter``)."""
-
-    known_physics = False
 
     def __init__(self, path: str, chart: str | None = None, columns: dict | None = None,
                  delimiter: str | None = None):
@@ -36,17 +32,5 @@ class FileSystem(System):
         self.charts = (chart or file_chart or "angle",)
         self.common_chart = self.charts[0]
 
-    def coord_dim(self, chart: str) -> int:
-        self.check_chart(chart)
-        return self.n
-
     def units(self, chart: str) -> tuple[str, ...]:
         return ("file unit",) * self.n
-
-    def _unknown(self, *_: object) -> Tensor:
-        raise NotImplementedError("a system loaded from a file has no known physics")
-
-    vector_field = energy = _unknown
-
-    def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
-        return self._unknown()

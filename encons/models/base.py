@@ -1,8 +1,9 @@
 """The Model seam: a learned continuous vector field ż = f(t, z, u), or a model that steps itself.
 
-Data come as ``s = (q, q̇)`` in the model's chart; ``encode`` maps them to the internal
-state a continuous field acts on (e.g. ``(q, p)`` for Hamiltonian models) and ``decode`` maps
-back. Exogenous inputs ``u`` (controls, per-trajectory parameters; shape (..., m)) travel beside
+Data come as ``s = (q, q̇)`` in the model's chart; ``to_internal`` maps them to the internal
+state a continuous field acts on (e.g. ``(q, p)`` for Hamiltonian models, p = M(q) q̇) and
+``from_internal`` maps back. (An observation model's ``encode``/``decode`` are another map:
+observations such as frames to states and back, ``encons.models.observation``.) Exogenous inputs ``u`` (controls, per-trajectory parameters; shape (..., m)) travel beside
 the state in one argument, never inside it. ``encons.integrators.rollout`` is the one way to roll
 any model out: continuous fields through torchdiffeq, discrete models (``DiscreteModel``) by their
 own ``rollout``.
@@ -20,19 +21,21 @@ from typing import Callable, ClassVar, Iterator
 import torch
 from torch import Tensor, nn
 
+from encons.bounds import Declared
 from encons.errors import ConfigError
 from encons.systems.base import System
 
 
-class DynamicsModel(nn.Module):
+class DynamicsModel(nn.Module, Declared):
     """Base of every model; subclasses of it alone are continuous vector fields.
 
     Subclasses set ``default_chart`` (``None``: the system's base chart) and the capability
     attributes below, and implement ``forward(t, z, u=None)`` (``forward(t, z)`` suffices for a
-    model without inputs: it is called with ``u`` only when there are inputs). ``encode``/``decode``
-    default to the identity.
+    model without inputs: it is called with ``u`` only when there are inputs). ``to_internal``/
+    ``from_internal`` default to the identity.
     """
 
+    config_key = "model"
     default_chart: ClassVar[str | None] = None
     needs_constraints: ClassVar[bool] = False   # uses the system's holonomic constraints Φ(x) = 0
     supports_controls: ClassVar[bool] = False   # accepts exogenous inputs u
@@ -40,6 +43,12 @@ class DynamicsModel(nn.Module):
     history: ClassVar[int] = 1                  # data states a rollout starts from
     objectives: ClassVar[tuple[str, ...]] = ("rollout", "derivative", "onestep")  # supported; the first is the default
     family: ClassVar[str | None] = None         # the structure it learns; a benchmark profile's per_family keys name it
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        if {"encode", "decode"} & vars(cls).keys():  # the names of this map before; the rollout would skip them
+            raise ConfigError(f"model class {cls.__module__}.{cls.__qualname__} defines encode/decode; allowed: "
+                              f"to_internal(s)/from_internal(z), a model's map to its internal state")
 
     def __init__(self, system: System | None = None, chart: str | None = None):
         if not hasattr(system, "check_chart"):  # a subclass's super().__init__() without the system encons passed it
@@ -53,11 +62,11 @@ class DynamicsModel(nn.Module):
         self.n = system.coord_dim(self.chart)
         self.n_controls = system.n_controls
 
-    def encode(self, s: Tensor) -> Tensor:
+    def to_internal(self, s: Tensor) -> Tensor:
         """Data-chart state (..., 2n) -> internal state."""
         return s
 
-    def decode(self, z: Tensor) -> Tensor:
+    def from_internal(self, z: Tensor) -> Tensor:
         """Internal state -> data-chart state (..., 2n)."""
         return z
 
@@ -88,11 +97,11 @@ class DynamicsModel(nn.Module):
         """Points, per-point inputs and the per-sample field that soft dynamics constraints act on.
 
         Returns ``(z, field)`` with ``field(z_i, u_i)`` (``u_i`` None without inputs). Default: the
-        internal field at ``encode(s)``; for a model whose ``encode`` is a learned invertible map
+        internal field at ``to_internal(s)``; for a model whose ``to_internal`` is a learned invertible map
         this is the latent field, as in Lim & Kasim eq. (7).
         """
         t = torch.zeros((), dtype=s.dtype, device=s.device)
-        return self.encode(s), lambda z, ui=None: self(t, z) if ui is None else self(t, z, ui)
+        return self.to_internal(s), lambda z, ui=None: self(t, z) if ui is None else self(t, z, ui)
 
 
 class DiscreteModel(DynamicsModel):

@@ -14,6 +14,7 @@ from typing import Iterator
 import torch
 from torch import Tensor
 
+from encons.bounds import Count
 from encons.models.base import DynamicsModel
 from encons.models.networks import MLPTape, PointMasses, Potential
 from encons.systems.base import System, split_state
@@ -33,7 +34,7 @@ class CartesianModel(DynamicsModel):
     needs_constraints = True
     family = "constrained"
 
-    def __init__(self, system: System, hidden: int = 256, depth: int = 3, activation: str = "softplus"):
+    def __init__(self, system: System, hidden: Count = 256, depth: Count = 3, activation: str = "softplus"):
         super().__init__(system)
         self.dim = system.layout.dim
         self.constraints = system.constraints
@@ -91,11 +92,11 @@ class CLNN(CartesianModel):
 class CHNN(CartesianModel):
     """Constrained Hamiltonian dynamics on z = (x, p), p = M ẋ, Zhong et al. eq. (20) (Finzi et al. 2020)."""
 
-    def encode(self, s: Tensor) -> Tensor:
+    def to_internal(self, s: Tensor) -> Tensor:
         x, v = split_state(s)
         return torch.cat([x, v @ full_mass_matrix(self.point_masses(), self.dim)], -1)
 
-    def decode(self, z: Tensor) -> Tensor:
+    def from_internal(self, z: Tensor) -> Tensor:
         x, p = split_state(z)
         return torch.cat([x, p @ self.mass_terms()[0]], -1)
 

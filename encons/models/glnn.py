@@ -10,8 +10,9 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from encons.bounds import Count
 from encons.models.base import DynamicsModel
-from encons.models.lnn import LNN, SECOND_ORDER_OBJECTIVES, guarded_solve
+from encons.models.lnn import LNN, SECOND_ORDER_OBJECTIVES, Guard, guarded_solve
 from encons.models.networks import embed_angles, embedded_width, mlp
 from encons.systems.base import System, split_state
 
@@ -30,12 +31,12 @@ class GLNN(LNN):
     ``encons.models.lnn.lagrangian_derivatives``, torch.func of any L) with F added to the right-hand
     side, and LNN's ``guarded_solve`` (``guard`` 1e-3: the plain inverse of eq. (11) wherever ∇²_q̇L is
     not near singular; 0: always). L starts from
-    Cranmer et al.'s initialisation as in LNN; F from PyTorch's default. Limits: L and F are not
+    LNN's initialisation (convex in its inputs, Cranmer et al.'s scales); F from PyTorch's default. Limits: L and F are not
     identifiable apart (any F can absorb a change of L), so only q̈ is learned, not the energy split.
     """
 
-    def __init__(self, system: System, chart: str | None = None, hidden: int = 200, depth: int = 3,
-                 activation: str = "softplus", guard: float = 1e-3, angular: bool = False):
+    def __init__(self, system: System, chart: str | None = None, hidden: Count = 200, depth: Count = 3,
+                 activation: str = "softplus", guard: Guard = 1e-3, angular: bool = False):
         super().__init__(system, chart, hidden, depth, activation, guard, angular)
         self.force_net = mlp(embedded_width(self.n, angular) + self.n, self.n, hidden, depth, activation)
 
@@ -55,7 +56,7 @@ class SecondOrder(DynamicsModel):
     objectives = SECOND_ORDER_OBJECTIVES
     family = "unstructured"
 
-    def __init__(self, system: System, chart: str | None = None, hidden: int = 200, depth: int = 3,
+    def __init__(self, system: System, chart: str | None = None, hidden: Count = 200, depth: Count = 3,
                  activation: str = "softplus", angular: bool = False):
         super().__init__(system, chart)
         self.angular = angular

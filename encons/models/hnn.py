@@ -11,6 +11,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from encons.bounds import Count
 from encons.batching import batched_grad
 from encons.models.base import DynamicsModel
 from encons.models.networks import AngleEmbedding, CholeskyMass, MLPTape, embed_angles, mlp
@@ -28,11 +29,11 @@ class HamiltonianModel(DynamicsModel):
         """H(q, p) of internal states (..., 2n)."""
         raise NotImplementedError
 
-    def encode(self, s: Tensor) -> Tensor:
+    def to_internal(self, s: Tensor) -> Tensor:
         q, qd = split_state(s)
         return torch.cat([q, (self.mass(q) @ qd.unsqueeze(-1)).squeeze(-1)], -1)
 
-    def decode(self, z: Tensor) -> Tensor:
+    def from_internal(self, z: Tensor) -> Tensor:
         q, p = split_state(z)
         return torch.cat([q, self.mass.solve(q, p)], -1)
 
@@ -48,7 +49,7 @@ class HamiltonianModel(DynamicsModel):
 class HNN(HamiltonianModel):
     """Unstructured H(q, p) network (Greydanus et al. 2019; Zhong et al. eq. (6))."""
 
-    def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
+    def __init__(self, system: System, chart: str | None = None, hidden: Count = 256, depth: Count = 3,
                  activation: str = "softplus", mass_eps: float = 1e-3, angular: bool = False):
         super().__init__(system, chart)
         n, self.angular = self.n, angular

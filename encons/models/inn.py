@@ -3,7 +3,7 @@
 z = g(s) (eq. (5)), g a stack of Glow-style blocks (Kingma & Dhariwal 2018; the layout of
 FrEIA's ``AllInOneBlock`` the authors used): an affine coupling with soft-clamped log-scales,
 a global affine scaling and a fixed random rotation. The latent field ż = f(z) is an MLP.
-Rollouts integrate z and decode with g⁻¹, which is integrating the pushed-back field
+Rollouts integrate z and map back with g⁻¹ (``from_internal``), which is integrating the pushed-back field
 ṡ = (∂g⁻¹/∂z) f(g(s)) of eq. (6) (``encons.integrators.state_derivative`` evaluates it);
 regularisers act on f at g(s), eq. (7).
 """
@@ -13,6 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from encons.bounds import Count, Positive
 from encons.errors import ConfigError
 from encons.models.base import DynamicsModel
 from encons.models.networks import mlp
@@ -38,8 +39,6 @@ class CouplingBlock(nn.Module):
         super().__init__()
         if dim < 2:
             raise ConfigError(f"model=inn_node on a state of {dim} entry; allowed: systems with >= 2 state entries")
-        if clamp <= 0:
-            raise ConfigError(f"model.clamp={clamp}; allowed: > 0")
         self.split, self.clamp = dim - dim // 2, float(clamp)
         self.coupling = mlp(self.split, 2 * (dim // 2), hidden, depth, activation)
         nn.init.zeros_(self.coupling[-1].weight)
@@ -72,8 +71,6 @@ class InvertibleNet(nn.Module):
     def __init__(self, dim: int, blocks: int = 8, hidden: int = 100, depth: int = 1,
                  activation: str = "softplus", clamp: float = 2.0):
         super().__init__()
-        if blocks < 1:
-            raise ConfigError(f"model.blocks={blocks}; allowed: an integer >= 1")
         self.blocks = nn.ModuleList(CouplingBlock(dim, hidden, depth, activation, clamp) for _ in range(blocks))
 
     def forward(self, x: Tensor) -> Tensor:
@@ -96,17 +93,17 @@ class INNNODE(DynamicsModel):
 
     family = "unstructured"
 
-    def __init__(self, system: System, chart: str | None = None, hidden: int = 200, depth: int = 2,
-                 activation: str = "softplus", blocks: int = 8, block_hidden: int = 100, block_depth: int = 1,
-                 clamp: float = 2.0):
+    def __init__(self, system: System, chart: str | None = None, hidden: Count = 200, depth: Count = 2,
+                 activation: str = "softplus", blocks: Count = 8, block_hidden: Count = 100, block_depth: Count = 1,
+                 clamp: Positive = 2.0):
         super().__init__(system, chart)
         self.inn = InvertibleNet(2 * self.n, blocks, block_hidden, block_depth, activation, clamp)
         self.net = mlp(2 * self.n, 2 * self.n, hidden, depth, activation)
 
-    def encode(self, s: Tensor) -> Tensor:
+    def to_internal(self, s: Tensor) -> Tensor:
         return self.inn(s)
 
-    def decode(self, z: Tensor) -> Tensor:
+    def from_internal(self, z: Tensor) -> Tensor:
         return self.inn.inverse(z)
 
     def forward(self, t: Tensor, z: Tensor) -> Tensor:

@@ -7,14 +7,14 @@ angle as (cos q, sin q).
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Annotated, Callable
 
 import torch
 from torch import Tensor
 from torch.func import grad, jvp, vjp, vmap
 
+from encons.bounds import Count, Range
 from encons.batching import batched_grad
-from encons.errors import ConfigError
 from encons.models.base import DynamicsModel
 from encons.models.networks import AngleEmbedding, MLPTape, cranmer_init_, embed_angles, mlp, narrow_in
 from encons.models.structured import MassPotentialModel
@@ -26,8 +26,7 @@ def lagrangian_derivatives(lagrangian: Callable[[Tensor], Tensor], s: Tensor) ->
     (..., 2n) of a batch-aware scalar L(s), by autodiff (any L).
 
     ∇L comes from one batched grad; the Hessian rows from n + 1 vector products with it,
-    vmapped over the vectors only (reverse over reverse, ~25% faster here than forward over
-    reverse): (q̇, 0) gives (∇_q ∇_q̇ᵀ L) q̇ and (0, e_i) the rows of H.
+    vmapped over the vectors only (reverse over reverse, rather than forward over reverse): (q̇, 0) gives (∇_q ∇_q̇ᵀ L) q̇ and (0, e_i) the rows of H.
     """
     n = s.shape[-1] // 2
     qd = s[..., n:]
@@ -44,58 +43,65 @@ def guarded_solve(hessian: Tensor, rhs: Tensor, guard: float) -> Tensor:
 
     With λ = ``guard``·‖H‖_F per sample: x = H⁻¹r (LU) wherever ‖x‖·λ ≤ ‖r‖ — which holds whenever
     σ_min(H) ≥ λ, so a physical M(q) is solved exactly (no bias: the true L gives the true q̈) — and
-    elsewhere (near-singular or singular H, NaN) x = (HᵀH + λ²I)⁻¹Hᵀr, of norm ≤ ‖r‖/(2λ): a learned L
-    whose ∇²_q̇L is near singular cannot blow the rollout up. Scale-free: L → cL leaves q̈ unchanged.
-    The switch is per sample and not smooth. ``guard=0``: the plain solve (singular H: inf/nan, which
-    training reports as divergence); H = 0 has no scale and gives nan as well. Limits: a true M with σ_min/‖M‖_F < ``guard`` (the gyroscope near
-    gimbal lock, below the data's |sin θ| ≥ 0.1) is damped too.
+    elsewhere (near-singular or singular H, NaN) x = (ĤᵀĤ + guard²I)⁻¹Ĥᵀr̂ with Ĥ, r̂ = H, r / ‖H‖_F
+    (= (HᵀH + λ²I)⁻¹Hᵀr, without under/overflow), of norm ≤ ‖r‖/(2λ); H = 0 gives 0, the least-squares
+    solution of minimum norm. Scale-free: L → cL leaves q̈ unchanged. The switch is per sample and not
+    smooth. ``guard=0``: the plain solve (singular H: inf/nan, which training reports as divergence).
+    Limits: a true M with σ_min/‖M‖_F < ``guard`` (the gyroscope near gimbal lock, below the data's
+    |sin θ| ≥ 0.1) is damped too; the bound scales with 1/‖H‖_F, so it does not stop a learned L whose
+    curvature fades along its own trajectory (a softplus L at growing q̇) from running away: that is the
+    initialisation's job (``LNN``).
     """
     x = torch.linalg.solve_ex(hessian, rhs.unsqueeze(-1))[0].squeeze(-1)
     if guard == 0:
         return x
-    lam = guard * hessian.flatten(-2).norm(dim=-1)
+    scale = hessian.flatten(-2).norm(dim=-1)
     with torch.no_grad():
-        plain = x.norm(dim=-1) * lam <= rhs.norm(dim=-1)  # NaN compares False
+        plain = x.norm(dim=-1) * guard * scale <= rhs.norm(dim=-1)  # NaN compares False
     if not plain.is_meta and bool(plain.all()):  # a meta tensor has no values to branch on
         return x
     eye = torch.eye(hessian.shape[-1], dtype=rhs.dtype, device=rhs.device)
     # the plain branch again on H where it is used and I elsewhere, so a singular H sends no NaN backward
     x = torch.linalg.solve_ex(torch.where(plain[..., None, None], hessian, eye), rhs.unsqueeze(-1))[0].squeeze(-1)
-    ht = hessian.transpose(-1, -2)
-    normal = ht @ hessian + lam[..., None, None] ** 2 * eye
-    damped = torch.linalg.solve_ex(normal, ht @ rhs.unsqueeze(-1))[0].squeeze(-1)
+    unit = torch.where(scale > 0, scale, 1)[..., None, None]  # H/‖H‖: no under/overflow in HᵀH; H = 0 gives q̈ = 0
+    h, r = hessian / unit, rhs.unsqueeze(-1) / unit
+    ht = h.transpose(-1, -2)
+    damped = torch.linalg.solve_ex(ht @ h + guard**2 * eye, ht @ r)[0].squeeze(-1)
     return torch.where(plain.unsqueeze(-1), x, damped)
 
 
 #: Objectives of models whose field is (q̇, q̈) by construction: q̈ alone is a complete target
 #: (``acceleration``, Xiao et al. §3), beside the rollout and full-derivative ones.
 SECOND_ORDER_OBJECTIVES = ("rollout", "acceleration", "derivative", "onestep")
+Guard = Annotated[float, Range(ge=0, lt=1, says="a float in [0, 1) (0: plain Hessian solve)")]
 
 
 class LNN(DynamicsModel):
     """Unstructured L(q, q̇) network, eq. (3) (Cranmer et al. 2020).
 
-    The network starts from Cranmer et al.'s initialisation for LNN MLPs (``cranmer_init_``),
-    which keeps ∇²_q̇ L O(1) at the paper's widths; q̈ takes ``guarded_solve`` with ``guard`` = 1e-3:
-    the plain inverse unless the solution exceeds ‖r‖/(1e-3·‖∇²_q̇ L‖_F) (tested: on sampled states of
+    The network starts from Cranmer et al.'s initialisation scales with the weights after the first
+    layer drawn non-negative (``cranmer_init_(convex=True)``): L starts convex, so ∇²_q̇ L starts positive
+    definite. Cranmer et al.'s signed start made it indefinite on 12-98 % of the data states of
+    debug=fast networks, crossing zero among them (q̈ up to 1e4), so fresh LNN / LNN-angle / GLNN
+    rollouts left the data, their softplus curvature underflowed and training reached NaN in its first
+    steps (pendulum1/2, gyroscope; measured). q̈ takes ``guarded_solve`` with ``guard`` = 1e-3: the
+    plain inverse unless the solution exceeds ‖r‖/(1e-3·‖∇²_q̇ L‖_F) (tested: on sampled states of
     pendulum1/2/4, the gyroscope, the damped oscillator and the compound pendulum the true L gives the
-    true q̈ to 1e-6), damped least squares where it is near singular. Measured on a fresh network (4 RK4
-    steps from 200 data starts): guard 1e-4 let a rollout reach NaN (gyroscope) or 7e3 (pendulum2), 1e-3
-    stayed finite; 1e-2 damped true gyroscope states (q̈ off by up to 97 %). (It replaced an absolute Tikhonov guard λ = 1,
-    which shrank the true L's q̈ by σ²/(σ² + 1) along M's smallest direction: ×1.4e-4 on the gyroscope.)
+    true q̈ to 1e-6), damped least squares where it is near singular; 1e-2 damped true gyroscope states
+    (q̈ off by up to 97 %). (It replaced an absolute Tikhonov guard λ = 1, which shrank the true L's q̈
+    by σ²/(σ² + 1) along M's smallest direction: ×1.4e-4 on the gyroscope.)
     """
 
     default_chart = "angle"
     objectives = SECOND_ORDER_OBJECTIVES
     family = "lagrangian"
 
-    def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
-                 activation: str = "softplus", guard: float = 1e-3, angular: bool = False):
+    def __init__(self, system: System, chart: str | None = None, hidden: Count = 256, depth: Count = 3,
+                 activation: str = "softplus", guard: Guard = 1e-3, angular: bool = False):
         super().__init__(system, chart)
-        if not 0 <= guard < 1:
-            raise ConfigError(f"model.guard={guard}; allowed: a float in [0, 1) (0: plain Hessian solve)")
         self.guard, self.angular = guard, angular
-        self.lagrangian_net = cranmer_init_(mlp(3 * self.n if self.angular else 2 * self.n, 1, hidden, depth, activation))
+        self.lagrangian_net = cranmer_init_(mlp(3 * self.n if self.angular else 2 * self.n, 1, hidden, depth, activation),
+                                            convex=True)
 
     def lagrangian(self, s: Tensor) -> Tensor:
         """L(q, q̇) of states (..., 2n)."""

@@ -15,6 +15,7 @@ import torch
 from torch import Tensor
 from torch.func import grad, jvp
 
+from encons.bounds import Count
 from encons.models.base import DynamicsModel, angle_mask
 from encons.models.networks import CholeskyMass, Potential
 from encons.systems.base import System, split_state
@@ -26,7 +27,7 @@ class LNode(DynamicsModel):
     default_chart = "angle"
     supports_controls = True
 
-    def __init__(self, system: System, chart: str | None = None, hidden: int = 128, depth: int = 2,
+    def __init__(self, system: System, chart: str | None = None, hidden: Count = 128, depth: Count = 2,
                  activation: str = "tanh", mass_eps: float = 1e-3, angular: bool = True):
         super().__init__(system, chart)
         angles = angle_mask(system, angular)

@@ -26,11 +26,16 @@ def mlp(in_dim: int, out_dim: int, hidden: int = 256, depth: int = 3, activation
     return nn.Sequential(*layers)
 
 
-def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None) -> nn.Sequential:
+def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None, convex: bool = False) -> nn.Sequential:
     """Cranmer et al. 2020 (LNN, appendix "Optimal initialization") in place: zero biases, weights
     N(0, σ²) with σ = s/√w, w the larger side of the layer, s = 2.2 (first layer), 0.58·i (hidden
     layer i), w (output layer). Found for softplus MLPs L(q, q̇) so that the Euler–Lagrange q̈,
     which needs (∇²_q̇ L)⁻¹, starts O(1); the default init makes ∇²_q̇ L near-singular.
+
+    ``convex=True`` draws every weight after the first layer as |N(0, σ²)|, the same scales: with a
+    convex non-decreasing activation (softplus) the network starts convex in its inputs (an
+    input-convex network, Amos et al. 2017), so ∇²_q̇ L starts positive semi-definite everywhere instead
+    of indefinite on most states. Only the start: training may leave convexity.
     """
     linears = [layer for layer in net if isinstance(layer, nn.Linear)]
     with torch.no_grad():
@@ -38,6 +43,8 @@ def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None) 
             width = max(layer.weight.shape)
             scale = 2.2 if i == 0 else width if i == len(linears) - 1 else 0.58 * i
             layer.weight.normal_(0.0, scale / width**0.5, generator=generator)
+            if convex and i > 0:
+                layer.weight.abs_()
             layer.bias.zero_()
     return net
 
@@ -67,11 +74,9 @@ SLOPES: dict[type, Callable[[Tensor], tuple[Tensor, Callable[[], Tensor]]]] = {
 
 
 def _narrow(width: int) -> bool:
-    """Whether a product whose output is ``width`` columns wide (of ≥ 16 rows) runs faster transposed.
-
-    Measured on these machines (MKL, torch 2.13, CPU): (200, 256) @ (256, 9) takes 79 µs, the same
-    values as ((9, 256) @ (256, 200))ᵀ 20 µs; an output of 2–15 columns is 3–5× slower than its
-    transpose, one of 1 or ≥ 16 columns as fast or faster directly.
+    """Whether a product whose output is ``width`` columns wide (of ≥ 16 rows) is computed transposed:
+    MKL on CPU (torch 2.13) ran outputs of 2–15 columns slower than their transposes, and those of 1 or
+    ≥ 16 columns as fast or faster directly (``benchmarks/speed.py`` measures the models that use it).
     """
     return 1 < width < 16
 
@@ -180,7 +185,7 @@ class LayerCurvature(torch.autograd.Function):
     the same values and derivatives as the plain expression, faster to train through.
 
     Hand-written only for speed: autograd of the plain expression runs per layer two small
-    batched products (one in the orientation MKL runs ~7× slower on CPU), a slice's backward and
+    batched products (one in the orientation MKL runs slowest on CPU, ``_narrow``), a slice's backward and
     a sum for the rows shared with the columns; this backward runs one product per layer:
     P_k = (Ḡ⁺ + Ḡ⁺ᵀ) T_k with Ḡ⁺ the cotangent padded to (J, J), T̄_k = P_k ⊙ w_k,
     w̄_k = ½ Σ_j T_k,j ⊙ P_k,j. Double backward, ``vmap`` and ``jvp`` follow from torch ops.

@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from encons.bounds import Count
 from encons.models.base import DynamicsModel
 from encons.models.networks import mlp
 from encons.systems.base import System
@@ -19,7 +20,7 @@ class NODE(DynamicsModel):
     supports_controls = True
     family = "unstructured"
 
-    def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
+    def __init__(self, system: System, chart: str | None = None, hidden: Count = 256, depth: Count = 3,
                  activation: str = "softplus"):
         super().__init__(system, chart)
         self.net = mlp(2 * self.n + self.n_controls, 2 * self.n, hidden, depth, activation)

@@ -12,6 +12,7 @@ import torch
 from torch import Tensor
 from torch.func import grad, jacfwd
 
+from encons.bounds import Count
 from encons.batching import batched
 from encons.models.base import DynamicsModel
 from encons.models.networks import mlp
@@ -23,7 +24,7 @@ class NSF(DynamicsModel):
 
     family = "symplectic_form"
 
-    def __init__(self, system: System, chart: str | None = None, hidden: int = 200, depth: int = 2,
+    def __init__(self, system: System, chart: str | None = None, hidden: Count = 200, depth: Count = 2,
                  activation: str = "softplus"):
         super().__init__(system, chart)
         self.one_form = mlp(2 * self.n, 2 * self.n, hidden, depth, activation)

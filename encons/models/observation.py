@@ -12,20 +12,22 @@ Lim & Kasim regularisers act on the latent field (``TrainingModule`` passes them
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Annotated, ClassVar
 
 import torch
 from torch import Tensor, nn
 
+from encons.bounds import Count, Declared, NonNegative, Range
 from encons.errors import ConfigError, DataError
 from encons.models.networks import ACTIVATIONS, mlp
 from encons.systems.base import System
 from encons.systems.latent import LatentSystem
 
 
-class Observation(nn.Module):
+class Observation(nn.Module, Declared):
     """The identity: the model sees the system's states (batch entry ``states``)."""
 
+    config_key = "observation"
     key: ClassVar[str] = "states"
     identity: ClassVar[bool] = True
     objectives: ClassVar[tuple[str, ...] | None] = None   # None: every objective the model supports
@@ -99,9 +101,10 @@ class Autoencoder(Observation):
     identity = False
     objectives = ("rollout",)
 
-    def __init__(self, system: System, latent: int = 2, stack: int = 2, hidden: int = 200, depth: int = 2,
-                 activation: str = "relu", frame_shape: list[int] | None = None,
-                 weight_reconstruction: float = 1.0, weight_prediction: float = 1.0, weight_velocity: float = 1.0):
+    def __init__(self, system: System, latent: Annotated[int, Range(ge=2)] = 2, stack: Count = 2, hidden: Count = 200,
+                 depth: Count = 2, activation: str = "relu", frame_shape: list[int] | None = None,
+                 weight_reconstruction: NonNegative = 1.0, weight_prediction: NonNegative = 1.0,
+                 weight_velocity: NonNegative = 1.0):
         super().__init__()
         shape = tuple(frame_shape) if frame_shape is not None else system.frame_shape
         if shape is None:
@@ -110,15 +113,8 @@ class Autoencoder(Observation):
                               f"(obs_* arrays) in your data file")
         if len(shape) != 2 or min(shape) < 1:
             raise ConfigError(f"observation.frame_shape={list(shape)}; allowed: [H, W], two positive integers")
-        for key, value in (("stack", stack), ("hidden", hidden), ("depth", depth)):
-            if value < 1:
-                raise ConfigError(f"observation.{key}={value}; allowed: an integer >= 1")
         if activation not in ACTIVATIONS:
             raise ConfigError(f"observation.activation={activation!r} is unknown; allowed: {', '.join(sorted(ACTIVATIONS))}")
-        for key, value in (("weight_reconstruction", weight_reconstruction), ("weight_prediction", weight_prediction),
-                           ("weight_velocity", weight_velocity)):
-            if value < 0:
-                raise ConfigError(f"observation.{key}={value}; allowed: >= 0")
         self.system = LatentSystem(latent, system)
         self.frame_shape, self.stack = shape, stack
         self.weights = (float(weight_reconstruction), float(weight_prediction), float(weight_velocity))

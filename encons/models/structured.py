@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from torch import Tensor
 
+from encons.bounds import Count
 from encons.models.base import DynamicsModel
 from encons.models.networks import CholeskyMass, Potential
 from encons.systems.base import System
@@ -21,7 +22,7 @@ class MassPotentialModel(DynamicsModel):
     default_chart = "angle"
     family = "mass_matrix"
 
-    def __init__(self, system: System, chart: str | None = None, hidden: int = 256, depth: int = 3,
+    def __init__(self, system: System, chart: str | None = None, hidden: Count = 256, depth: Count = 3,
                  activation: str = "softplus", mass_eps: float = 1e-3, angular: bool = False,
                  shared_trunk: bool = True):
         super().__init__(system, chart)

@@ -13,7 +13,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from encons.errors import ChartError, ConfigError
+from encons.bounds import Declared
+from encons.errors import ChartError, ConfigError, PhysicsError
+from encons.systems.constrained import DistanceConstraints, constrained_acceleration, full_mass_matrix
 
 
 @dataclass(frozen=True)
@@ -62,7 +64,7 @@ def apply_point_matrix(mp: Tensor, v: Tensor, dim: int) -> Tensor:
     return torch.einsum("pq,...qd->...pd", mp, shaped).flatten(-2)
 
 
-class System(abc.ABC):
+class System(Declared, abc.ABC):
     """True physics of one system.
 
     Subclasses set ``name``, ``charts`` (the first is the chart in which initial conditions
@@ -70,6 +72,7 @@ class System(abc.ABC):
     models), and implement the abstract methods for each chart they list.
     """
 
+    config_key = "system"
     name: str
     charts: tuple[str, ...]
     common_chart: str
@@ -139,34 +142,111 @@ class System(abc.ABC):
         raise ChartError(f"system '{self.name}' cannot map states from '{src}' to '{dst}'")
 
     def constraints(self, x: Tensor) -> Tensor:
-        """Holonomic constraints Φ(x) of the Cartesian chart, shape (..., K)."""
-        raise ChartError(f"system '{self.name}' declares no holonomic constraints")
+        """Holonomic constraints Φ(x) of the Cartesian chart, shape (..., K), for systems that declare a
+        ``layout``."""
+        raise self.lacks("holonomic constraints")
 
     def render(self, s: Tensor, chart: str) -> Tensor:
         """Grey-scale frames (..., H, W) in [0, 1] of states ``s`` (..., 2n) in ``chart``, for systems
         observed by pixels (``frame_shape`` not None)."""
-        raise ChartError(f"system '{self.name}' renders no frames")
+        raise self.lacks("frames")
 
-    # The true physical quantities, for tests that feed them to structured models.
+    # The true physical quantities of the angle chart, for metrics and tests that compare learned ones.
     def mass_matrix(self, q: Tensor) -> Tensor:
         """M(q) of the angle chart, shape (..., n, n)."""
-        raise ChartError(f"system '{self.name}' has no mass matrix in generalised coordinates")
+        raise self.lacks("mass matrix in generalised coordinates")
 
     def potential(self, q: Tensor) -> Tensor:
         """V(q) of the angle chart."""
-        raise ChartError(f"system '{self.name}' has no potential in generalised coordinates")
+        raise self.lacks("potential in generalised coordinates")
 
-    def point_masses(self) -> Tensor:
-        """The constant (n_points, n_points) Cartesian mass matrix over points (``layout``)."""
-        raise ChartError(f"system '{self.name}' has no Cartesian mass matrix")
-
-    def cartesian_potential(self, x: Tensor) -> Tensor:
-        """V(x) of the Cartesian chart."""
-        raise ChartError(f"system '{self.name}' has no Cartesian potential")
+    def lacks(self, what: str) -> PhysicsError:
+        """The error for physics this system does not know."""
+        return PhysicsError(f"system '{self.name}' has no known {what}")
 
     def valid(self, traj: Tensor) -> Tensor:
         """Boolean mask over trajectories (N, T, 2n) in the base chart that are usable."""
         return torch.ones(traj.shape[0], dtype=torch.bool, device=traj.device)
+
+
+class PointSystem(System):
+    """Points (point masses, rigid bodies of points) with generalised coordinates, chart ``angle`` (``n`` of
+    them), and the Cartesian chart of ``layout``'s points under ``constraints`` Φ(x) = 0, where the mass
+    matrix over points (``point_masses``) is constant. The Cartesian field is Zhong et al. eq. (15)
+    (``constrained_acceleration``) and the Cartesian energy ½ ẋᵀ M ẋ + V(x), the same for every subclass;
+    a subclass gives M(q), V(q) (``mass_matrix``, ``potential``) and q̈ of the angle chart, the masses,
+    V(x) and ∇V(x), and the chart maps.
+    """
+
+    charts = ("angle", "cartesian")
+    common_chart = "cartesian"
+    n: int
+    layout: CartesianLayout
+    constraints: DistanceConstraints
+
+    def coord_dim(self, chart: str) -> int:
+        self.check_chart(chart)
+        return self.n if chart == "angle" else self.layout.size
+
+    @abc.abstractmethod
+    def acceleration(self, q: Tensor, qd: Tensor) -> Tensor:
+        """q̈ of the angle chart at (q, q̇)."""
+
+    @abc.abstractmethod
+    def point_masses(self) -> Tensor:
+        """The constant (n_points, n_points) Cartesian mass matrix over points (``layout``)."""
+
+    @abc.abstractmethod
+    def cartesian_potential(self, x: Tensor) -> Tensor:
+        """V(x) of the Cartesian chart."""
+
+    @abc.abstractmethod
+    def cartesian_potential_gradient(self, x: Tensor) -> Tensor:
+        """∇V(x) of the Cartesian chart, (..., D)."""
+
+    @abc.abstractmethod
+    def map_chart(self, s: Tensor, src: str, dst: str) -> Tensor: ...
+
+    def vector_field(self, s: Tensor, chart: str) -> Tensor:
+        self.check_chart(chart)
+        q, qd = split_state(s)
+        if chart == "cartesian":
+            minv = full_mass_matrix(torch.linalg.inv(self.point_masses().to(q)), self.layout.dim)
+            acc = constrained_acceleration(q, qd, minv, self.cartesian_potential_gradient(q), self.constraints)
+        else:
+            acc = self.acceleration(q, qd)
+        return torch.cat([qd, acc], -1)
+
+    def energy(self, s: Tensor, chart: str) -> Tensor:
+        self.check_chart(chart)
+        q, qd = split_state(s)
+        if chart == "cartesian":
+            kinetic = 0.5 * (qd * apply_point_matrix(self.point_masses().to(q), qd, self.layout.dim)).sum(-1)
+            return kinetic + self.cartesian_potential(q)
+        kinetic = 0.5 * (qd[..., None, :] @ self.mass_matrix(q) @ qd[..., :, None])[..., 0, 0]
+        return kinetic + self.potential(q)
+
+
+class DataOnlySystem(System):
+    """A system known only through data (a user's file, the latent states an observation model learns):
+    one chart of ``n`` coordinates, no true field, energy or initial-state distribution (``known_physics``
+    false: the metrics and the oracle that need them are skipped)."""
+
+    known_physics = False
+    n: int
+
+    def coord_dim(self, chart: str) -> int:
+        self.check_chart(chart)
+        return self.n
+
+    def vector_field(self, s: Tensor, chart: str, u: Tensor | None = None) -> Tensor:
+        raise self.lacks("vector field: it is known only through its data")
+
+    def energy(self, s: Tensor, chart: str) -> Tensor:
+        raise self.lacks("energy: it is known only through its data")
+
+    def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
+        raise self.lacks("initial-state distribution: it is known only through its data")
 
 
 def split_state(s: Tensor) -> tuple[Tensor, Tensor]:

@@ -8,7 +8,7 @@ their constant linear rows are eliminated exactly into a projected M⁻¹ (``eli
 the batched solves are over the distance rows only (gyroscope: 6 × 6 instead of 9 × 9).
 Lagrangian form on s = (x, ẋ): eq. (15); Hamiltonian form on z = (x, p), p = M ẋ: eq. (20).
 Solves are ``torch.linalg.solve_ex``: a singular system (degenerate constraints) gives inf/nan,
-which training reports as divergence, and the per-call error check (~35 % of a small solve) is skipped.
+which training reports as divergence, and the per-call error check is skipped.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ def constraint_jacobians(phi: Constraint, x: Tensor, v: Tensor) -> tuple[Tensor,
     """DΦ(x) and D_x Φ̇ = ∂/∂x (DΦ(x) v) at fixed v, each (..., K, D).
 
     Reverse mode over K copies of x, copy k pulling back the k-th constraint: two nested
-    ``grad`` calls in all (forward mode over the D directions costs ~4× more here).
+    ``grad`` calls in all (forward mode would take one pass per coordinate, D of them).
     """
     k = phi(x.reshape(-1, x.shape[-1])[:1]).shape[-1]
     pick = torch.eye(k, dtype=x.dtype, device=x.device).reshape(k, *[1] * (x.dim() - 1), k)
@@ -180,7 +180,6 @@ def constrained_hamiltonian_field(grad_h: Tensor, jac: Tensor, d_rate: Tensor, m
     solved = torch.linalg.solve_ex(prod[..., :k, 1:k + 1], rhs)[0]
     lam_2 = solved[..., :1]
     lam_1 = solved[..., 2:] @ lam_2 - solved[..., 1:2]
-    # Aᵀλ₁ + Cᵀλ₂ and Aᵀλ₂ as K-term broadcast sums: ~6% less time per field evaluation (forward and
-    # backward) than as one batched matmul of 200 tiny matrices on CPU
+    # Aᵀλ₁ + Cᵀλ₂ and Aᵀλ₂ as K-term broadcast sums, not as one batched matmul of tiny matrices
     p_dot = (lam_1 * jac + lam_2 * d_rate).sum(-2) - grad_x
     return torch.cat([grad_p - (lam_2 * jac).sum(-2) @ minv, p_dot if project is None else p_dot @ project], -1)

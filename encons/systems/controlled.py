@@ -19,14 +19,9 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
+from encons.bounds import NonNegative, Positive
 from encons.errors import ConfigError
 from encons.systems.mechanical import Mechanical
-
-
-def _positive(**values: float) -> None:
-    for key, value in values.items():
-        if not value > 0:
-            raise ConfigError(f"system.{key}={value}; allowed: > 0")
 
 
 class ControlledMechanical(Mechanical):
@@ -39,12 +34,10 @@ class ControlledMechanical(Mechanical):
     n_controls = 1
     angles: tuple[bool, ...]
 
-    def __init__(self, init_range: Sequence[float], u_max: float):
-        if len(init_range) != 2 * len(self.angles) or min(init_range) < 0:
-            raise ConfigError(f"system.init_range={list(init_range)} must hold {2 * len(self.angles)} "
+    def __init__(self, init_range: Sequence[NonNegative], u_max: NonNegative):
+        if len(init_range) != 2 * len(self.angles):
+            raise ConfigError(f"system.init_range={list(init_range)}; allowed: {2 * len(self.angles)} "
                               f"non-negative half-widths (q then q̇)")
-        if u_max < 0:
-            raise ConfigError(f"system.u_max={u_max}; allowed: >= 0")
         self.init_range = torch.tensor([float(r) for r in init_range], dtype=torch.float64)
         self.u_max = float(u_max)
 
@@ -81,9 +74,8 @@ class ControlledPendulum(ControlledMechanical):
 
     angles = (True,)
 
-    def __init__(self, mass: float = 1.0, length: float = 1.0, g: float = 9.81,
-                 init_range: Sequence[float] = (math.pi, 2 * math.pi), u_max: float = 2.0):
-        _positive(mass=mass, length=length, g=g)
+    def __init__(self, mass: Positive = 1.0, length: Positive = 1.0, g: Positive = 9.81,
+                 init_range: Sequence[NonNegative] = (math.pi, 2 * math.pi), u_max: NonNegative = 2.0):
         super().__init__(init_range, u_max)
         self.name = "pendulum_control"
         self.m, self.l, self.g = float(mass), float(length), float(g)
@@ -111,9 +103,9 @@ class CartPole(ControlledMechanical):
 
     angles = (False, True)
 
-    def __init__(self, cart_mass: float = 1.0, pole_mass: float = 0.1, half_length: float = 0.5, g: float = 9.81,
-                 init_range: Sequence[float] = (0.5, 3.14, 0.05, 3.0), u_max: float = 2.0):
-        _positive(cart_mass=cart_mass, pole_mass=pole_mass, half_length=half_length, g=g)
+    def __init__(self, cart_mass: Positive = 1.0, pole_mass: Positive = 0.1, half_length: Positive = 0.5,
+                 g: Positive = 9.81, init_range: Sequence[NonNegative] = (0.5, 3.14, 0.05, 3.0),
+                 u_max: NonNegative = 2.0):
         super().__init__(init_range, u_max)
         self.name = "cartpole"
         self.mc, self.mp, self.l, self.g = float(cart_mass), float(pole_mass), float(half_length), float(g)

@@ -10,14 +10,12 @@ served to models that work in any chart. With ``frame_size`` it is observed by f
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import torch
 from torch import Tensor
 
-from encons.errors import ConfigError
+from encons.bounds import Count, NonNegative, Positive
 from encons.systems.base import split_state
-from encons.systems.pendulum import NPendulum
+from encons.systems.pendulum import NPendulum, PerLink, Pixels
 
 
 class DampedPendulum(NPendulum):
@@ -25,12 +23,10 @@ class DampedPendulum(NPendulum):
 
     charts = ("cartesian", "angle")
 
-    def __init__(self, n_links: int = 1, masses: float | Sequence[float] = 1.0,
-                 lengths: float | Sequence[float] = 1.0, g: float = 1.0, damping: float = 0.05,
-                 init_scale: float = 1.0, frame_size: int | None = None, rate_scale: float | None = None):
+    def __init__(self, n_links: Count = 1, masses: PerLink = 1.0, lengths: PerLink = 1.0, g: NonNegative = 1.0,
+                 damping: NonNegative = 0.05, init_scale: Positive = 1.0, frame_size: Pixels | None = None,
+                 rate_scale: NonNegative | None = None):
         super().__init__(n_links, masses, lengths, g, init_scale, frame_size, rate_scale)
-        if damping < 0:
-            raise ConfigError(f"system.damping={damping}; allowed: >= 0")
         self.name = ("pixel_" if frame_size else "") + "damped_pendulum" + ("" if n_links == 1 else str(n_links))
         self.damping = float(damping)
 

@@ -17,23 +17,15 @@ import abc
 import torch
 from torch import Tensor
 
-from encons.errors import ConfigError
+from encons.bounds import NonNegative, Positive
 from encons.systems.base import split_state
 from encons.systems.mechanical import Mechanical
-
-
-def _check(**values: tuple[float, bool]) -> None:
-    """Each value must be > 0 (flag True) or >= 0 (flag False)."""
-    for key, (value, strict) in values.items():
-        if not (value > 0 if strict else value >= 0):
-            raise ConfigError(f"system.{key}={value}; allowed: {'> 0' if strict else '>= 0'}")
 
 
 class DissipativeMechanical(Mechanical):
     """Base: M(q), V(q), b(q, q̇) and the non-conservative force F(q, q̇) in closed form."""
 
-    def __init__(self, init_range: float):
-        _check(init_range=(init_range, True))
+    def __init__(self, init_range: Positive):
         self.init_range = float(init_range)
 
     @abc.abstractmethod
@@ -56,8 +48,7 @@ class DampedOscillator(DissipativeMechanical):
 
     n = 1
 
-    def __init__(self, mass: float = 1.0, k: float = 1.0, a: float = 0.02, init_range: float = 1.0):
-        _check(mass=(mass, True), k=(k, True), a=(a, False))
+    def __init__(self, mass: Positive = 1.0, k: Positive = 1.0, a: NonNegative = 0.02, init_range: Positive = 1.0):
         super().__init__(init_range)
         self.name = "damped_oscillator"
         self.m, self.k, self.a = float(mass), float(k), float(a)
@@ -92,10 +83,9 @@ class CompoundPendulum(DissipativeMechanical):
 
     n = 2
 
-    def __init__(self, mass: float = 1.0, d: float = 1.0, inertia: float = 1.0 / 12, g: float = 10.0,
-                 gamma1: float = 0.5, gamma2: float = 0.5, init_range: float = 1.0):
-        _check(mass=(mass, True), d=(d, True), inertia=(inertia, False), g=(g, False),
-               gamma1=(gamma1, False), gamma2=(gamma2, False))
+    def __init__(self, mass: Positive = 1.0, d: Positive = 1.0, inertia: NonNegative = 1.0 / 12,
+                 g: NonNegative = 10.0, gamma1: NonNegative = 0.5, gamma2: NonNegative = 0.5,
+                 init_range: Positive = 1.0):
         super().__init__(init_range)
         self.name = "compound_pendulum"
         self.m, self.d, self.inertia, self.g = float(mass), float(d), float(inertia), float(g)

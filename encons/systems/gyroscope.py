@@ -18,9 +18,10 @@ import torch
 from torch import Tensor
 from torch.func import jvp
 
+from encons.bounds import Finite, Fraction, NonNegative, Positive
 from encons.errors import ConfigError
-from encons.systems.base import CartesianLayout, System, apply_point_matrix, point_mass_matrix, split_state
-from encons.systems.constrained import DistanceConstraints, constrained_acceleration, full_mass_matrix
+from encons.systems.base import CartesianLayout, PointSystem, point_mass_matrix, split_state
+from encons.systems.constrained import DistanceConstraints
 
 
 def _rotation(q: Tensor) -> Tensor:
@@ -35,7 +36,7 @@ def _rotation(q: Tensor) -> Tensor:
     return torch.stack([torch.stack(row, -1) for row in rows], -2)
 
 
-class Gyroscope(System):
+class Gyroscope(PointSystem):
     """Heavy symmetric top, spinning fast about its axis and precessing about a fixed pivot.
 
     Gimbal lock: the angle chart is singular where sin θ = 0 (det M(q) = J⊥'² J_3 sin²θ), i.e.
@@ -45,23 +46,16 @@ class Gyroscope(System):
     """
 
     name = "gyroscope"
-    charts = ("angle", "cartesian")
-    common_chart = "cartesian"
+    n = 3
 
-    def __init__(self, mass: float = 0.1, ell: float = 0.2217,
-                 inertias: Sequence[float] = (0.024138, 0.024138, 0.003694), g: float = 9.81,
-                 angle_range: float = 1.5, phi_rate_range: float = 4.5, theta_rate_range: float = 0.3,
-                 spin_mean: float = 7.0, spin_scale: float = 1.5, min_sin_theta: float = 0.1):
+    def __init__(self, mass: Positive = 0.1, ell: Positive = 0.2217,
+                 inertias: Sequence[Positive] = (0.024138, 0.024138, 0.003694), g: Positive = 9.81,
+                 angle_range: Positive = 1.5, phi_rate_range: NonNegative = 4.5, theta_rate_range: NonNegative = 0.3,
+                 spin_mean: Finite = 7.0, spin_scale: Positive = 1.5, min_sin_theta: Fraction = 0.1):
         inertias = [float(i) for i in inertias]
-        if len(inertias) != 3 or min(inertias) <= 0 or inertias[0] != inertias[1]:
+        if len(inertias) != 3 or inertias[0] != inertias[1]:
             raise ConfigError(f"system.inertias={inertias}; allowed: 3 positive numbers with I_1 = I_2 "
                               f"(a symmetric top)")
-        positive = dict(mass=mass, ell=ell, g=g, angle_range=angle_range, spin_scale=spin_scale)
-        for key, value in positive.items():
-            if value <= 0:
-                raise ConfigError(f"system.{key}={value}; allowed: > 0")
-        if not 0 <= min_sin_theta < 1:
-            raise ConfigError(f"system.min_sin_theta={min_sin_theta}; allowed: [0, 1)")
         self.m, self.ell, self.g = float(mass), float(ell), float(g)
         self.inertias = torch.tensor(inertias, dtype=torch.float64)
         self.j_perp = inertias[0] + inertias[2] + self.m * self.ell**2  # about the pivot
@@ -78,10 +72,6 @@ class Gyroscope(System):
                                                [1.0] * 3 + [2.0**0.5] * 3, pivot.flatten(1))
         self.rejection_reason = f"|sin θ| < min_sin_theta={self.min_sin_theta}: gimbal lock of the angle chart"
         self.layout = CartesianLayout(4, 3, ((0, 1, 2, 3),))
-
-    def coord_dim(self, chart: str) -> int:
-        self.check_chart(chart)
-        return 3 if chart == "angle" else 12
 
     def mass_matrix(self, q: Tensor) -> Tensor:
         """M(q) over (φ, θ, ψ): [[J⊥' sin²θ + J_3 cos²θ, 0, J_3 cos θ], [0, J⊥', 0], [J_3 cos θ, 0, J_3]]."""
@@ -102,33 +92,21 @@ class Gyroscope(System):
     def cartesian_potential(self, x: Tensor) -> Tensor:
         return self.m * self.g * x[..., 2]
 
-    def vector_field(self, s: Tensor, chart: str) -> Tensor:
-        self.check_chart(chart)
-        q, qd = split_state(s)
-        if chart == "cartesian":
-            grad_v = torch.zeros_like(q)
-            grad_v[..., 2] = self.m * self.g
-            minv = full_mass_matrix(torch.linalg.inv(self.point_masses().to(q)), 3)
-            acc = constrained_acceleration(q, qd, minv, grad_v, self.constraints)
-            return torch.cat([qd, acc], -1)
-        # Euler-Lagrange equations; p_φ and p_ψ = J_3 ω_3 conserved, ω_3 = ψ̇ + φ̇ cos θ.
-        c, s_ = torch.cos(q[..., 1]), torch.sin(q[..., 1])
+    def cartesian_potential_gradient(self, x: Tensor) -> Tensor:
+        grad_v = torch.zeros_like(x)
+        grad_v[..., 2] = self.m * self.g
+        return grad_v
+
+    def acceleration(self, q: Tensor, qd: Tensor) -> Tensor:
+        """The Euler–Lagrange equations; p_φ and p_ψ = J_3 ω_3 are conserved, ω_3 = ψ̇ + φ̇ cos θ."""
+        c, s = torch.cos(q[..., 1]), torch.sin(q[..., 1])
         phid, thetad, psid = qd.unbind(-1)
         a, b = self.j_3 / self.j_perp, self.m * self.g * self.ell / self.j_perp
         omega_3 = psid + phid * c
-        thetadd = s_ * (phid**2 * c - a * omega_3 * phid + b)
-        phidd = thetad * (a * omega_3 - 2 * phid * c) / s_
-        psidd = phid * thetad * s_ - phidd * c
-        return torch.cat([qd, torch.stack([phidd, thetadd, psidd], -1)], -1)
-
-    def energy(self, s: Tensor, chart: str) -> Tensor:
-        self.check_chart(chart)
-        q, qd = split_state(s)
-        if chart == "cartesian":
-            kinetic = 0.5 * (qd * apply_point_matrix(self.point_masses().to(q), qd, 3)).sum(-1)
-            return kinetic + self.cartesian_potential(q)
-        kinetic = 0.5 * (qd[..., None, :] @ self.mass_matrix(q) @ qd[..., :, None])[..., 0, 0]
-        return kinetic + self.potential(q)
+        thetadd = s * (phid**2 * c - a * omega_3 * phid + b)
+        phidd = thetad * (a * omega_3 - 2 * phid * c) / s
+        psidd = phid * thetad * s - phidd * c
+        return torch.stack([phidd, thetadd, psidd], -1)
 
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
         """Finzi et al.: angles U(−a, a), φ̇ U(−4.5, 4.5), θ̇ U(−0.3, 0.3), ψ̇ = ±1.5 (7 + N(0, 1))."""

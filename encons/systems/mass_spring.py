@@ -9,7 +9,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from encons.errors import ConfigError
+from encons.bounds import Positive
 from encons.systems.base import System, split_state
 
 
@@ -19,9 +19,7 @@ class MassSpring(System):
     charts = ("angle",)
     common_chart = "angle"
 
-    def __init__(self, mass: float = 1.0, stiffness: float = 1.0, init_scale: float = 1.0):
-        if mass <= 0 or stiffness <= 0:
-            raise ConfigError(f"system.mass={mass}, system.stiffness={stiffness}; allowed: both > 0")
+    def __init__(self, mass: Positive = 1.0, stiffness: Positive = 1.0, init_scale: Positive = 1.0):
         self.name = "mass_spring"
         self.m, self.k, self.init_scale = float(mass), float(stiffness), float(init_scale)
 

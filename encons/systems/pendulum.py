@@ -10,39 +10,35 @@ picture, ``encons.systems.render``): ``system=pixel_pendulum`` (Lim & Kasim 2023
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Annotated
 
 import torch
 from torch import Tensor
 
+from encons.bounds import Count, NonNegative, Positive, Range
 from encons.errors import ConfigError
-from encons.systems.base import CartesianLayout, System, point_mass_matrix, split_state
-from encons.systems.constrained import DistanceConstraints, constrained_acceleration, full_mass_matrix
+from encons.systems.base import CartesianLayout, PointSystem, point_mass_matrix, split_state
+from encons.systems.constrained import DistanceConstraints
 from encons.systems.render import render_rods
 
 RENDER_BLOCK = 4096  # frames drawn per batched expression (bounds the renderer's memory)
+PerLink = Positive | Sequence[Positive]  # one value for every link, or one per link
+Pixels = Annotated[int, Range(ge=4, says=">= 4 pixels")]
 
 
 def _per_link(value: float | Sequence[float], n: int, what: str) -> Tensor:
     vals = [float(value)] * n if isinstance(value, (int, float)) else [float(v) for v in value]
-    if len(vals) != n or min(vals) <= 0:
+    if len(vals) != n:
         raise ConfigError(f"system.{what}={value!r} does not fit {n} link(s); allowed: one positive number "
                           f"or {n} of them")
     return torch.tensor(vals, dtype=torch.float64)
 
 
-class NPendulum(System):
+class NPendulum(PointSystem):
     """Chain of ``n_links`` point masses on massless rods, hanging from a fixed pivot."""
 
-    charts = ("angle", "cartesian")
-    common_chart = "cartesian"
-
-    def __init__(self, n_links: int = 2, masses: float | Sequence[float] = 1.0,
-                 lengths: float | Sequence[float] = 1.0, g: float = 9.81, init_scale: float = 1.0,
-                 frame_size: int | None = None, rate_scale: float | None = None):
-        if n_links < 1:
-            raise ConfigError(f"system.n_links={n_links} is not a number of links; allowed: an integer >= 1")
-        if frame_size is not None and frame_size < 4:
-            raise ConfigError(f"system.frame_size={frame_size}; allowed: null (no frames) or an integer >= 4 pixels")
+    def __init__(self, n_links: Count = 2, masses: PerLink = 1.0, lengths: PerLink = 1.0, g: NonNegative = 9.81,
+                 init_scale: Positive = 1.0, frame_size: Pixels | None = None, rate_scale: NonNegative | None = None):
         self.frame_shape = None if frame_size is None else (frame_size, frame_size)
         self.name = f"pendulum{n_links}" if frame_size is None else f"pixel_pendulum{'' if n_links == 1 else n_links}"
         self.n = n_links
@@ -57,10 +53,6 @@ class NPendulum(System):
         self.layout = CartesianLayout(n_links, 2, tuple((i,) for i in range(n_links)))
         self.constraints = DistanceConstraints(n_links, 2, [(0, -1)] + [(k, k - 1) for k in range(1, n_links)],
                                                self.l.tolist())  # tether, then rods
-
-    def coord_dim(self, chart: str) -> int:
-        self.check_chart(chart)
-        return self.n if chart == "angle" else 2 * self.n
 
     def _consts(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         return (self.m.to(like), self.l.to(like), self.mu.to(like))
@@ -80,31 +72,18 @@ class NPendulum(System):
     def cartesian_potential(self, x: Tensor) -> Tensor:
         return self.g * (self.m.to(x) * x[..., 1::2]).sum(-1)
 
-    def vector_field(self, s: Tensor, chart: str) -> Tensor:
-        self.check_chart(chart)
-        q, qd = split_state(s)
-        if chart == "cartesian":
-            grad_v = torch.zeros_like(q)
-            grad_v[..., 1::2] = self.g * self.m.to(q)
-            minv = full_mass_matrix(torch.linalg.inv(self.point_masses().to(q)), 2)
-            acc = constrained_acceleration(q, qd, minv, grad_v, self.constraints)
-            return torch.cat([qd, acc], -1)
+    def cartesian_potential_gradient(self, x: Tensor) -> Tensor:
+        grad_v = torch.zeros_like(x)
+        grad_v[..., 1::2] = self.g * self.m.to(x)
+        return grad_v
+
+    def acceleration(self, q: Tensor, qd: Tensor) -> Tensor:
         _, l, mu = self._consts(q)
         coeff = self.coeff.to(q)
         diff = q[..., :, None] - q[..., None, :]
         coriolis = (coeff * torch.sin(diff) * qd[..., None, :] ** 2).sum(-1)
         gravity = self.g * mu * l * torch.sin(q)
-        acc = torch.linalg.solve(coeff * torch.cos(diff), -(coriolis + gravity))
-        return torch.cat([qd, acc], -1)
-
-    def energy(self, s: Tensor, chart: str) -> Tensor:
-        self.check_chart(chart)
-        q, qd = split_state(s)
-        if chart == "cartesian":
-            kinetic = 0.5 * (self.m.to(q) * (qd.unflatten(-1, (self.n, 2)) ** 2).sum(-1)).sum(-1)
-            return kinetic + self.cartesian_potential(q)
-        kinetic = 0.5 * (qd[..., None, :] @ self.mass_matrix(q) @ qd[..., :, None])[..., 0, 0]
-        return kinetic + self.potential(q)
+        return torch.linalg.solve(coeff * torch.cos(diff), -(coriolis + gravity))
 
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
         scale = torch.tensor([self.init_scale] * self.n + [self.rate_scale] * self.n, dtype=torch.float64)

@@ -1,0 +1,66 @@
+"""Scores of rollouts seen through an observation model: decoded frames against the true frames."""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING
+
+from matplotlib.figure import Figure
+from torch import Tensor
+
+from encons import metrics, plots
+from encons.errors import ConfigError
+from encons.evaluators.base import Evaluator, Result, TestBatch, gathered
+
+if TYPE_CHECKING:
+    from encons.module import TrainingModule
+
+log = logging.getLogger(__name__)
+
+
+class Pixels(Evaluator):
+    """Test rollouts of a run on frames (an autoencoder, ``encons.models.observation``), decoded and
+    compared with the true frames: ``traj_rel_err`` (and its std over videos) of the flattened frames,
+    ``pixel_mse`` (over pixels, steps and videos), its value at the last step (mean, median) and the
+    fraction of rollouts with a non-finite frame (``diverged``); curves: pixel MSE and relative error per
+    video and step, the latent rollouts and the encoder's latents of the true frames (Lim & Kasim §6).
+    Runs through an observation model only; no oracle (the frames have no true latent field)."""
+
+    def check(self, module: TrainingModule) -> None:
+        if module.observation.identity:
+            raise ConfigError("evaluators.pixels does not apply to a run without an observation model (no "
+                              "frames to decode); allowed: evaluators=[states]")
+
+    def reset(self) -> None:
+        self.batches: list[tuple[Tensor, ...]] = []
+
+    def update(self, module: TrainingModule, batch: TestBatch) -> None:
+        self.batches.append(tuple(p.detach() for p in (batch.x, batch.states, batch.pred.to(batch.states.dtype))))
+
+    def compute(self, module: TrainingModule) -> Result:
+        x, states, pred = gathered(module, self.batches)
+        self.batches.clear()
+        frames = module.observation.decode(pred).double()
+        x = x.double()
+        mse = (frames - x).square().mean((-1, -2))                                       # (N, T)
+        t = module.times(x.shape[1], x).cpu()
+        tre = metrics.trajectory_relative_error(frames.flatten(2), x.flatten(2), module.horizon)
+        finite = mse.isfinite().all(-1)
+        scores = {"traj_rel_err": tre.mean().item(), "traj_rel_err_std": tre.std().item(),
+                  "pixel_mse": mse.mean().item(), "pixel_mse_final": mse[:, -1].mean().item(),
+                  "pixel_mse_final_median": mse[:, -1].median().item(),
+                  "diverged": 1.0 - finite.double().mean().item()}
+        log.info("pixel MSE of predicted frames: %s", ", ".join(
+            f"t={t[k]:.0f}: {mse[:, k].mean().item():.4g}" for k in sorted({0, len(t) // 4, len(t) // 2, len(t) - 1})))
+        curves = {"t": t.numpy(), "pixel_mse": mse.cpu().numpy(),
+                  "rel_err": metrics.relative_error(frames.flatten(2), x.flatten(2)).cpu().numpy(),
+                  "latent_pred": pred.cpu().numpy(), "latent_encoded": states.cpu().numpy()}
+        self.drawn = t, mse.cpu(), pred.cpu(), states.cpu(), frames.cpu(), x.cpu()
+        return Result(scores, curves)
+
+    def figures(self, module: TrainingModule) -> dict[str, Figure]:
+        """``pixel_mse`` against time, ``latent_phase`` (Lim & Kasim Fig. 4) and ``frames`` (Figs. 5–6)."""
+        t, mse, pred, states, frames, x = self.drawn
+        title = module.run_title()
+        return {**plots.pixel_mse_figure(t, mse, title), **plots.latent_phase_figure(pred, states, title),
+                **plots.frames_figure(t, frames, x, title)}

@@ -1,0 +1,104 @@
+"""The metrics of Santos, Ekal & Ventura §7 for controlled (and any known) systems."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+from matplotlib.figure import Figure
+from torch import Tensor
+
+from encons import metrics, plots
+from encons.data.simulate import simulate
+from encons.errors import ConfigError
+from encons.evaluators.base import Evaluator, Result
+from encons.integrators import rollout
+
+if TYPE_CHECKING:
+    from encons.module import TrainingModule
+
+
+class SantosMetrics(Evaluator):
+    """Santos, Ekal & Ventura §7, on a system of known physics (none otherwise):
+
+    - ``mse_train`` / ``mse_test``: one-step configuration MSE, each state k ≥ max(2, ``history``) of every
+      train / test trajectory predicted from the ``history`` states before it (the same targets for every
+      model of history 1 or 2);
+    - ``mse_integration``: configuration MSE of ``n_trajectories`` unforced (u = 0) initial conditions
+      rolled out ``steps`` steps of the data dt from their first ``history`` true states;
+    - ``energy_mse_integration``: per-trajectory MSE of the true energy along those rollouts against the
+      initial energy (conserved without inputs), averaged over trajectories;
+    - the model's solver counters over those rollouts (``diagnostics``, e.g. ``newton_unconverged_integration``);
+    - ``mass_mse``: MSE of the model's M(q) (its ``mass``) against the true M along the true integration
+      trajectories; only for models with a ``mass`` network in the system's generalised coordinates.
+
+    Every rollout here is by the training integrator, as the paper tests. The integration trajectories
+    come from ``seed`` (not the data seed), simulated as the data are. Figure: ``integration``.
+    """
+
+    def __init__(self, n_trajectories: int = 16, steps: int = 500, seed: int = 1):
+        if n_trajectories < 1 or steps < 2:
+            raise ConfigError(f"evaluators.santos.n_trajectories={n_trajectories}, evaluators.santos.steps={steps}; "
+                              f"allowed: n_trajectories >= 1 and steps >= 2")
+        self.n_trajectories, self.steps, self.seed = n_trajectories, steps, seed
+
+    def check(self, module: TrainingModule) -> None:
+        if not module.observation.identity:
+            raise ConfigError(f"evaluators.santos does not apply to observation={type(module.observation).__name__} "
+                              f"(§7's metrics are on the system's states); allowed: evaluators=[pixels]")
+
+    def compute(self, module: TrainingModule) -> Result:
+        self.drawn = None
+        if not module.system.known_physics:
+            return Result()
+        data = module.trainer.datamodule
+        scores = {f"mse_{split}": self.one_step_mse(module, data.arrays[split]) for split in ("train", "test")}
+        scores.update(self.integration(module, data.substeps))
+        return Result(scores)
+
+    @staticmethod
+    def one_step_mse(module: TrainingModule, arrays: dict[str, Tensor]) -> float:
+        states, u, history, n = arrays["states"], arrays.get("u"), module.model.history, module.model.n
+        windows = one_step_windows(states, history)
+        dtype = next(module.model.parameters()).dtype  # test states are float64, the model need not be
+        batch = {"states": windows.to(module.device, dtype)}
+        if u is not None:
+            batch["u"] = one_step_windows(u, history).to(module.device, dtype)
+        pred = module.predict(batch)[:, -1, :n]
+        return metrics.configuration_mse(pred.double().cpu(), windows[:, -1, :n].double()).item()
+
+    def integration(self, module: TrainingModule, substeps: int) -> dict[str, float]:
+        model, system = module.model, module.system
+        t = torch.arange(self.steps + 1, dtype=torch.float64) * module.dt
+        s0 = system.sample_initial(self.n_trajectories, torch.Generator().manual_seed(self.seed))
+        true = system.to_chart(simulate(system, s0, t, substeps), system.base_chart, model.chart)
+        start = true[:, 0] if model.history == 1 else true[:, : model.history]
+        u = torch.zeros(self.n_trajectories, len(t), system.n_controls) if system.n_controls else None
+        dtype = next(model.parameters()).dtype
+        model.reset_diagnostics()
+        pred = rollout(model, start.to(module.device, dtype), t.to(module.device, dtype), module.integrator,
+                       None if u is None else u.to(module.device, dtype)).double().cpu()
+        n = model.n
+        energy_pred, energy_true = system.energy(pred, model.chart), system.energy(true, model.chart)
+        out = {"mse_integration": metrics.configuration_mse(pred[..., :n], true[..., :n]).item(),
+               "energy_mse_integration": metrics.energy_mse(energy_pred, energy_true[:, :1]).item(),
+               **{f"{k}_integration": v for k, v in model.diagnostics().items()}}
+        if isinstance(getattr(model, "mass", None), torch.nn.Module) and model.chart == system.base_chart:
+            q = true[..., :n]
+            learned = model.mass(q.to(module.device, dtype)).double().cpu()
+            out["mass_mse"] = metrics.mass_matrix_mse(learned, system.mass_matrix(q)).item()
+        self.drawn = t, pred, true, energy_pred, energy_true
+        return out
+
+    def figures(self, module: TrainingModule) -> dict[str, Figure]:
+        """``integration``: configuration and true energy along the first integration trajectory."""
+        if self.drawn is None:
+            return {}
+        return plots.integration_figure(*self.drawn, chart=module.model.chart, title=module.run_title())
+
+
+def one_step_windows(values: Tensor, history: int) -> Tensor:
+    """The windows of ``history`` + 1 steps of ``values`` (N, T, d) whose last step k is ≥ max(2, history),
+    flattened over trajectories: (N · (T − max(2, history)), history + 1, d)."""
+    first = max(0, 2 - history)  # window s predicts step s + history
+    return values.unfold(1, history + 1, 1)[:, first:].movedim(-1, -2).flatten(0, 1)

@@ -1,0 +1,86 @@
+"""Scores of rollouts in state space, beside the oracle row and two trivial baselines."""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING
+
+from matplotlib.figure import Figure
+from torch import Tensor
+
+from encons import metrics, plots
+from encons.errors import ConfigError
+from encons.evaluators.base import Evaluator, Result, TestBatch, gathered
+
+if TYPE_CHECKING:
+    from encons.module import TrainingModule
+
+log = logging.getLogger(__name__)
+
+
+class States(Evaluator):
+    """Test rollouts scored in the system's common chart (``encons.metrics.summarise``: trajectory and
+    final relative error, Finzi's geometric mean, valid prediction time, energy errors where the physics
+    is known, the divergence fraction), the long-rollout MSE against time with the constant and linear-ODE
+    baselines (``metrics.long_rollout_errors``), the model's solver counters, and, on a system of known
+    physics, ``oracle/<metric>``: the true field rolled out by the same evaluation from the same starts in
+    the model's chart and scored by the same metrics. Runs whose observations are the states only."""
+
+    def check(self, module: TrainingModule) -> None:
+        if not module.observation.identity:
+            raise ConfigError(f"evaluators.states does not apply to observation={type(module.observation).__name__} "
+                              f"(the model's states are not the data's); allowed: evaluators=[pixels]")
+
+    def reset(self) -> None:
+        self.batches: list[tuple[Tensor, ...]] = []
+        self.diagnostics: dict[str, float] = {}
+
+    def update(self, module: TrainingModule, batch: TestBatch) -> None:
+        x, pred = batch.x, batch.pred
+        kept = (x, pred)
+        if module.system.known_physics:  # the floor: the true field, same starts and integrator
+            kept += (module.evaluation.oracle(module.system, module.model.chart, x[:, 0],
+                                              module.times(x.shape[1], x), batch.batch.get("u")),)
+        self.batches.append(tuple(p.detach() for p in kept))
+        self.diagnostics = module.model.diagnostics()  # counters since the test began: the last is the total
+
+    def compute(self, module: TrainingModule) -> Result:
+        true, pred, *oracle = (p.double() for p in gathered(module, self.batches))
+        self.batches.clear()
+        system, chart = module.system, module.model.chart
+        energy = (lambda s: system.energy(s, chart)) if system.known_physics else None
+        if energy is None:
+            log.info("energy metrics skipped: system '%s' has no known energy", system.name)
+        energies = [energy(s) for s in (pred, true)] if energy else None
+        true_c, pred_c = module.to_common(true), module.to_common(pred)
+        score = dict(horizon=module.horizon, dt=module.dt, vpt_threshold=module.evaluation.vpt_threshold)
+        scores = metrics.summarise(pred_c, true_c, *(energies or (None, None)), **score)
+        train = module.trainer.datamodule.states["train"].to(true)
+        scalars, curves = metrics.long_rollout_errors(true, pred, train, module.dt, module.to_common, energy,
+                                                      module.horizon)
+        scores.update(scalars)
+        scores.update(self.diagnostics)  # e.g. SyMo's non-converged root-finds
+        if oracle:  # the floor, scored by the same metrics
+            floor = metrics.summarise(module.to_common(oracle[0]), true_c, energy(oracle[0]) if energy else None,
+                                      energies[1] if energies else None, **score)
+            scores.update({f"oracle/{k}": v for k, v in floor.items()})
+        t = module.times(true.shape[1], true)
+        log.info("%s", metrics.curves_table(t, curves))
+        kept = {"t": t.cpu().numpy(), "rel_err": metrics.relative_error(pred_c, true_c).cpu().numpy(),
+                **{f"{k}_{name}": v.cpu().numpy() for name, c in curves.items() for k, v in c.items()}}
+        if energies:
+            kept["energy_err"] = metrics.energy_abs_error(*energies).cpu().numpy()
+        self.drawn = t, true, pred_c, true_c, energies, curves, train
+        return Result(scores, kept)
+
+    def figures(self, module: TrainingModule) -> dict[str, Figure]:
+        """``mse_vs_time`` (model and baselines), ``rollout`` (with the linear-ODE baseline's rollout),
+        ``relative_error`` and ``energy_error`` (``encons.plots``)."""
+        t, true, pred_c, true_c, energies, curves, train = self.drawn
+        units, title = module.system.units(module.system.common_chart), module.run_title()
+        linear = metrics.fit_linear_ode(train, module.dt)
+        baseline = module.to_common(metrics.linear_ode_rollout(linear, true[:, 0], t))
+        return {**plots.mse_figure(t.cpu(), curves, title=title, units=units),
+                **plots.rollout_figures(t.cpu(), pred_c.cpu(), true_c.cpu(),
+                                        [e.cpu() for e in energies] if energies else None, title=title,
+                                        units=units, baseline=baseline.cpu())}
