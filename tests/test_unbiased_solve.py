@@ -80,6 +80,24 @@ def test_the_guard_is_finite_where_the_hessian_vanishes_or_underflows():
     assert h.grad.isfinite().all()
 
 
+@pytest.mark.parametrize("singular", [False, True])
+def test_the_damped_path_solves_the_plain_system_once_unless_a_hessian_is_singular(monkeypatch, singular):
+    """Near-singular H: one plain solve (reused) and one damped; an exactly singular H (whose backward would be NaN
+    even under a zero gradient) costs one more plain solve, with I in its place."""
+    h = torch.tensor([[[2.0, 0.0], [0.0, 1e-7]], [[2.0, 0.0], [0.0, 1.0]]], dtype=torch.float64)
+    if singular:
+        h[0, 1, 1] = 0
+    h.requires_grad_()
+    calls = []
+    solve_ex = torch.linalg.solve_ex
+    monkeypatch.setattr(torch.linalg, "solve_ex", lambda a, b: calls.append(a.detach().clone()) or solve_ex(a, b))
+    x = guarded_solve(h, torch.ones(2, 2, dtype=torch.float64), 1e-4)
+    assert len(calls) == 2 + singular
+    assert torch.equal(x[1], torch.tensor([0.5, 1.0], dtype=torch.float64)) and x[0, 0].item() == pytest.approx(0.5)
+    x.sum().backward()
+    assert h.grad.isfinite().all()
+
+
 RUNAWAY = pytest.mark.xfail(strict=True, reason="not the solve: this fresh network's ∇²_q̇L stays positive definite "
                             "but fades as the spin ψ̇ grows (softplus curvature), so its own rollout runs away (measured)")
 
