@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 import shlex
 import time
+import warnings
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -126,6 +127,8 @@ def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
     resume = checkpoints.resume_from(cfg)
     if resume is not None:
         checkpoints.check_fits(module, resume)
+        # resuming writes into the run's own checkpoints/ on purpose; Lightning warns of it at every resume
+        warnings.filterwarnings("ignore", message=r"Checkpoint directory .* exists and is not empty")
     run_dir = Path(cfg.paths.output_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     config = run_config(cfg)
