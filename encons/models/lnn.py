@@ -13,9 +13,9 @@ import torch
 from torch import Tensor
 from torch.func import grad, jvp, vjp, vmap
 
+from encons.batching import batched_grad
 from encons.bounds import Count, Range
 from encons.errors import PhysicsError
-from encons.batching import batched_grad
 from encons.models.base import DynamicsModel
 from encons.models.networks import AngleEmbedding, MLPTape, cranmer_init_, embed_angles, embedded_width, mlp, narrow_in
 from encons.models.structured import MassPotentialModel

@@ -48,7 +48,7 @@ def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None, 
 
     ``input_rms`` (the inputs' typical sizes, (in,)): a first-layer column whose share of a pre-activation,
     of standard deviation σ·rms, would exceed 2 is scaled down to 2, so no input alone drives its units into
-    softplus's flat tails (curvature below 0.1 of its peak 0.25 at |z| > 2); a no-op for inputs of size ≲ √w.
+    softplus's flat tails (curvature σ(z)(1 − σ(z)) < 0.105 for |z| > 2, peak 0.25); a no-op for rms ≤ 0.9√w.
     """
     linears = [layer for layer in net if isinstance(layer, nn.Linear)]
     with torch.no_grad():
