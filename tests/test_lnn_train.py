@@ -9,14 +9,13 @@ import pytest
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="the unbiased Euler-Lagrange solve learns slower than the old biased damping λ = 1: 20 epochs "
-                          "(40 steps) from the convex start left best val at 0.97x (pendulum2) and 1.0x (gyroscope); "
-                          "pendulum2 fell to 0.72x only after ~110 epochs (measured)", strict=False)
 @pytest.mark.parametrize("system", ["pendulum2", "gyroscope"])
 def test_lnn_twenty_epochs_finite_and_val_error_falls(train_run, system):
     default_net = ["model.hidden=256", "model.depth=3"]
     first = train_run(["model=lnn", f"system={system}", "trainer.max_epochs=1", *default_net], name="one")
     last = train_run(["model=lnn", f"system={system}", "trainer.max_epochs=20", *default_net], name="twenty")
     assert all(math.isfinite(v) for v in last.values()), last
-    # measured: pendulum2 1.03 -> 0.61, gyroscope 0.54 -> 0.36 (an absolute guard λ = 1, before guarded_solve)
+    # measured (best val after 1 -> 20 epochs, lr 1e-3): pendulum2 1.059 -> 0.705 (0.67x), gyroscope 2.49 -> 0.464
+    # (0.19x); from the jointly convex start (no q/q̇ separation, no velocity scale) 1.324 -> 1.285 (0.97x) and
+    # 0.3875 -> 0.3875 (1.0x): its concave potential pushed the fresh rollouts away and it did not learn in 40 steps
     assert last["best/val/traj_rel_err"] < 0.75 * first["best/val/traj_rel_err"]

@@ -26,7 +26,8 @@ def mlp(in_dim: int, out_dim: int, hidden: int = 256, depth: int = 3, activation
     return nn.Sequential(*layers)
 
 
-def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None, convex: bool = False) -> nn.Sequential:
+def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None, convex: bool = False,
+                  potential_inputs: int = 0) -> nn.Sequential:
     """Cranmer et al. 2020 (LNN, appendix "Optimal initialization") in place: zero biases, weights
     N(0, σ²) with σ = s/√w, w the larger side of the layer, s = 2.2 (first layer), 0.58·i (hidden
     layer i), w (output layer). Found for softplus MLPs L(q, q̇) so that the Euler–Lagrange q̈,
@@ -35,7 +36,15 @@ def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None, 
     ``convex=True`` draws every weight after the first layer as |N(0, σ²)|, the same scales: with a
     convex non-decreasing activation (softplus) the network starts convex in its inputs (an
     input-convex network, Amos et al. 2017), so ∇²_q̇ L starts positive semi-definite everywhere instead
-    of indefinite on most states. Only the start: training may leave convexity.
+    of indefinite on most states.
+
+    ``potential_inputs=k`` (> 0) keeps the first k inputs (q or its embedding) and the others (q̇) apart: the
+    first half of every hidden layer sees only the former, the second half only the latter (the weights
+    between them start at 0), and the output weights of the first half are negated. With ``convex`` the
+    network starts as L = g(q̇) − h(q), g and h convex: the shape T − V of a mechanical Lagrangian, whose
+    fresh dynamics q̈ = −(∇²g)⁻¹∇h oscillate about the minimum of h, where a jointly convex L (−L concave in
+    q) pushes every state away from its minimum. Only the start: training may leave convexity and
+    separability (the zero weights get gradients).
     """
     linears = [layer for layer in net if isinstance(layer, nn.Linear)]
     with torch.no_grad():
@@ -46,6 +55,14 @@ def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None, 
             if convex and i > 0:
                 layer.weight.abs_()
             layer.bias.zero_()
+            if potential_inputs:
+                rows, cols = layer.weight.shape
+                row_half = torch.arange(rows) < rows // 2 if i < len(linears) - 1 else torch.zeros(rows, dtype=torch.bool)
+                col_half = torch.arange(cols) < (potential_inputs if i == 0 else cols // 2)
+                if i < len(linears) - 1:
+                    layer.weight.mul_(row_half[:, None] == col_half[None, :])
+                else:
+                    layer.weight.mul_(1 - 2 * col_half.to(layer.weight))
     return net
 
 
