@@ -19,12 +19,15 @@ from omegaconf import DictConfig, OmegaConf
 
 from encons import checkpoints, compat
 from encons.build import Request, build, build_trainer, run_config
-from encons.errors import ConfigError, Interrupted
+from encons.errors import ConfigError, DivergenceError, Interrupted
 from encons.io import write_yaml
 
 if TYPE_CHECKING:
+    from encons.attempts import Attempt
     from encons.data.datamodule import TrajectoryDataModule
     from encons.module import TrainingModule
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -112,14 +115,34 @@ def _composed(overrides: object) -> DictConfig:
 
 
 def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
-    import torch
-
-    from encons.report import print_summary
-
-    from encons.build import _route_lightning_logs, check
+    """Train the run's attempts (``encons.attempts``) until one does not diverge; the last one's
+    divergence is the run's error."""
+    from encons import attempts
+    from encons.build import check
 
     started = time.perf_counter()
     check(cfg, request)
+    planned = attempts.plan(cfg, request)
+    note = ""
+    for attempt in planned[:-1]:
+        try:
+            return _attempt(attempt, summary, started, note)
+        except DivergenceError as err:
+            aside = attempts.set_aside(Path(cfg.paths.output_dir))
+            note = f"the plain inverse (model.guard=0) diverged first ({str(err).split(';')[0]}; its files: {aside})"
+            log.warning("%s; training again from scratch at model.guard=%g", note, cfg.model.guard)
+    return _attempt(planned[-1], summary, started, note)
+
+
+def _attempt(attempt: Attempt, summary: bool, started: float, diverged: str) -> Run:
+    """One training of the run (``encons.attempts.Attempt``); ``diverged`` says what the attempt before
+    it ended in (empty: none)."""
+    import torch
+
+    from encons.build import _route_lightning_logs
+    from encons.report import print_summary
+
+    cfg, request = attempt.cfg, attempt.request
     _route_lightning_logs()  # before the Trainer prints its device lines
     trainer, loggers = build_trainer(cfg, request)  # before any data: an accelerator, logger or callback that cannot work
     data, module = build(cfg, request)
@@ -155,8 +178,10 @@ def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
     results["wall_time_s"] = time.perf_counter() - started
     results["threads"] = float(torch.get_num_threads())  # what wall_time_s ran on (encons.threads)
     if trainer.is_global_zero:
-        print_summary(module.run_title(), results, run_dir, note=f"{_which(tested, results)}; {module.evaluation.describe()}",
-                      console=summary)
+        solve = "" if attempt.plain is None else "; solve: " + (
+            "the plain inverse (model.guard=0)" if attempt.plain else f"guarded (model.guard={cfg.model.guard:g}): {diverged}")
+        print_summary(module.run_title(), results, run_dir,
+                      note=f"{_which(tested, results)}; {module.evaluation.describe()}{solve}", console=summary)
     return Run(module, data, config, run_dir, tested, results)
 
 

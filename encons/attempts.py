@@ -1,0 +1,88 @@
+"""A run's attempts at training: one, or under ``plain_solve=true`` (``experiment=paper``) the paper's plain
+inverse first and the model's guarded solve only if that diverges.
+
+A model whose constructor takes ``guard: Guard`` (``encons.models.lnn.guarded_solve``: ``lnn``, ``lnn_angle``,
+``glnn``) then trains first at ``model.guard=0``: the plain (∇²_q̇L)⁻¹ of Cranmer et al. (Zhong et al. eq. 3)
+and Xiao et al. eq. (11). If that training diverges (``DivergenceError``: a non-finite loss, e.g. at a
+singular ∇²_q̇L), its files are moved to ``<run>/diverged_plain/`` (nothing is deleted; the log stays) and the
+run trains again from scratch, same seed, at the configured ``model.guard``. ``plain_inverse`` in the test
+metrics (1: the plain inverse, 0: the guarded solve) and the run's summary say which solve gave the result;
+``config.yaml`` holds the ``model.guard`` it trained with. Every other model trains once, unchanged.
+Limits: only a divergence in training switches (test rollouts that diverge are the model's result,
+``diverged``); the plain attempt's time counts in ``wall_time_s``.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from omegaconf import DictConfig
+
+from encons import bounds, trust
+from encons.bounds import declare
+
+if TYPE_CHECKING:
+    from encons.build import Request
+    from encons.models.base import DynamicsModel
+
+#: Where a diverged plain-inverse attempt's files go, inside the run folder.
+SET_ASIDE = "diverged_plain"
+
+
+@dataclass(frozen=True)
+class Attempt:
+    """One training of a run: its config and request, and ``plain`` (True: the plain inverse, False: the
+    guarded solve after the plain one diverged, None: one attempt without a choice of solve)."""
+
+    cfg: DictConfig
+    request: Request
+    plain: bool | None = None
+
+
+def has_guard(cls: type) -> bool:
+    """Whether model class ``cls`` solves for q̈ by ``guarded_solve``: its constructor takes ``guard: Guard``."""
+    from encons.models.lnn import Guard
+
+    return bounds.hints(cls).get("guard") == Guard
+
+
+@declare("", plain_solve=bool)
+def plan(cfg: DictConfig, request: Request) -> list[Attempt]:
+    """The attempts of a checked config (its model target trusted), in order: the plain inverse then the
+    guarded solve (from scratch: no ``ckpt_path``; its resume line adds ``plain_solve=false``), or one."""
+    if not cfg.get("plain_solve") or not has_guard(trust.locate(cfg.model._target_, "model")):
+        return [Attempt(cfg, request)]
+    if cfg.model.guard == 0:
+        return [Attempt(cfg, request, plain=True)]
+    plain, guarded = copy.deepcopy(cfg), copy.deepcopy(cfg)
+    plain.model.guard = 0.0
+    guarded.ckpt_path = None
+    return [Attempt(plain, request, plain=True),
+            Attempt(guarded, replace(request, overrides=(*request.overrides, "plain_solve=false")), plain=False)]
+
+
+def record(cfg: DictConfig, model: DynamicsModel) -> dict[str, float]:
+    """What a test reports of the solve under ``plain_solve``: ``plain_inverse`` 1 (guard 0) or 0 (guarded);
+    nothing for a model without a guard or a run without ``plain_solve``."""
+    if not cfg.get("plain_solve") or not has_guard(type(model)):
+        return {}
+    return {"plain_inverse": float(model.guard == 0)}
+
+
+def set_aside(run_dir: Path) -> Path:
+    """Move what a diverged attempt wrote in ``run_dir`` (checkpoints, config, figures, loggers' folders)
+    into a new ``diverged_plain`` folder there (``diverged_plain_2``, ... if taken); Hydra's ``.hydra``, the
+    log files and earlier set-aside folders stay."""
+    aside = run_dir / SET_ASIDE
+    k = 1
+    while aside.exists():
+        k += 1
+        aside = run_dir / f"{SET_ASIDE}_{k}"
+    aside.mkdir()
+    for entry in sorted(run_dir.iterdir()):
+        if entry.name != ".hydra" and entry.suffix != ".log" and not entry.name.startswith(SET_ASIDE):
+            entry.rename(aside / entry.name)
+    return aside
