@@ -373,13 +373,17 @@ def integration_figure(t: Tensor, pred: Tensor, true: Tensor, energy_pred: Tenso
     return {"integration": laid_out(fig)}
 
 
+CEILING = 1e200  # top of a log MSE axis: matplotlib's log ticks overflow (OverflowError) near float64's 1.8e308
+
+
 def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], title: str,
                units: tuple[str, ...] | None = None) -> dict[str, Figure]:
     """State MSE and (if known) energy MSE against time of the model and the baselines on the test
     windows (Xiao et al. Figs. 3 and 5; curves from ``metrics.long_rollout_errors``), from the first step
     (at t = 0 every rollout starts on the truth): ``mse_vs_time``. The axis spans the curves within
     1e6 of the model's range; a curve wholly below it (the constant predictor's energy error, ~1e-14:
-    no motion keeps the energy of s₀) is named in the legend with its largest value instead."""
+    no motion keeps the energy of s₀) is named in the legend with its largest value instead. Values past
+    ``CEILING`` (a runaway rollout, the linear baseline's blow-up) are drawn at it."""
     keys = list(curves["model"])
     state_unit = "–" if units is None else "/".join(sorted(set(units)))
     labels = {"state_mse": f"state MSE, mean over q [{state_unit}]² and q̇ [{state_unit}/s]²",
@@ -394,11 +398,11 @@ def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], title: str,
             label = name.removeprefix("baseline_").replace("_", " ")
             if name != "model" and float(values.max()) < floor:
                 label += f" (below the axis: ≤ {float(values.max()):.1g})"
-            ax.plot(t[1:], values.clamp_min(floor / 10), label=label,
+            ax.plot(t[1:], values.double().clamp(floor / 10, CEILING), label=label,
                     lw=1.8 if name == "model" else 1.1, ls="-" if name == "model" else "--")
         ax.set_yscale("log")
-        every = torch.cat([c[key][1:] for c in curves.values()])
-        every = every[torch.isfinite(every) & (every >= floor)]
+        every = torch.cat([c[key][1:].double() for c in curves.values()])
+        every = every[torch.isfinite(every) & (every >= floor)].clamp_max(CEILING)
         if every.numel():
             ax.set_ylim(float(every.min()) / 2, float(every.max()) * 2)
         ax.set_xlabel(TIME)

@@ -81,6 +81,16 @@ def test_mse_axis_is_not_stretched_by_a_constant_baseline_energy_error():
     assert "constant (below the axis: ≤ 1e-14)" in energy_lines
 
 
+def test_an_mse_curve_that_runs_away_to_the_float_limit_is_drawn_at_the_ceiling():
+    t = torch.arange(21) * 0.1
+    runaway = torch.logspace(-3, 308, 21, dtype=torch.float64)  # a rollout's MSE reaching 1e308: the axis top once overflowed
+    runaway[-1] = float("inf")
+    curves = {"model": {"state_mse": runaway}, "baseline_constant": {"state_mse": torch.logspace(-3, 0, 21)}}
+    figure = plots.mse_figure(t, curves, "lnn on pendulum4", units=("rad",))["mse_vs_time"]
+    (_, _, _, limits, *_), = described(figure)["axes"]
+    assert limits[1] == pytest.approx(2 * plots.CEILING) and limits[0] == pytest.approx(10 ** (311 / 20 - 3) / 2)
+
+
 def test_data_efficiency_ticks_are_the_sizes_and_bars_are_drawn(tmp_path, saved):
     summary = [{"system": "pendulum2", "model": m, "n_train": n, "runs": 1, "test/traj_rel_err": e,
                 "test/traj_rel_err_sd": 0.0, "test/traj_rel_err_std": e / 2}
