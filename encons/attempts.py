@@ -15,14 +15,15 @@ Limits: only a divergence in training switches (test rollouts that diverge are t
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig
 
-from encons import bounds, trust
+from encons import bounds, checkpoints, trust
 from encons.bounds import declare
+from encons.errors import ConfigError
 
 if TYPE_CHECKING:
     from encons.build import Request
@@ -34,12 +35,20 @@ SET_ASIDE = "diverged_plain"
 
 @dataclass(frozen=True)
 class Attempt:
-    """One training of a run: its config and request, and ``plain`` (True: the plain inverse, False: the
-    guarded solve after the plain one diverged, None: one attempt without a choice of solve)."""
+    """One training of a run: its config and request; ``plain`` (True: the plain inverse, False: the guarded
+    solve, None: one attempt without a choice of solve) and, for the guarded solve, ``why`` it is used."""
 
     cfg: DictConfig
     request: Request
     plain: bool | None = None
+    why: str = ""
+
+    def describe(self) -> str:
+        """The summary's line on the solve (empty without a choice of solve)."""
+        if self.plain is None:
+            return ""
+        return "solve: " + ("the plain inverse (model.guard=0)" if self.plain
+                            else f"guarded (model.guard={self.cfg.model.guard:g}): {self.why}")
 
 
 def has_guard(cls: type) -> bool:
@@ -51,17 +60,35 @@ def has_guard(cls: type) -> bool:
 
 @declare("", plain_solve=bool)
 def plan(cfg: DictConfig, request: Request) -> list[Attempt]:
-    """The attempts of a checked config (its model target trusted), in order: the plain inverse then the
-    guarded solve (from scratch: no ``ckpt_path``; its resume line adds ``plain_solve=false``), or one."""
+    """The attempts of a checked config (its model target trusted), in order: the plain inverse, then the
+    guarded solve from scratch (no ``ckpt_path``); or one: a model without a guard, no ``plain_solve``,
+    ``model.guard=0``, or a resume (``ckpt_path``) of a checkpoint trained with the guarded solve."""
     if not cfg.get("plain_solve") or not has_guard(trust.locate(cfg.model._target_, "model")):
         return [Attempt(cfg, request)]
     if cfg.model.guard == 0:
         return [Attempt(cfg, request, plain=True)]
     plain, guarded = copy.deepcopy(cfg), copy.deepcopy(cfg)
     plain.model.guard = 0.0
+    if cfg.ckpt_path is not None and _resumes_guarded(plain, guarded):
+        return [Attempt(guarded, request, plain=False, why="resumed from a checkpoint trained with it")]
     guarded.ckpt_path = None
-    return [Attempt(plain, request, plain=True),
-            Attempt(guarded, replace(request, overrides=(*request.overrides, "plain_solve=false")), plain=False)]
+    return [Attempt(plain, request, plain=True), Attempt(guarded, request, plain=False)]
+
+
+def _resumes_guarded(plain: DictConfig, guarded: DictConfig) -> bool:
+    """Whether the run's ``ckpt_path`` continues a guarded attempt: its checkpoint trained at model.guard ≠ 0;
+    for ``last``, an earlier run has the guarded config and none the plain one (none at all: False, and
+    the plain attempt says why nothing resumes)."""
+    if plain.ckpt_path != "last":
+        saved = checkpoints.read(checkpoints.resume_from(plain), "ckpt_path").get(checkpoints.CONFIG_KEY) or {}
+        return bool((saved.get("model") or {}).get("guard"))
+    for cfg in (plain, guarded):
+        try:
+            checkpoints.resume_from(cfg)
+        except ConfigError:
+            continue
+        return cfg is guarded
+    return False
 
 
 def record(cfg: DictConfig, model: DynamicsModel) -> dict[str, float]:

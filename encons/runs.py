@@ -11,7 +11,7 @@ import shlex
 import time
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -123,20 +123,19 @@ def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
     started = time.perf_counter()
     check(cfg, request)
     planned = attempts.plan(cfg, request)
-    note = ""
     for attempt in planned[:-1]:
         try:
-            return _attempt(attempt, summary, started, note)
+            return _attempt(attempt, summary, started)
         except DivergenceError as err:
             aside = attempts.set_aside(Path(cfg.paths.output_dir))
-            note = f"the plain inverse (model.guard=0) diverged first ({str(err).split(';')[0]}; its files: {aside})"
-            log.warning("%s; training again from scratch at model.guard=%g", note, cfg.model.guard)
-    return _attempt(planned[-1], summary, started, note)
+            why = f"the plain inverse (model.guard=0) diverged first ({str(err).split(';')[0]}; its files: {aside})"
+            log.warning("%s; training again from scratch at model.guard=%g", why, cfg.model.guard)
+            planned[-1] = replace(planned[-1], why=why)
+    return _attempt(planned[-1], summary, started)
 
 
-def _attempt(attempt: Attempt, summary: bool, started: float, diverged: str) -> Run:
-    """One training of the run (``encons.attempts.Attempt``); ``diverged`` says what the attempt before
-    it ended in (empty: none)."""
+def _attempt(attempt: Attempt, summary: bool, started: float) -> Run:
+    """One training of the run (``encons.attempts.Attempt``), its time counted from ``started``."""
     import torch
 
     from encons.build import _route_lightning_logs
@@ -178,10 +177,9 @@ def _attempt(attempt: Attempt, summary: bool, started: float, diverged: str) -> 
     results["wall_time_s"] = time.perf_counter() - started
     results["threads"] = float(torch.get_num_threads())  # what wall_time_s ran on (encons.threads)
     if trainer.is_global_zero:
-        solve = "" if attempt.plain is None else "; solve: " + (
-            "the plain inverse (model.guard=0)" if attempt.plain else f"guarded (model.guard={cfg.model.guard:g}): {diverged}")
-        print_summary(module.run_title(), results, run_dir,
-                      note=f"{_which(tested, results)}; {module.evaluation.describe()}{solve}", console=summary)
+        solve = attempt.describe()
+        print_summary(module.run_title(), results, run_dir, console=summary,
+                      note=f"{_which(tested, results)}; {module.evaluation.describe()}{'; ' * bool(solve)}{solve}")
     return Run(module, data, config, run_dir, tested, results)
 
 

@@ -12,6 +12,7 @@ import torch
 from omegaconf import OmegaConf
 
 from encons import api, attempts, runs
+from encons.benchmark import resume_or_clear
 from encons.build import Request, catalogue, compose
 from encons.config import apply_presets
 from encons.errors import DivergenceError
@@ -53,7 +54,6 @@ def test_only_models_with_a_guard_get_the_plain_attempt_first():
     for m, plan in plans.items():
         if m in guarded:
             assert [(a.plain, a.cfg.model.guard) for a in plan] == [(True, 0.0), (False, 1e-3)]
-            assert plan[1].request.overrides[-1] == "plain_solve=false"  # what its resume line carries
         else:
             assert len(plan) == 1 and plan[0].plain is None and "guard" not in plan[0].cfg.model
     cfg = compose(["model=lnn", *PAPER[1:]])  # without experiment=paper: the guard as configured, once
@@ -93,6 +93,9 @@ def test_a_diverging_plain_inverse_trains_again_at_the_guard_and_the_run_says_so
     assert "training again from scratch at model.guard=0.001" in caplog.text
     summary = " ".join(capsys.readouterr().out.split())
     assert "solve: guarded (model.guard=0.001): the plain inverse (model.guard=0) diverged first" in summary
+    for ckpt in (run.run_dir / "checkpoints" / "last.ckpt", "last"):  # a resume continues the guarded attempt
+        cfg = api.compose(*PAPER, "model=lnn", f"ckpt_path={ckpt}", output_dir=tmp_path / "again")
+        assert [(a.plain, a.cfg.model.guard) for a in attempts.plan(cfg, Request.of(cfg))] == [(False, 1e-3)]
 
 
 def test_a_paper_run_that_does_not_diverge_keeps_the_plain_inverse(tmp_path, capsys):
@@ -101,3 +104,9 @@ def test_a_paper_run_that_does_not_diverge_keeps_the_plain_inverse(tmp_path, cap
     assert json.loads((run.run_dir / "test_metrics.json").read_text())["plain_inverse"] == 1
     assert not (run.run_dir / attempts.SET_ASIDE).exists()
     assert "solve: the plain inverse (model.guard=0)" in " ".join(capsys.readouterr().out.split())
+    cfg = api.compose(*PAPER, "model=lnn", "ckpt_path=last", output_dir=tmp_path / "again")
+    plan = attempts.plan(cfg, Request.of(cfg))  # a resume of the plain attempt, then the guarded one from scratch
+    assert [(a.plain, a.cfg.model.guard, a.cfg.ckpt_path) for a in plan] == [(True, 0, "last"), (False, 1e-3, None)]
+    cfg = api.compose(*PAPER, "model=lnn", output_dir=run.run_dir)
+    resume_or_clear(cfg, run.run_dir / "checkpoints")  # the benchmark's resume finds the plain attempt's checkpoint
+    assert cfg.ckpt_path == str(run.run_dir / "checkpoints" / "last.ckpt")
