@@ -8,8 +8,9 @@ singular ∇²_q̇L), its files are moved to ``<run>/diverged_plain/`` (nothing 
 run trains again from scratch, same seed, at the configured ``model.guard``. ``plain_inverse`` in the test
 metrics (1: the plain inverse, 0: the guarded solve) and the run's summary say which solve gave the result;
 ``config.yaml`` holds the ``model.guard`` it trained with. Every other model trains once, unchanged.
-Limits: only a divergence in training switches (test rollouts that diverge are the model's result,
-``diverged``); the plain attempt's time counts in ``wall_time_s``.
+A resume (``ckpt_path``) continues the attempt its checkpoint trained. Limits: only a divergence in training
+switches (test rollouts that diverge are the model's result, ``diverged``); the plain attempt's time counts in
+``wall_time_s``; under DDP every process would move the files (untested).
 """
 
 from __future__ import annotations

@@ -110,3 +110,16 @@ def test_a_paper_run_that_does_not_diverge_keeps_the_plain_inverse(tmp_path, cap
     cfg = api.compose(*PAPER, "model=lnn", output_dir=run.run_dir)
     resume_or_clear(cfg, run.run_dir / "checkpoints")  # the benchmark's resume finds the plain attempt's checkpoint
     assert cfg.ckpt_path == str(run.run_dir / "checkpoints" / "last.ckpt")
+
+
+def test_a_table_marks_a_metric_a_model_does_not_report_apart_from_a_failed_run():
+    """plain_inverse exists for lnn rows only: an hnn row shows – there, a row whose runs all failed 'failed'."""
+    from encons.report import markdown
+
+    base = {"system": "pendulum2", "n_train": 800, "data_efficiency": False, "runs": 1, "optimiser": ""}
+    summary = [{**base, "model": "lnn", "failed": 0, "test/traj_rel_err": 1.0, "test/traj_rel_err_sd": 0.0,
+                "test/plain_inverse": 1.0, "test/plain_inverse_sd": 0.0},
+               {**base, "model": "hnn", "failed": 0, "test/traj_rel_err": 2.0, "test/traj_rel_err_sd": 0.0},
+               {**base, "model": "node", "failed": 1}]
+    rows = {line.split(" | ")[1]: line.split(" | ")[4:6] for line in markdown(summary, {}).splitlines()[2:5]}
+    assert rows == {"lnn": ["1 ± 0", "1 ± 0"], "hnn": ["2 ± 0", "–"], "node": ["failed", "failed"]}
