@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 import shlex
 import time
+import warnings
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -147,6 +148,8 @@ def _attempt(attempt: attempts.Attempt, summary: bool, started: float) -> Run:
     resume = checkpoints.resume_from(cfg)
     if resume is not None:
         checkpoints.check_fits(module, resume)
+        # resuming writes into the run's own checkpoints/ on purpose; Lightning warns of it at every resume
+        warnings.filterwarnings("ignore", message=r"Checkpoint directory .* exists and is not empty")
     run_dir = Path(cfg.paths.output_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     config = run_config(cfg)
