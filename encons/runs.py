@@ -18,13 +18,12 @@ from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig, OmegaConf
 
-from encons import checkpoints, compat
+from encons import attempts, checkpoints, compat
 from encons.build import Request, build, build_trainer, run_config
 from encons.errors import ConfigError, DivergenceError, Interrupted
 from encons.io import write_yaml
 
 if TYPE_CHECKING:
-    from encons.attempts import Attempt
     from encons.data.datamodule import TrajectoryDataModule
     from encons.module import TrainingModule
 
@@ -85,7 +84,8 @@ def train(cfg: DictConfig | str | list[str], summary: bool = True, request: Requ
     Returns a :class:`Run` whose module holds the tested weights, whose ``metrics`` are every
     logged value as floats (``test/...`` of the tested checkpoint, ``best_epoch``, ``wall_time_s``)
     and whose ``run_dir`` holds ``config.yaml``, ``checkpoints/``, ``figures/``, ``test_metrics.json``
-    and, under the CLI (Hydra's job logging), ``train.log``.
+    and, under the CLI (Hydra's job logging), ``train.log``; under ``plain_solve`` also ``diverged_plain/`` where
+    the plain inverse diverged and the run trained again with the guarded solve (``encons.attempts``).
     With no monitored checkpoint (``callbacks=null``) the last-epoch weights are tested.
     ``summary=False`` leaves the metrics table out of the console (it still goes to the log files).
     ``request`` (default: the one ``cfg``'s ``hydra`` node carries) names what the user chose.
@@ -118,7 +118,6 @@ def _composed(overrides: object) -> DictConfig:
 def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
     """Train the run's attempts (``encons.attempts``) until one does not diverge; the last one's
     divergence is the run's error."""
-    from encons import attempts
     from encons.build import check
 
     started = time.perf_counter()
@@ -135,7 +134,7 @@ def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
     return _attempt(planned[-1], summary, started)
 
 
-def _attempt(attempt: Attempt, summary: bool, started: float) -> Run:
+def _attempt(attempt: attempts.Attempt, summary: bool, started: float) -> Run:
     """One training of the run (``encons.attempts.Attempt``), its time counted from ``started``."""
     import torch
 
@@ -180,9 +179,8 @@ def _attempt(attempt: Attempt, summary: bool, started: float) -> Run:
     results["wall_time_s"] = time.perf_counter() - started
     results["threads"] = float(torch.get_num_threads())  # what wall_time_s ran on (encons.threads)
     if trainer.is_global_zero:
-        solve = attempt.describe()
-        print_summary(module.run_title(), results, run_dir, console=summary,
-                      note=f"{_which(tested, results)}; {module.evaluation.describe()}{'; ' * bool(solve)}{solve}")
+        note = "; ".join(filter(None, (_which(tested, results), module.evaluation.describe(), attempt.describe())))
+        print_summary(module.run_title(), results, run_dir, note=note, console=summary)
     return Run(module, data, config, run_dir, tested, results)
 
 
