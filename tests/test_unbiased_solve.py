@@ -13,7 +13,8 @@ from encons import api
 from encons.build import build_model, build_system
 from encons.trust import trusted_targets
 from encons.models.glnn import GLNN
-from encons.models.lnn import guarded_solve, lagrangian_derivatives
+from encons.models.lnn import LNN, guarded_solve, lagrangian_derivatives
+from encons.models.networks import cranmer_init_, mlp
 from encons.systems.base import split_state
 
 SYSTEMS = ["pendulum1", "pendulum2", "pendulum4", "gyroscope", "damped_oscillator", "compound_pendulum"]
@@ -140,9 +141,10 @@ def test_a_fresh_lagrangian_starts_as_kinetic_minus_potential(model_name):
         assert torch.linalg.eigvalsh(curvature).max() <= 1e-12
 
 
-def test_the_velocity_scale_of_the_start_is_the_systems_own():
-    """The q̇ columns of L's first layer are divided by each velocity's RMS over the system's initial states (≥ 1);
-    a latent or data-file system (no initial states) gives 1."""
+def test_the_start_keeps_large_velocities_out_of_softplus_tails():
+    """Each velocity's share of a first-layer pre-activation, σ₁·RMS(q̇_i) with Cranmer et al.'s σ₁ = 2.2/√w, is
+    capped at 2 (RMS over the system's initial states): on the gyroscope the spin ψ̇ (RMS 1.5·√50 ≈ 10.6) is scaled
+    at width 16 (σ₁·10.6 ≈ 5.8) but not at the default 256 (1.46); a latent or data-file system counts as 1."""
     from encons.models.lnn import typical_speed
     from encons.systems.latent import LatentSystem
 
@@ -150,7 +152,14 @@ def test_the_velocity_scale_of_the_start_is_the_systems_own():
     with execution_whitelist(trusted_targets()):
         gyroscope = build_system(cfg)
     speed = typical_speed(gyroscope, "angle")
-    # φ̇ ~ U(−4.5, 4.5): RMS 4.5/√3; θ̇ ~ U(−0.3, 0.3): below 1, so 1; ψ̇: 1.5·√(7² + 1)
-    assert speed.tolist() == pytest.approx([4.5 / 3**0.5, 1.0, 1.5 * (49 + 1) ** 0.5], rel=0.03)
+    # φ̇ ~ U(−4.5, 4.5): RMS 4.5/√3; θ̇ ~ U(−0.3, 0.3): 0.3/√3; ψ̇ = ±1.5·(7 + N(0, 1)): 1.5·√50
+    assert speed.tolist() == pytest.approx([4.5 / 3**0.5, 0.3 / 3**0.5, 1.5 * 50**0.5], rel=0.03)
     latent = LatentSystem(4, gyroscope)
     assert torch.equal(typical_speed(latent, "angle"), torch.ones(latent.coord_dim("angle")))
+    for hidden in (16, 256):
+        torch.manual_seed(0)
+        scaled = LNN(gyroscope, hidden=hidden, depth=2).lagrangian_net[0].weight
+        torch.manual_seed(0)
+        plain = cranmer_init_(mlp(6, 1, hidden, 2), convex=True, potential_inputs=3)[0].weight
+        share = 2.2 / hidden**0.5 * torch.cat([torch.ones(3), speed])  # q as drawn (size 1), q̇ by its RMS
+        assert torch.allclose(scaled, plain / (share / 2).clamp(min=1)) and (hidden == 16) == bool((share > 2).any())

@@ -31,7 +31,7 @@ class GLNN(LNN):
     ``encons.models.lnn.lagrangian_derivatives``, torch.func of any L) with F added to the right-hand
     side, and LNN's ``guarded_solve`` (``guard`` 1e-3: the plain inverse of eq. (11) wherever ∇²_q̇L is
     not near singular; 0: always). L starts from
-    LNN's initialisation (g(q̇) − h(q), g and h convex, velocity-scaled; see ``LNN``); F from PyTorch's default. Limits: L and F are not
+    LNN's initialisation (g(q̇) − h(q), g and h convex; see ``LNN``); F from PyTorch's default. Limits: L and F are not
     identifiable apart (any F can absorb a change of L), so only q̈ is learned, not the energy split.
     """
 

@@ -77,13 +77,12 @@ def guarded_solve(hessian: Tensor, rhs: Tensor, guard: float) -> Tensor:
 
 def typical_speed(system: System, chart: str, draws: int = 1024) -> Tensor:
     """Root mean square of each velocity q̇_i over ``draws`` of the system's initial states (a fixed draw, apart
-    from the run's random state), at least 1; 1 where the initial-state distribution is unknown (data files)."""
+    from the run's random state); 1 where the initial-state distribution is unknown (latent systems, data files)."""
     try:
         s = system.sample_initial(draws, torch.Generator().manual_seed(0))
     except PhysicsError:
         return torch.ones(system.coord_dim(chart))
-    speed = split_state(system.to_chart(s, system.base_chart, chart))[1].square().mean(0).sqrt()
-    return speed.clamp(min=1).to(torch.get_default_dtype())
+    return split_state(system.to_chart(s, system.base_chart, chart))[1].square().mean(0).sqrt().float()
 
 
 #: Objectives of models whose field is (q̇, q̈) by construction: q̈ alone is a complete target
@@ -98,25 +97,28 @@ class LNN(DynamicsModel):
     The network starts from Cranmer et al.'s initialisation scales, shaped as a mechanical Lagrangian:
     ``cranmer_init_(convex=True, potential_inputs=...)`` makes it L = g(q̇) − h(q) with g, h input-convex (weights
     after the first layer non-negative, q and q̇ in disjoint halves of every layer, h's output weights negated),
-    and each q̇ column of the first layer is divided by that velocity's RMS over the system's initial states
-    (``typical_speed``, ≥ 1). Only the start: the model class (any MLP) and the solve are unchanged. Measured at
-    debug=fast (2 × 16) on fresh networks: Cranmer et al.'s signed start left ∇²_q̇ L indefinite on 12-100 % of
-    the data states (q̈ up to 1e4; NaN in the first steps on pendulum2 and the gyroscope); a jointly convex
-    start keeps it positive definite but is convex in q too, i.e. its potential −L(q, 0) is concave, so the
-    fresh field pushes states away (linearised growth rate·dt median 0.21 on mass_spring / Lim & Kasim's
-    pendulum, q̈ outward on 68-84 % of the states) until the softplus curvature fades at large |q̇| and the
-    rollout overflows (lnn on mass_spring, glnn on pendulum); the separable start oscillates instead (rate·dt
-    median 0.00). On the gyroscope (ψ̇ RMS 10.7) half the first-layer units sat at |z| > 4 on the data,
-    where softplus curvature is below e⁻⁴; with the velocity scale none. Fresh rollout loss > 1e3 over 200
-    draws, lnn / lnn_angle / glnn on the gyroscope: 13 / 25 / 19 jointly convex, 2 / 4 / 13 separable, 1 / 1 / 1
-    separable and velocity-scaled. Limits: the velocity scale is 1 for data files (no known initial states);
-    the start bounds nothing once training moves the weights.
+    and ``input_rms`` caps each velocity's share of a first-layer pre-activation at 2, its RMS over the system's
+    initial states (``typical_speed``) times Cranmer's σ₁ = 2.2/√w: a no-op at the default width on every
+    benchmark system, it scales the gyroscope's spin ψ̇ (RMS 10.6) at width 16. Only the start: the model class
+    (any MLP) and the solve are unchanged. Measured at debug=fast (2 × 16) on fresh networks: Cranmer et al.'s
+    signed start left ∇²_q̇ L indefinite on 12-100 % of the data states (q̈ up to 1e4; NaN in the first steps
+    on pendulum2 and the gyroscope); a jointly convex start keeps it positive definite but is convex in q
+    too, i.e. its potential −L(q, 0) is concave, so the fresh field pushes states away (linearised growth
+    rate·dt median 0.21 on mass_spring / Lim & Kasim's pendulum, q̈ outward on 68-84 % of the states) until
+    the softplus curvature fades at large |q̇| and the rollout overflows (lnn on mass_spring, glnn on
+    pendulum); the separable start oscillates (rate·dt median 0.00). On the gyroscope half the width-16
+    first-layer units sat at |z| > 4 on the data (softplus curvature < e⁻⁴). Fresh rollout loss non-finite or
+    > 1e3 over 200 draws (jointly convex → this start): lnn / lnn_angle / glnn on the gyroscope 13 / 25 / 19
+    → 0 / 0 / 0 (separable without the cap: 2 / 4 / 13); on mass_spring, pendulum, damped_pendulum (dt 0.22)
+    lnn 23 / 30 / 38 → 4 / 4 / 9, glnn 25 / 37 / 41 → 5 / 4 / 8, lnn_angle 0 / 0 / 0 → 6 / 6 / 6 (its angle
+    embedding bounds the jointly convex potential); pendulum1/2 0 either way. Limits: not a bound — a few
+    draws still run away where dt is large; the cap knows no velocities for latent systems and data files.
 
-    q̈ takes ``guarded_solve`` with ``guard`` = 1e-3: the plain inverse unless the solution exceeds ‖r‖/(1e-3·‖∇²_q̇ L‖_F) (tested: on sampled states of
-    pendulum1/2/4, the gyroscope, the damped oscillator and the compound pendulum the true L gives the
-    true q̈ to 1e-6), damped least squares where it is near singular; 1e-2 damped true gyroscope states
-    (q̈ off by up to 97 %). (It replaced an absolute Tikhonov guard λ = 1, which shrank the true L's q̈
-    by σ²/(σ² + 1) along M's smallest direction: ×1.4e-4 on the gyroscope.)
+    q̈ takes ``guarded_solve`` with ``guard`` = 1e-3: the plain inverse unless the solution exceeds
+    ‖r‖/(1e-3·‖∇²_q̇ L‖_F) (tested: on sampled states of pendulum1/2/4, the gyroscope, the damped oscillator
+    and the compound pendulum the true L gives the true q̈ to 1e-6), damped least squares where it is near
+    singular; 1e-2 damped true gyroscope states (q̈ off by up to 97 %). (It replaced an absolute Tikhonov guard
+    λ = 1, which shrank the true L's q̈ by σ²/(σ² + 1) along M's smallest direction: ×1.4e-4 on the gyroscope.)
     """
 
     default_chart = "angle"
@@ -128,10 +130,9 @@ class LNN(DynamicsModel):
         super().__init__(system, chart)
         self.guard, self.angular = guard, angular
         width = embedded_width(self.n, self.angular)
+        rms = torch.cat([torch.ones(width), typical_speed(system, self.chart)])
         self.lagrangian_net = cranmer_init_(mlp(width + self.n, 1, hidden, depth, activation), convex=True,
-                                            potential_inputs=width)
-        with torch.no_grad():  # velocities above O(1) would saturate the q̇ units at the start (see above)
-            self.lagrangian_net[0].weight[:, width:] /= typical_speed(system, self.chart)
+                                            potential_inputs=width, input_rms=rms)
 
     def lagrangian(self, s: Tensor) -> Tensor:
         """L(q, q̇) of states (..., 2n)."""

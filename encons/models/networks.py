@@ -27,7 +27,7 @@ def mlp(in_dim: int, out_dim: int, hidden: int = 256, depth: int = 3, activation
 
 
 def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None, convex: bool = False,
-                  potential_inputs: int = 0) -> nn.Sequential:
+                  potential_inputs: int = 0, input_rms: Tensor | None = None) -> nn.Sequential:
     """Cranmer et al. 2020 (LNN, appendix "Optimal initialization") in place: zero biases, weights
     N(0, σ²) with σ = s/√w, w the larger side of the layer, s = 2.2 (first layer), 0.58·i (hidden
     layer i), w (output layer). Found for softplus MLPs L(q, q̇) so that the Euler–Lagrange q̈,
@@ -45,6 +45,10 @@ def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None, 
     fresh dynamics q̈ = −(∇²g)⁻¹∇h oscillate about the minimum of h, where a jointly convex L (−L concave in
     q) pushes every state away from its minimum. Only the start: training may leave convexity and
     separability (the zero weights get gradients).
+
+    ``input_rms`` (the inputs' typical sizes, (in,)): a first-layer column whose share of a pre-activation,
+    of standard deviation σ·rms, would exceed 2 is scaled down to 2, so no input alone drives its units into
+    softplus's flat tails (curvature below 0.1 of its peak 0.25 at |z| > 2); a no-op for inputs of size ≲ √w.
     """
     linears = [layer for layer in net if isinstance(layer, nn.Linear)]
     with torch.no_grad():
@@ -55,14 +59,15 @@ def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None, 
             if convex and i > 0:
                 layer.weight.abs_()
             layer.bias.zero_()
+            if i == 0 and input_rms is not None:
+                layer.weight.div_((scale / width**0.5 * input_rms.to(layer.weight) / 2).clamp(min=1))
             if potential_inputs:
                 rows, cols = layer.weight.shape
-                row_half = torch.arange(rows) < rows // 2 if i < len(linears) - 1 else torch.zeros(rows, dtype=torch.bool)
-                col_half = torch.arange(cols) < (potential_inputs if i == 0 else cols // 2)
-                if i < len(linears) - 1:
-                    layer.weight.mul_(row_half[:, None] == col_half[None, :])
+                potential_cols = torch.arange(cols) < (potential_inputs if i == 0 else cols // 2)
+                if i < len(linears) - 1:  # rows of the first half see the potential's columns only
+                    layer.weight.mul_((torch.arange(rows) < rows // 2)[:, None] == potential_cols[None, :])
                 else:
-                    layer.weight.mul_(1 - 2 * col_half.to(layer.weight))
+                    layer.weight.mul_(1 - 2 * potential_cols.to(layer.weight))
     return net
 
 
