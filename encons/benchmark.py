@@ -171,12 +171,16 @@ def optimiser(cfg: DictConfig) -> str:
 
 def resume_or_clear(cfg: DictConfig, checkpoints: Path) -> None:
     """An interrupted run (its ``last.ckpt``, no result) resumes where it stopped, as ``ckpt_path`` does
-    for one run; checkpoints of another config (the profile changed since) are removed: a fresh start."""
+    for one run, in whichever of its attempts (``encons.attempts``: the plain inverse or the guarded solve)
+    wrote it; checkpoints of another config (the profile changed since) are removed: a fresh start."""
+    from encons import attempts
     from encons import checkpoints as ckpts
+    from encons.build import Request
 
     last = checkpoints / "last.ckpt"
     try:
-        diff = ckpts.difference(cfg, last) if last.is_file() else "no last.ckpt"
+        diffs = [ckpts.difference(a.cfg, last) for a in attempts.plan(cfg, Request())] if last.is_file() else ["no last.ckpt"]
+        diff = None if None in diffs else diffs[0]
     except ConfigError as err:  # an unreadable or unsafe checkpoint is a fresh start
         diff = f"last.ckpt refused: {err}"
     if diff is None:

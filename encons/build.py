@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 from hydra.errors import InstantiationException
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from encons import trust
+from encons import attempts, trust
 from encons.bounds import Count, Fraction, NonNegative, Positive, Range, Seed, declare
 from encons.errors import ConfigError, EnconsError
 from encons.paths import config_dir
@@ -244,7 +244,8 @@ def _instantiate(cfg: DictConfig, request: Request):
                             scheduler, objective=objective, regulariser=regulariser, observation=observation,
                             horizon=cfg.horizon, model_name=cfg.get("model_name"),
                             evaluation=build_evaluation(cfg, request),
-                            evaluators=build_evaluators(cfg, observation.identity, request))
+                            evaluators=build_evaluators(cfg, observation.identity, request),
+                            recorded=attempts.record(cfg, model))
     return data, module
 
 

@@ -60,8 +60,11 @@ class _DropTips(logging.Filter):
 
 def quiet_upstream() -> None:
     """Silence upstream messages a user cannot act on: Lightning 2.6's tips and its deprecation
-    warning about torch 2.13's pytree ``LeafSpec``, and the notice of a resume into a new folder."""
+    warning about torch 2.13's pytree ``LeafSpec``, the notice of a resume into a new folder, and its advice
+    to add DataLoader workers on machines of more than 2 cores (encons' windows are slices of tensors in
+    memory: workers would only copy them between processes; no key sets them)."""
     warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\)")
     warnings.filterwarnings("ignore", message="The dirpath has changed from")
+    warnings.filterwarnings("ignore", message=r"The '\w+' does not have many workers")
     for name in ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.rank_zero"):
         logging.getLogger(name).addFilter(_DropTips())  # the loggers rank_zero_info writes to

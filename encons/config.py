@@ -65,8 +65,12 @@ def check_folders(cfg: DictConfig) -> None:
 def apply_presets(cfg: DictConfig, request: Request) -> None:
     """Drop the keys a preset set for any model (``preset_keys``, e.g. ``debug=fast``'s ``model.hidden``)
     from a node whose ``_target_``'s constructor does not take them; a key also set on the command line stays
-    (and is refused where the node is built)."""
-    for full in cfg.get("preset_keys") or ():
+    (and is refused where the node is built). ``preset_keys`` maps each group that sets presets to its keys
+    (``{debug: [model.hidden, model.depth]}``), so that the groups' mappings merge where lists would
+    replace each other (``experiment=paper debug=fast``); a list is one group's (a config saved before)."""
+    presets = cfg.get("preset_keys") or {}
+    for full in dict.fromkeys(k for keys in (presets.values() if isinstance(presets, DictConfig) else [presets])
+                              for k in keys or ()):
         node_key, _, name = str(full).rpartition(".")
         node = OmegaConf.select(cfg, node_key)
         target = trust.locate(str(node.get("_target_", "")), node_key) if isinstance(node, DictConfig) and name in node else None

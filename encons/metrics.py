@@ -153,23 +153,28 @@ def linear_ode_rollout(generator: Tensor, start: Tensor, t: Tensor) -> Tensor:
     return torch.einsum("tij,...j->...ti", flows, augmented)[..., :-1]
 
 
-def long_rollout_errors(true: Tensor, pred: Tensor, train: Tensor, dt: float,
+def baseline_rollouts(true: Tensor, train: Tensor, dt: float) -> dict[str, Tensor]:
+    """The two trivial baselines rolled out over the test windows ``true`` (N, T, 2n) from their first states,
+    by name: ``baseline_constant`` (ŝ_t = s_0) and ``baseline_linear_ode`` (the linear ODE least-squares
+    fitted to the training states ``train``, ``fit_linear_ode``)."""
+    t = torch.arange(true.shape[-2], dtype=true.dtype, device=true.device) * dt
+    return {"baseline_constant": constant_rollout(true[..., 0, :], len(t)),
+            "baseline_linear_ode": linear_ode_rollout(fit_linear_ode(train, dt), true[..., 0, :], t)}
+
+
+def long_rollout_errors(true: Tensor, pred: Tensor, baselines: dict[str, Tensor],
                         to_common: Callable[[Tensor], Tensor] = lambda s: s,
                         energy: Callable[[Tensor], Tensor] | None = None,
                         horizon: int = 4) -> tuple[dict[str, float], dict[str, dict[str, Tensor]]]:
     """State and energy MSE against time (Xiao et al. Figs. 3 and 5) of the model's rollouts ``pred`` and
-    of two baselines on the same test windows ``true`` (N, T, 2n): the constant predictor ŝ_t = s_0
-    and the linear ODE least-squares fitted to the training states ``train`` (``fit_linear_ode``).
+    of the ``baselines`` (``baseline_rollouts``) on the same test windows ``true`` (N, T, 2n).
 
     States are compared after ``to_common`` (the common chart); energies (``energy``, None when the
     physics is unknown) in the data chart. Returns scalars — ``state_mse`` (over all times) and
     ``state_mse_final`` (last step), the same for ``energy_mse``, and for the baselines also
-    ``traj_rel_err``, under ``baseline_constant/`` and ``baseline_linear_ode/`` — and the curves
-    {predictor: {"state_mse"[, "energy_mse"]: (T,)}}.
+    ``traj_rel_err``, under ``<baseline name>/`` — and the curves {predictor: {"state_mse"[, "energy_mse"]: (T,)}}.
     """
-    t = torch.arange(true.shape[-2], dtype=true.dtype, device=true.device) * dt
-    predictions = {"model": pred, "baseline_constant": constant_rollout(true[..., 0, :], len(t)),
-                   "baseline_linear_ode": linear_ode_rollout(fit_linear_ode(train, dt), true[..., 0, :], t)}
+    predictions = {"model": pred, **baselines}
     true_c = to_common(true)
     true_e = None if energy is None else energy(true)
     scalars, curves = {}, {}

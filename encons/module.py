@@ -43,13 +43,15 @@ Batch = dict[str, Tensor]
 
 class TrainingModule(pl.LightningModule):
     """Trains ``model`` on windows of ``system`` trajectories sampled every ``dt``; tests by ``evaluators``
-    (name → ``encons.evaluators.Evaluator``; none: testing scores nothing), each checked against the run here."""
+    (name → ``encons.evaluators.Evaluator``; none: testing scores nothing), each checked against the run here.
+    ``recorded``: facts of the run reported beside the scores (``plain_inverse``, ``encons.attempts``)."""
 
     def __init__(self, model: DynamicsModel, system: System, dt: float, integrator: Integrator,
                  optimizer: Callable[..., Optimizer] | None = None, scheduler: Callable[..., Any] | None = None,
                  objective: str | None = None, regulariser: Regulariser | None = None,
                  horizon: int = 4, observation: Observation | None = None, model_name: str | None = None,
-                 evaluation: Evaluation | None = None, evaluators: Mapping[str, Evaluator] | None = None):
+                 evaluation: Evaluation | None = None, evaluators: Mapping[str, Evaluator] | None = None,
+                 recorded: Mapping[str, float] | None = None):
         super().__init__()
         self.model_name = model_name  # the model's config name (hnn_angle, not the class HNN) for titles
         objective = objective or model.objectives[0]
@@ -68,6 +70,7 @@ class TrainingModule(pl.LightningModule):
         self.evaluators = dict(evaluators or {})
         for evaluator in self.evaluators.values():
             evaluator.check(self)
+        self.recorded = dict(recorded or {})
         self.test_metrics: dict[str, float] = {}
         self.test_curves: dict[str, np.ndarray] = {}  # per-step curves of the last test, saved beside the metrics
 
@@ -156,8 +159,8 @@ class TrainingModule(pl.LightningModule):
             evaluator.update(self, test_batch)
 
     def on_test_epoch_end(self) -> None:
-        """Every evaluator's scores, merged into ``test_metrics`` and ``test_curves`` and logged as
-        ``test/<name>``; ``encons.callbacks.TestResults`` saves them."""
+        """Every evaluator's scores and the ``recorded`` facts, merged into ``test_metrics`` (and the curves
+        into ``test_curves``) and logged as ``test/<name>``; ``encons.callbacks.TestResults`` saves them."""
         self.test_metrics, self.test_curves = {}, {}
         for name, evaluator in self.evaluators.items():
             result = evaluator.compute(self)
@@ -167,6 +170,7 @@ class TrainingModule(pl.LightningModule):
                     raise ConfigError(f"evaluators.{name} gives the {kind} {clash[0]!r} another evaluator of this "
                                       f"run gives too; allowed: evaluators whose {kind} names differ")
                 merged.update(new)
+        self.test_metrics.update(self.recorded)
         self.log_dict({f"test/{k}": v for k, v in self.test_metrics.items()}, sync_dist=True)
 
     def run_title(self) -> str:

@@ -183,8 +183,8 @@ def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", head
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for e in summary:
         cells = [e["system"], e["model"], str(e["n_train"]), f"{e['runs'] - e['failed']}/{e['runs']}"]
-        cells += [f"{e[m]:.3g} ± {e[m + '_sd']:.2g}" if m in e else "–" if e["model"] == ORACLE else "failed"
-                  for m in metrics]
+        cells += [f"{e[m]:.3g} ± {e[m + '_sd']:.2g}" if m in e else "failed" if e["failed"] == e["runs"] else "–"
+                  for m in metrics]  # –: a metric this model does not report (plain_inverse, newton_unconverged)
         values = paper.get(f"{e['system']}/{e['model']}", {}) if not e["data_efficiency"] else {}
         cells += [f"{values[m]:.3g}" if m in values else "" for m in paper_keys]
         cells.append(e.get("optimiser", ""))

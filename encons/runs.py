@@ -9,22 +9,25 @@ from __future__ import annotations
 import logging
 import shlex
 import time
+import warnings
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig, OmegaConf
 
-from encons import checkpoints, compat
+from encons import attempts, checkpoints, compat
 from encons.build import Request, build, build_trainer, run_config
-from encons.errors import ConfigError, Interrupted
+from encons.errors import ConfigError, DivergenceError, Interrupted
 from encons.io import write_yaml
 
 if TYPE_CHECKING:
     from encons.data.datamodule import TrajectoryDataModule
     from encons.module import TrainingModule
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -81,7 +84,8 @@ def train(cfg: DictConfig | str | list[str], summary: bool = True, request: Requ
     Returns a :class:`Run` whose module holds the tested weights, whose ``metrics`` are every
     logged value as floats (``test/...`` of the tested checkpoint, ``best_epoch``, ``wall_time_s``)
     and whose ``run_dir`` holds ``config.yaml``, ``checkpoints/``, ``figures/``, ``test_metrics.json``
-    and, under the CLI (Hydra's job logging), ``train.log``.
+    and, under the CLI (Hydra's job logging), ``train.log``; under ``plain_solve`` also ``diverged_plain/`` where
+    the plain inverse diverged and the run trained again with the guarded solve (``encons.attempts``).
     With no monitored checkpoint (``callbacks=null``) the last-epoch weights are tested.
     ``summary=False`` leaves the metrics table out of the console (it still goes to the log files).
     ``request`` (default: the one ``cfg``'s ``hydra`` node carries) names what the user chose.
@@ -112,20 +116,40 @@ def _composed(overrides: object) -> DictConfig:
 
 
 def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
-    import torch
-
-    from encons.report import print_summary
-
-    from encons.build import _route_lightning_logs, check
+    """Train the run's attempts (``encons.attempts``) until one does not diverge; the last one's
+    divergence is the run's error."""
+    from encons.build import check
 
     started = time.perf_counter()
     check(cfg, request)
+    planned = attempts.plan(cfg, request)
+    for attempt in planned[:-1]:
+        try:
+            return _attempt(attempt, summary, started)
+        except DivergenceError as err:
+            aside = attempts.set_aside(Path(cfg.paths.output_dir))
+            why = f"the plain inverse (model.guard=0) diverged first ({str(err).split(';')[0]}; its files: {aside})"
+            log.warning("%s; training again from scratch at model.guard=%g", why, cfg.model.guard)
+            planned[-1] = replace(planned[-1], why=why)
+    return _attempt(planned[-1], summary, started)
+
+
+def _attempt(attempt: attempts.Attempt, summary: bool, started: float) -> Run:
+    """One training of the run (``encons.attempts.Attempt``), its time counted from ``started``."""
+    import torch
+
+    from encons.build import _route_lightning_logs
+    from encons.report import print_summary
+
+    cfg, request = attempt.cfg, attempt.request
     _route_lightning_logs()  # before the Trainer prints its device lines
     trainer, loggers = build_trainer(cfg, request)  # before any data: an accelerator, logger or callback that cannot work
     data, module = build(cfg, request)
     resume = checkpoints.resume_from(cfg)
     if resume is not None:
         checkpoints.check_fits(module, resume)
+        # resuming writes into the run's own checkpoints/ on purpose; Lightning warns of it at every resume
+        warnings.filterwarnings("ignore", message=r"Checkpoint directory .* exists and is not empty")
     run_dir = Path(cfg.paths.output_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     config = run_config(cfg)
@@ -155,8 +179,8 @@ def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
     results["wall_time_s"] = time.perf_counter() - started
     results["threads"] = float(torch.get_num_threads())  # what wall_time_s ran on (encons.threads)
     if trainer.is_global_zero:
-        print_summary(module.run_title(), results, run_dir, note=f"{_which(tested, results)}; {module.evaluation.describe()}",
-                      console=summary)
+        note = "; ".join(filter(None, (_which(tested, results), module.evaluation.describe(), attempt.describe())))
+        print_summary(module.run_title(), results, run_dir, note=note, console=summary)
     return Run(module, data, config, run_dir, tested, results)
 
 

@@ -66,3 +66,21 @@ def test_quiet_upstream_drops_lightnings_tips():
     tip = logging.LogRecord(logger.name, logging.INFO, __file__, 0, "💡 Tip: try litlogger", (), None)
     info = logging.LogRecord(logger.name, logging.INFO, __file__, 0, "GPU available: False", (), None)
     assert not logger.filter(tip) and logger.filter(info)
+
+
+def test_quiet_upstream_drops_the_dataloader_workers_advice_of_many_core_machines(monkeypatch):
+    import warnings
+
+    from lightning.pytorch.trainer.connectors import data_connector
+    from torch.utils.data import DataLoader
+
+    monkeypatch.setattr(data_connector, "suggested_max_num_workers", lambda devices: 15)  # a 16-core machine
+    trainer = type("Trainer", (), {"num_devices": 1, "reload_dataloaders_every_n_epochs": 0})()
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        data_connector._worker_check(trainer, DataLoader(range(4)), "train_dataloader")
+        assert any("does not have many workers" in str(w.message) for w in seen)  # Lightning gives it
+        seen.clear()
+        compat.quiet_upstream()
+        data_connector._worker_check(trainer, DataLoader(range(4)), "train_dataloader")
+    assert not seen

@@ -108,3 +108,15 @@ def test_the_run_title_names_the_models_config(tmp_path):
                       cache_dir=tmp_path / "cache")
     assert run_config(cfg).model_name == "hnn_angle"
     assert api.build(cfg)[1].run_title() == "hnn_angle on pendulum1 (angle chart)"   # not the class, HNN
+
+
+def test_the_rollout_figure_draws_the_linear_ode_baseline_that_was_scored(train_run, monkeypatch):
+    """One least-squares fit and one rollout of the linear-ODE baseline per test: the figure's is the scored one."""
+    from encons import metrics
+
+    fits, drawn = [], []
+    fit, figures = metrics.fit_linear_ode, plots.rollout_figures
+    monkeypatch.setattr(metrics, "fit_linear_ode", lambda *a, **k: fits.append(1) or fit(*a, **k))
+    monkeypatch.setattr(plots, "rollout_figures", lambda *a, **k: drawn.append(k["baseline"]) or figures(*a, **k))
+    train_run(["model=node", "system=pendulum1"])
+    assert len(fits) == 1 and len(drawn) == 1 and torch.isfinite(drawn[0]).all()

@@ -58,6 +58,7 @@ def test_sigterm_during_fit_exits_non_zero_prints_the_resume_command_and_resumin
     resumed = subprocess.run(shlex.split(command.replace("python", shlex.quote(sys.executable), 1)), cwd=tmp_path,
                              env=env, capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert "exists and is not empty" not in resumed.stderr + resumed.stdout  # resuming is no warning
     log = (run / "train.log").read_text()
     assert "epoch 30 of 30" in log and f"epoch {stopped + 2} of 30" in log          # the same run, continued
     assert torch.load(run / "checkpoints" / "last.ckpt", weights_only=True, map_location="cpu")["epoch"] == 29

@@ -8,15 +8,21 @@ import math
 import pytest
 
 
+#: Measured: no start learns the debug-size gyroscope in 40 steps. Best val after 1 -> 20 epochs (lr 1e-3): this start
+#: 0.3675 -> 0.3675 (also at lr 3e-3, and over 60 epochs), jointly convex 0.3875 -> 0.3875, the old damping λ = 1 0.54 ->
+#: 0.357; predicting q̈ = 0 (constant velocity) scores 0.323 on these windows, so none has learned q̈ there yet.
+GYROSCOPE = pytest.mark.xfail(strict=True, reason="no LNN start learns the debug-size gyroscope within 40 steps: best val "
+                              "stays at the first epoch's (0.3675), above the q̈ = 0 predictor's 0.323 (measured)")
+
+
 @pytest.mark.slow
-@pytest.mark.xfail(reason="the unbiased Euler-Lagrange solve learns slower than the old biased damping λ = 1: 20 epochs "
-                          "(40 steps) from the convex start left best val at 0.97x (pendulum2) and 1.0x (gyroscope); "
-                          "pendulum2 fell to 0.72x only after ~110 epochs (measured)", strict=False)
-@pytest.mark.parametrize("system", ["pendulum2", "gyroscope"])
+@pytest.mark.parametrize("system", ["pendulum2", pytest.param("gyroscope", marks=GYROSCOPE)])
 def test_lnn_twenty_epochs_finite_and_val_error_falls(train_run, system):
     default_net = ["model.hidden=256", "model.depth=3"]
     first = train_run(["model=lnn", f"system={system}", "trainer.max_epochs=1", *default_net], name="one")
     last = train_run(["model=lnn", f"system={system}", "trainer.max_epochs=20", *default_net], name="twenty")
     assert all(math.isfinite(v) for v in last.values()), last
-    # measured: pendulum2 1.03 -> 0.61, gyroscope 0.54 -> 0.36 (an absolute guard λ = 1, before guarded_solve)
+    # measured on pendulum2 (best val after 1 -> 20 epochs, lr 1e-3): 1.060 -> 0.693 (0.65x; q̈ = 0 scores 1.12);
+    # from the jointly convex start (no q/q̇ separation) 1.324 -> 1.285 (0.97x): its concave potential pushed the
+    # fresh rollouts away and it did not learn in 40 steps
     assert last["best/val/traj_rel_err"] < 0.75 * first["best/val/traj_rel_err"]

@@ -26,7 +26,7 @@ LAYERS = [
     ["plots"],
     ["evaluators"],
     ["objectives", "module", "callbacks"],
-    ["config"],
+    ["config", "attempts"],
     ["build"],
     ["runs", "control", "report", "benchmark"],
     ["api", "sweep", "cli", "train", "evaluate", "__init__"],

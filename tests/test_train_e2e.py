@@ -49,22 +49,13 @@ def test_kinds_are_in_the_catalogue():
     assert set(KINDS) <= set(simulated_systems())
 
 
-#: A fresh debug=fast LNN whose own rollout runs away within a window (dt 0.22): ∇²_q̇L stays positive definite
-#: and well conditioned but fades as q̇ grows (softplus curvature), so q̈ grows with q̇ until float32 overflows.
-#: Not the solve (n = 1: no conditioning to guard); on main all three models reached NaN on mass_spring.
-RUNAWAY = {("lnn", "mass_spring")}
-RUNAWAY_REASON = "fresh debug=fast LNN's own rollout runs away on mass_spring (softplus curvature fades with q̇)"
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("system", KINDS)
 @pytest.mark.parametrize("model", api.catalogue("model"))
-def test_every_model_trains(train_run, tmp_path, model, system, request):
+def test_every_model_trains(train_run, tmp_path, model, system):
     reason = builds(model, system, tmp_path)
     if reason:
         pytest.skip(reason)
-    if (model, system) in RUNAWAY:
-        request.applymarker(pytest.mark.xfail(reason=RUNAWAY_REASON, strict=True))
     trains(train_run, model, system)
 
 

@@ -56,8 +56,8 @@ class States(Evaluator):
         score = dict(horizon=module.horizon, dt=module.dt, vpt_threshold=module.evaluation.vpt_threshold)
         scores = metrics.summarise(pred_c, true_c, *(energies or (None, None)), **score)
         train = module.trainer.datamodule.states["train"].to(true)
-        scalars, curves = metrics.long_rollout_errors(true, pred, train, module.dt, module.to_common, energy,
-                                                      module.horizon)
+        baselines = metrics.baseline_rollouts(true, train, module.dt)
+        scalars, curves = metrics.long_rollout_errors(true, pred, baselines, module.to_common, energy, module.horizon)
         scores.update(scalars)
         scores.update(self.diagnostics)  # e.g. SyMo's non-converged root-finds
         if oracle:  # the floor, scored by the same metrics
@@ -70,16 +70,14 @@ class States(Evaluator):
                 **{f"{k}_{name}": v.cpu().numpy() for name, c in curves.items() for k, v in c.items()}}
         if energies:
             kept["energy_err"] = metrics.energy_abs_error(*energies).cpu().numpy()
-        self.drawn = t, true, pred_c, true_c, energies, curves, train
+        self.drawn = t, pred_c, true_c, energies, curves, module.to_common(baselines["baseline_linear_ode"])
         return Result(scores, kept)
 
     def figures(self, module: TrainingModule) -> dict[str, Figure]:
         """``mse_vs_time`` (model and baselines), ``rollout`` (with the linear-ODE baseline's rollout),
         ``relative_error`` and ``energy_error`` (``encons.plots``)."""
-        t, true, pred_c, true_c, energies, curves, train = self.drawn
+        t, pred_c, true_c, energies, curves, baseline = self.drawn  # the linear-ODE rollout compute scored
         units, title = module.system.units(module.system.common_chart), module.run_title()
-        linear = metrics.fit_linear_ode(train, module.dt)
-        baseline = module.to_common(metrics.linear_ode_rollout(linear, true[:, 0], t))
         return {**plots.mse_figure(t.cpu(), curves, title=title, units=units),
                 **plots.rollout_figures(t.cpu(), pred_c.cpu(), true_c.cpu(),
                                         [e.cpu() for e in energies] if energies else None, title=title,

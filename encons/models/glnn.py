@@ -31,11 +31,8 @@ class GLNN(LNN):
     ``encons.models.lnn.lagrangian_derivatives``, torch.func of any L) with F added to the right-hand
     side, and LNN's ``guarded_solve`` (``guard`` 1e-3: the plain inverse of eq. (11) wherever ∇²_q̇L is
     not near singular; 0: always). L starts from
-    LNN's initialisation (convex in its inputs, Cranmer et al.'s scales); F from PyTorch's default. Limits: L and F are not
-    identifiable apart (any F can absorb a change of L), so only q̈ is learned, not the energy split. The convex start is
-    convex in q too (an inverted potential: the field starts unstable, rate ≈ 1 /s on the compound pendulum's data), and
-    at depth 4 its ∇²_q̇L is ~2e4 where F starts O(0.3), so young GLNNs' rollouts run away
-    (``benchmarks/reports/xiao-300/compound_divergence.md``).
+    LNN's initialisation (g(q̇) − h(q), g and h convex; see ``LNN``); F from PyTorch's default. Limits: L and F are not
+    identifiable apart (any F can absorb a change of L), so only q̈ is learned, not the energy split.
     """
 
     def __init__(self, system: System, chart: str | None = None, hidden: Count = 200, depth: Count = 3,

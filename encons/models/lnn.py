@@ -13,10 +13,11 @@ import torch
 from torch import Tensor
 from torch.func import grad, jvp, vjp, vmap
 
-from encons.bounds import Count, Range
 from encons.batching import batched_grad
+from encons.bounds import Count, Range
+from encons.errors import PhysicsError
 from encons.models.base import DynamicsModel
-from encons.models.networks import AngleEmbedding, MLPTape, cranmer_init_, embed_angles, mlp, narrow_in
+from encons.models.networks import AngleEmbedding, MLPTape, cranmer_init_, embed_angles, embedded_width, mlp, narrow_in
 from encons.models.structured import MassPotentialModel
 from encons.systems.base import System, split_state
 
@@ -52,22 +53,36 @@ def guarded_solve(hessian: Tensor, rhs: Tensor, guard: float) -> Tensor:
     curvature fades along its own trajectory (a softplus L at growing q̇) from running away: that is the
     initialisation's job (``LNN``).
     """
-    x = torch.linalg.solve_ex(hessian, rhs.unsqueeze(-1))[0].squeeze(-1)
+    x, info = torch.linalg.solve_ex(hessian, rhs.unsqueeze(-1))
+    x = x.squeeze(-1)
     if guard == 0:
         return x
     scale = hessian.flatten(-2).norm(dim=-1)
     with torch.no_grad():
         plain = x.norm(dim=-1) * guard * scale <= rhs.norm(dim=-1)  # NaN compares False
+        # a damped sample's zero gradient goes back through the solve as 0, unless its H is exactly singular (a zero
+        # LU pivot) or its x overflowed: then as NaN, so only then is the plain branch solved again, with I there
+        poisoned = (info > 0) | ~x.isfinite().all(-1)
     if not plain.is_meta and bool(plain.all()):  # a meta tensor has no values to branch on
         return x
     eye = torch.eye(hessian.shape[-1], dtype=rhs.dtype, device=rhs.device)
-    # the plain branch again on H where it is used and I elsewhere, so a singular H sends no NaN backward
-    x = torch.linalg.solve_ex(torch.where(plain[..., None, None], hessian, eye), rhs.unsqueeze(-1))[0].squeeze(-1)
+    if not plain.is_meta and bool(poisoned.any()):
+        x = torch.linalg.solve_ex(torch.where(plain[..., None, None], hessian, eye), rhs.unsqueeze(-1))[0].squeeze(-1)
     unit = torch.where(scale > 0, scale, 1)[..., None, None]  # H/‖H‖: no under/overflow in HᵀH; H = 0 gives q̈ = 0
     h, r = hessian / unit, rhs.unsqueeze(-1) / unit
     ht = h.transpose(-1, -2)
     damped = torch.linalg.solve_ex(ht @ h + guard**2 * eye, ht @ r)[0].squeeze(-1)
     return torch.where(plain.unsqueeze(-1), x, damped)
+
+
+def typical_speed(system: System, chart: str, draws: int = 1024) -> Tensor:
+    """Root mean square of each velocity q̇_i over ``draws`` of the system's initial states (a fixed draw, apart
+    from the run's random state); 1 where the initial-state distribution is unknown (latent systems, data files)."""
+    try:
+        s = system.sample_initial(draws, torch.Generator().manual_seed(0))
+    except PhysicsError:
+        return torch.ones(system.coord_dim(chart))
+    return split_state(system.to_chart(s, system.base_chart, chart))[1].square().mean(0).sqrt().float()
 
 
 #: Objectives of models whose field is (q̇, q̈) by construction: q̈ alone is a complete target
@@ -79,20 +94,31 @@ Guard = Annotated[float, Range(ge=0, lt=1, says="a float in [0, 1) (0: plain Hes
 class LNN(DynamicsModel):
     """Unstructured L(q, q̇) network, eq. (3) (Cranmer et al. 2020).
 
-    The network starts from Cranmer et al.'s initialisation scales with the weights after the first
-    layer drawn non-negative (``cranmer_init_(convex=True)``): L starts convex, so ∇²_q̇ L starts positive
-    definite (−L would do as well; mixed signs do not). Cranmer et al.'s signed start made it indefinite
-    on 12-100 % of the data states of debug=fast networks (n ≥ 2; for n = 1 it changed sign among them),
-    crossing zero there (q̈ up to 1e4), so fresh LNN / LNN-angle / GLNN rollouts left the data, their
-    softplus curvature underflowed and training reached NaN in its first steps (measured on pendulum1/2,
-    the gyroscope and Lim & Kasim's systems). Limit: a softplus L's curvature still fades as |q̇| grows,
-    so a fresh network's own rollout can run away where the data's dt or velocities are large (measured
-    at debug=fast: lnn on mass_spring, glnn on pendulum, lnn_angle on the gyroscope at seed 2). q̈ takes ``guarded_solve`` with ``guard`` = 1e-3: the
-    plain inverse unless the solution exceeds ‖r‖/(1e-3·‖∇²_q̇ L‖_F) (tested: on sampled states of
-    pendulum1/2/4, the gyroscope, the damped oscillator and the compound pendulum the true L gives the
-    true q̈ to 1e-6), damped least squares where it is near singular; 1e-2 damped true gyroscope states
-    (q̈ off by up to 97 %). (It replaced an absolute Tikhonov guard λ = 1, which shrank the true L's q̈
-    by σ²/(σ² + 1) along M's smallest direction: ×1.4e-4 on the gyroscope.)
+    The network starts from Cranmer et al.'s initialisation scales, shaped as a mechanical Lagrangian:
+    ``cranmer_init_(convex=True, potential_inputs=...)`` makes it L = g(q̇) − h(q) with g, h input-convex (weights
+    after the first layer non-negative, q and q̇ in disjoint halves of every layer, h's output weights negated),
+    and ``input_rms`` caps each velocity's share of a first-layer pre-activation at 2, its RMS over the system's
+    initial states (``typical_speed``) times Cranmer's σ₁ = 2.2/√w: a no-op at the default width on every
+    benchmark system, it scales the gyroscope's spin ψ̇ (RMS 10.6) at width 16. Only the start: the model class
+    (any MLP) and the solve are unchanged. Measured at debug=fast (2 × 16) on fresh networks: Cranmer et al.'s
+    signed start left ∇²_q̇ L indefinite on 12-100 % of the data states (q̈ up to 1e4; NaN in the first steps
+    on pendulum2 and the gyroscope); a jointly convex start keeps it positive definite but is convex in q
+    too, i.e. its potential −L(q, 0) is concave, so the fresh field pushes states away (linearised growth
+    rate·dt median 0.21 on mass_spring / Lim & Kasim's pendulum, q̈ outward on 68-84 % of the states) until
+    the softplus curvature fades at large |q̇| and the rollout overflows (lnn on mass_spring, glnn on
+    pendulum); the separable start oscillates (rate·dt median 0.00). On the gyroscope half the width-16
+    first-layer units sat at |z| > 4 on the data (softplus curvature < e⁻⁴). Fresh rollout loss non-finite or
+    > 1e3 over 200 draws (jointly convex → this start): lnn / lnn_angle / glnn on the gyroscope 13 / 25 / 19
+    → 0 / 0 / 0 (separable without the cap: 2 / 4 / 13); on mass_spring, pendulum, damped_pendulum (dt 0.22)
+    lnn 23 / 30 / 38 → 4 / 4 / 9, glnn 25 / 37 / 41 → 5 / 4 / 8, lnn_angle 0 / 0 / 0 → 6 / 6 / 6 (its angle
+    embedding bounds the jointly convex potential); pendulum1/2 0 either way. Limits: not a bound — a few
+    draws still run away where dt is large; the cap knows no velocities for latent systems and data files.
+
+    q̈ takes ``guarded_solve`` with ``guard`` = 1e-3: the plain inverse unless the solution exceeds
+    ‖r‖/(1e-3·‖∇²_q̇ L‖_F) (tested: on sampled states of pendulum1/2/4, the gyroscope, the damped oscillator
+    and the compound pendulum the true L gives the true q̈ to 1e-6), damped least squares where it is near
+    singular; 1e-2 damped true gyroscope states (q̈ off by up to 97 %). (It replaced an absolute Tikhonov guard
+    λ = 1, which shrank the true L's q̈ by σ²/(σ² + 1) along M's smallest direction: ×1.4e-4 on the gyroscope.)
     """
 
     default_chart = "angle"
@@ -103,8 +129,10 @@ class LNN(DynamicsModel):
                  activation: str = "softplus", guard: Guard = 1e-3, angular: bool = False):
         super().__init__(system, chart)
         self.guard, self.angular = guard, angular
-        self.lagrangian_net = cranmer_init_(mlp(3 * self.n if self.angular else 2 * self.n, 1, hidden, depth, activation),
-                                            convex=True)
+        width = embedded_width(self.n, self.angular)
+        rms = torch.cat([torch.ones(width), typical_speed(system, self.chart)])
+        self.lagrangian_net = cranmer_init_(mlp(width + self.n, 1, hidden, depth, activation), convex=True,
+                                            potential_inputs=width, input_rms=rms)
 
     def lagrangian(self, s: Tensor) -> Tensor:
         """L(q, q̇) of states (..., 2n)."""

@@ -26,7 +26,8 @@ def mlp(in_dim: int, out_dim: int, hidden: int = 256, depth: int = 3, activation
     return nn.Sequential(*layers)
 
 
-def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None, convex: bool = False) -> nn.Sequential:
+def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None, convex: bool = False,
+                  potential_inputs: int = 0, input_rms: Tensor | None = None) -> nn.Sequential:
     """Cranmer et al. 2020 (LNN, appendix "Optimal initialization") in place: zero biases, weights
     N(0, σ²) with σ = s/√w, w the larger side of the layer, s = 2.2 (first layer), 0.58·i (hidden
     layer i), w (output layer). Found for softplus MLPs L(q, q̇) so that the Euler–Lagrange q̈,
@@ -35,7 +36,19 @@ def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None, 
     ``convex=True`` draws every weight after the first layer as |N(0, σ²)|, the same scales: with a
     convex non-decreasing activation (softplus) the network starts convex in its inputs (an
     input-convex network, Amos et al. 2017), so ∇²_q̇ L starts positive semi-definite everywhere instead
-    of indefinite on most states. Only the start: training may leave convexity.
+    of indefinite on most states.
+
+    ``potential_inputs=k`` (> 0) keeps the first k inputs (q or its embedding) and the others (q̇) apart: the
+    first half of every hidden layer sees only the former, the second half only the latter (the weights
+    between them start at 0), and the output weights of the first half are negated. With ``convex`` the
+    network starts as L = g(q̇) − h(q), g and h convex: the shape T − V of a mechanical Lagrangian, whose
+    fresh dynamics q̈ = −(∇²g)⁻¹∇h oscillate about the minimum of h, where a jointly convex L (−L concave in
+    q) pushes every state away from its minimum. Only the start: training may leave convexity and
+    separability (the zero weights get gradients).
+
+    ``input_rms`` (the inputs' typical sizes, (in,)): a first-layer column whose share of a pre-activation,
+    of standard deviation σ·rms, would exceed 2 is scaled down to 2, so no input alone drives its units into
+    softplus's flat tails (curvature σ(z)(1 − σ(z)) < 0.105 for |z| > 2, peak 0.25); a no-op for rms ≤ 0.9√w.
     """
     linears = [layer for layer in net if isinstance(layer, nn.Linear)]
     with torch.no_grad():
@@ -46,6 +59,15 @@ def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None, 
             if convex and i > 0:
                 layer.weight.abs_()
             layer.bias.zero_()
+            if i == 0 and input_rms is not None:
+                layer.weight.div_((scale / width**0.5 * input_rms.to(layer.weight) / 2).clamp(min=1))
+            if potential_inputs:
+                rows, cols = layer.weight.shape
+                potential_cols = torch.arange(cols) < (potential_inputs if i == 0 else cols // 2)
+                if i < len(linears) - 1:  # rows of the first half see the potential's columns only
+                    layer.weight.mul_((torch.arange(rows) < rows // 2)[:, None] == potential_cols[None, :])
+                else:
+                    layer.weight.mul_(1 - 2 * potential_cols.to(layer.weight))
     return net
 
 
