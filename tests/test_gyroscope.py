@@ -46,6 +46,13 @@ def test_gimbal_lock_is_rejected(gyro):
     assert not system.valid(simulate(system, crossing, T[:3])).any()
 
 
+def test_min_sin_theta_zero_keeps_every_trajectory():
+    """min_sin_theta=0 (profile=zhong, Zhong et al. keep gimbal lock) is accepted and rejects no finite trajectory."""
+    system = Gyroscope(min_sin_theta=0.0)
+    crossing = torch.tensor([[0.3, 0.02, 0.1, 1.0, -0.1, 10.0]], dtype=torch.float64)
+    assert system.valid(simulate(system, crossing, T[:3])).all()
+
+
 def test_cartesian_states_satisfy_constraints(gyro):
     system, traj = gyro
     cart = system.to_chart(traj[:, ::5], "angle", "cartesian")

@@ -13,12 +13,13 @@ centre of mass J⊥ = I_1 + I_3 (= I_2 + I_3), J_3 = I_1 + I_2.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Annotated
 
 import torch
 from torch import Tensor
 from torch.func import jvp
 
-from encons.bounds import Finite, Fraction, NonNegative, Positive
+from encons.bounds import Finite, NonNegative, Positive, Range
 from encons.errors import ConfigError
 from encons.systems.base import CartesianLayout, PointSystem, point_mass_matrix, split_state
 from encons.systems.constrained import DistanceConstraints
@@ -42,7 +43,8 @@ class Gyroscope(PointSystem):
     Gimbal lock: the angle chart is singular where sin θ = 0 (det M(q) = J⊥'² J_3 sin²θ), i.e.
     with the axis vertical, which the initial tilts θ ~ U(−1.5, 1.5) reach. ``valid`` rejects a
     simulated trajectory whose |sin θ| drops below ``min_sin_theta`` at any stored step, so the
-    data module redraws it and logs ``rejection_reason``. The Cartesian chart has no singularity.
+    data module redraws it and logs ``rejection_reason``; ``min_sin_theta=0`` keeps every finite trajectory
+    (Zhong et al.'s protocol, ``profile=zhong``). The Cartesian chart has no singularity.
     """
 
     name = "gyroscope"
@@ -51,7 +53,7 @@ class Gyroscope(PointSystem):
     def __init__(self, mass: Positive = 0.1, ell: Positive = 0.2217,
                  inertias: Sequence[Positive] = (0.024138, 0.024138, 0.003694), g: Positive = 9.81,
                  angle_range: Positive = 1.5, phi_rate_range: NonNegative = 4.5, theta_rate_range: NonNegative = 0.3,
-                 spin_mean: Finite = 7.0, spin_scale: Positive = 1.5, min_sin_theta: Fraction = 0.1):
+                 spin_mean: Finite = 7.0, spin_scale: Positive = 1.5, min_sin_theta: Annotated[float, Range(ge=0, lt=1)] = 0.1):
         inertias = [float(i) for i in inertias]
         if len(inertias) != 3 or inertias[0] != inertias[1]:
             raise ConfigError(f"system.inertias={inertias}; allowed: 3 positive numbers with I_1 = I_2 "
