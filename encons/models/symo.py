@@ -129,8 +129,10 @@ class SyMo(DiscreteModel):
         Each sample (leading index) converges on its own: it stops moving once its RMS residual over
         the n coordinates is ≤ ``tol``. A Newton step is safeguarded by backtracking: it is halved (up to
         ``backtracks`` times) until the sample's residual norm decreases; a sample whose residual no
-        halved step decreases keeps its iterate. Returns (root, ∂g/∂x at the root, Newton iterations
-        taken, mask of the samples not converged after ``iters`` iterations).
+        halved step decreases keeps its iterate and stops iterating: every later iteration would repeat
+        that step exactly (the samples' computations are independent), so the result is the one ``iters``
+        iterations give. Returns (root, ∂g/∂x at the root, Newton iterations taken, mask of the samples
+        not converged after ``iters`` iterations).
         """
         c, q, x = c.detach(), q.detach(), guess.detach()
 
@@ -141,7 +143,8 @@ class SyMo(DiscreteModel):
             d1, jac = self.d1_and_jacobian(q, x, h)
             g = c + d1
             norm, it = rms(g), 0
-            while it < iters and (active := norm > tol).any():
+            stalled = torch.zeros_like(norm, dtype=torch.bool)
+            while it < iters and (active := (norm > tol) & ~stalled).any():
                 it += 1
                 step = torch.linalg.solve_ex(jac, g.unsqueeze(-1))[0].squeeze(-1)
                 step = torch.where(active.unsqueeze(-1), step, torch.zeros_like(step)).nan_to_num(0.0, 0.0, 0.0)
@@ -156,6 +159,7 @@ class SyMo(DiscreteModel):
                     if not todo.any():
                         break
                     scale = torch.where(todo, 0.5 * scale, scale)
+                stalled |= todo  # same iterate, same step, same failed halvings in every later iteration
                 d1, jac = self.d1_and_jacobian(q, x, h)
                 g = c + d1
         return x, jac, it, rms(g) > tol
