@@ -240,8 +240,8 @@ def test_newton_failures_reach_the_test_metrics(train_run):
 
 
 def newton_without_stall_exit(model, c, q, guess, h, tol, iters):
-    """SyMo.newton as it was before samples whose every halved step failed stopped iterating: the
-    reference the stall exit must reproduce."""
+    """SyMo.newton as it was before samples whose every halved step failed stopped iterating and before the
+    full step's vjp gave the next Jacobian: the reference both speed-ups must reproduce bit for bit."""
     from torch.func import grad
 
     c, q, x = c.detach(), q.detach(), guess.detach()
@@ -274,10 +274,10 @@ def newton_without_stall_exit(model, c, q, guess, h, tol, iters):
 
 
 @pytest.mark.parametrize("tol", [1e-5, 1e-12])
-def test_newton_stall_exit_leaves_roots_losses_and_gradients_unchanged(tol):
+def test_newton_speedups_leave_roots_losses_and_gradients_unchanged(tol):
     """float32, as trained: E2E-SyMo's one-step loss, its gradients, the rollout and the non-converged
-    count are bit-identical with and without the stall exit — at the §7 training tolerance and at one
-    float32 cannot reach (every sample stalls), where the exit must also save iterations."""
+    count are bit-identical to the reference Newton — at the §7 training tolerance and at one float32
+    cannot reach (every sample stalls), where the stall exit must also save iterations."""
     from encons.module import TrainingModule
 
     system = CartPole()
