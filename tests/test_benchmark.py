@@ -182,6 +182,7 @@ def test_xiao_profile_at_smoke_size_writes_tables_3_4_and_mse_curves_and_resumes
     md = (out / "summary.md").read_text()
     assert "| compound_pendulum | glnn-h200-d4 |" in md and "9.5e-05" in md
     assert " | accel_mse | paper accel_mse | " in md.split("\n")[2]  # the paper's cell beside the same quantity
+    assert not list(out.glob("runs/*/checkpoints/best-*.ckpt"))  # no checkpoint selection: epoch max_epochs is tested
     for key in ("state_mse", "energy_mse", "baseline_linear_ode/state_mse_final"):
         assert key in md, key
     for name in ("state_mse_vs_time.png", "energy_mse_vs_time.png", "summary.csv"):
