@@ -167,3 +167,9 @@ def test_accel_mse_of_zero_acceleration_is_the_mean_square_of_the_true_q_ddot(tm
     expected = (q_ddot[:, :21] ** 2).mean().item()
     assert metrics["test/accel_mse"] == pytest.approx(expected, rel=1e-12)
     assert expected != pytest.approx((q_ddot**2).mean().item(), rel=1e-3)  # the span matters
+
+
+def test_a_discrete_model_on_these_systems_trains_and_scores_no_accel_mse(train_run):
+    """Both systems choose the acceleration evaluator; a discrete model (no field) still trains and tests."""
+    metrics = train_run(["model=symo", "system=damped_oscillator"])
+    assert math.isfinite(metrics["test/traj_rel_err"]) and "test/accel_mse" not in metrics

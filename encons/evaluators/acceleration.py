@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from typing import TYPE_CHECKING
 
 from encons import metrics
@@ -12,6 +13,8 @@ from encons.integrators import state_derivative
 if TYPE_CHECKING:
     from encons.module import TrainingModule
 
+log = logging.getLogger(__name__)
+
 
 class Acceleration(Evaluator):
     """``accel_mse``: Xiao et al.'s loss (§3, (1/|S|) Σ ‖q̈̃ − q̈‖², ``encons.metrics.acceleration_mse``) at
@@ -20,19 +23,20 @@ class Acceleration(Evaluator):
     rollout. The paper tests on a random half of its (x_t, x_{t+1}) pairs and prints that test error,
     unnamed, in Tables 3–4 (§4.4); here the held-out states are whole test trajectories from the same
     initial-state range (as many points as the paper's test half on both of its systems). Computed as
-    the run's ``evaluation`` computes (float64 by default). Limits: continuous models in a (q, q̇) chart
-    on a system of known physics; the points are the test states, clean (no noise)."""
+    the run's ``evaluation`` computes (float64 by default). Limits: a system of known physics, observed in
+    its states; q̈ is the second half of the state in the model's chart; a discrete model (no field) scores
+    nothing; the points are the test states, clean (no noise)."""
 
     def check(self, module: TrainingModule) -> None:
-        model, system = module.model, module.system
-        if not module.observation.identity or model.discrete or not system.known_physics:
-            why = ("its states are not the data's" if not module.observation.identity else
-                   "a discrete model has no field" if model.discrete else "the system has no true field")
-            raise ConfigError(f"evaluators.acceleration does not apply to {type(model).__name__} on {system.name} "
-                              f"({why}); allowed: a continuous model on a system of known physics, e.g. "
-                              f"model=glnn system=compound_pendulum")
+        if not module.observation.identity or not module.system.known_physics:
+            why = "its states are not the data's" if not module.observation.identity else "it has no true field"
+            raise ConfigError(f"evaluators.acceleration does not apply to system {module.system.name} ({why}); "
+                              f"allowed: a system of known physics observed in its states, or ~evaluators/acceleration")
 
     def compute(self, module: TrainingModule) -> Result:
+        if module.model.discrete:  # no field to score; its system may still choose this evaluator
+            log.info("accel_mse skipped: %s is a discrete model (no field)", type(module.model).__name__)
+            return Result()
         data = module.trainer.datamodule
         arrays = data.arrays["test"]
         span = data.n_steps + 1
