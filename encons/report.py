@@ -179,9 +179,12 @@ def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", head
     if headline:
         metrics = [m for m in HEADLINE if m in metrics]
     paper_keys = list(dict.fromkeys(m for values in paper.values() for m in values))
-    beside = {m.removeprefix("test/") for m in metrics} & set(paper_keys)
-    columns = [c for m in metrics for c in ((m, None), *[(None, k) for k in [m.removeprefix("test/")] if k in beside])]
-    columns += [(None, k) for k in paper_keys if k not in beside]
+    columns: list[tuple[str | None, str | None]] = []  # (metric, None) or (None, published key)
+    for m in metrics:
+        columns.append((m, None))
+        if m.removeprefix("test/") in paper_keys:
+            columns.append((None, m.removeprefix("test/")))
+    columns += [(None, k) for k in paper_keys if (None, k) not in columns]
     head = ["system", "model", "n_train", "runs", *[m.removeprefix("test/") if m else f"paper {k}" for m, k in columns],
             "optimiser"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
