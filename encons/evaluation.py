@@ -80,16 +80,18 @@ class Evaluation:
         return (f"evaluation: {self.method}, {step}, {'float64' if self.float64 else 'model dtype'}"
                 + (f" ({self.source})" if self.source else ""))
 
+    def precise(self, model: DynamicsModel) -> DynamicsModel:
+        """``model`` as this evaluation computes with it: with ``float64``, a float64 copy where any parameter
+        is not float64 already (the model itself is left as it is); else ``model``."""
+        if self.float64 and any(p.dtype != torch.float64 for p in model.parameters()):
+            return copy.deepcopy(model).double()
+        return model
+
     def rollout(self, model: DynamicsModel, start: Tensor, t: Tensor, u: Tensor | None = None) -> Tensor:
         """``encons.integrators.rollout`` of ``model`` with this integrator; with ``float64`` on a float64
         copy of the model (the model itself is left as it is), else in the model's dtype."""
-        original = model
-        if self.float64:
-            if any(p.dtype != torch.float64 for p in model.parameters()):
-                model = copy.deepcopy(model).double()
-            start = start.double()
-        else:
-            start = start.to(next(model.parameters(), start))
+        original, model = model, self.precise(model)
+        start = start.double() if self.float64 else start.to(next(model.parameters(), start))
         try:
             return rollout(model, start, t, self.integrator, u)
         except AssertionError as err:  # torchdiffeq's adaptive step control gave up on the model's field

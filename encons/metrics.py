@@ -115,6 +115,14 @@ def mass_matrix_mse(pred_mass: Tensor, true_mass: Tensor) -> Tensor:
     return ((pred_mass - true_mass) ** 2).mean()
 
 
+# Xiao, Zhang & Tang §3: the acceleration error of a field at given states, no rollout.
+def acceleration_mse(pred_rates: Tensor, true_rates: Tensor) -> Tensor:
+    """Mean over points of ‖q̈̂ − q̈‖², the squared error summed over the n coordinates, from state derivatives
+    (..., 2n) whose second half is q̈ (a (q, q̇) chart): Xiao et al.'s loss (1/|S|) Σ ‖q̈̃ − q̈‖² (§3); a scalar."""
+    error = pred_rates - true_rates
+    return (error[..., error.shape[-1] // 2:] ** 2).sum(-1).mean()
+
+
 # Long-rollout errors against time (Xiao, Zhang & Tang, Figs. 3 and 5) and two trivial baselines.
 def mse_curves(pred: Tensor, true: Tensor, pred_energy: Tensor | None = None,
                true_energy: Tensor | None = None) -> dict[str, Tensor]:

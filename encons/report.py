@@ -160,7 +160,7 @@ def write_csv(path: Path, rows: list[dict]) -> None:
 
 HEADLINE = ("wall_time_s", "test/diverged", "test/traj_rel_err", "test/geom_rel_err", "test/vpt",
             "test/energy_abs_err", "test/energy_rmse_median",
-            "test/state_mse", "test/state_mse_final", "test/energy_mse", "test/energy_mse_final",
+            "test/state_mse", "test/state_mse_final", "test/energy_mse", "test/energy_mse_final", "test/accel_mse",
             "test/baseline_constant/state_mse_final", "test/baseline_linear_ode/state_mse_final",
             "test/mse_train", "test/mse_test", "test/mse_integration", "test/energy_mse_integration",
             "test/mass_mse", "test/newton_unconverged", "test/newton_unconverged_integration",
@@ -171,22 +171,29 @@ HEADLINE = ("wall_time_s", "test/diverged", "test/traj_rel_err", "test/geom_rel_
 
 
 def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", headline: bool = False) -> str:
-    """A Markdown table: model × system rows, metrics as mean ± std, paper values beside; every metric,
-    or with ``headline`` the ``HEADLINE`` ones the runs have."""
+    """A Markdown table: model × system rows, metrics as mean ± std, paper values beside (a published value
+    named as a metric right after that metric's column, the others at the end); every metric, or with
+    ``headline`` the ``HEADLINE`` ones the runs have."""
     metrics = list(dict.fromkeys(k for e in summary for k in e
                                  if (k.startswith("test/") or k == "wall_time_s") and not k.endswith("_sd")))
     if headline:
         metrics = [m for m in HEADLINE if m in metrics]
     paper_keys = list(dict.fromkeys(m for values in paper.values() for m in values))
-    head = ["system", "model", "n_train", "runs", *[m.removeprefix("test/") for m in metrics],
-            *[f"paper {m}" for m in paper_keys], "optimiser"]
+    columns: list[tuple[str | None, str | None]] = []  # (metric, None) or (None, published key)
+    for m in metrics:
+        columns.append((m, None))
+        if m.removeprefix("test/") in paper_keys:
+            columns.append((None, m.removeprefix("test/")))
+    columns += [(None, k) for k in paper_keys if (None, k) not in columns]
+    head = ["system", "model", "n_train", "runs", *[m.removeprefix("test/") if m else f"paper {k}" for m, k in columns],
+            "optimiser"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for e in summary:
         cells = [e["system"], e["model"], str(e["n_train"]), f"{e['runs'] - e['failed']}/{e['runs']}"]
-        cells += [f"{e[m]:.3g} ± {e[m + '_sd']:.2g}" if m in e else "failed" if e["failed"] == e["runs"] else "–"
-                  for m in metrics]  # –: a metric this model does not report (plain_inverse, newton_unconverged)
         values = paper.get(f"{e['system']}/{e['model']}", {}) if not e["data_efficiency"] else {}
-        cells += [f"{values[m]:.3g}" if m in values else "" for m in paper_keys]
+        cells += [(f"{e[m]:.3g} ± {e[m + '_sd']:.2g}" if m in e else "failed" if e["failed"] == e["runs"] else "–")
+                  if m else f"{values[k]:.3g}" if k in values else ""
+                  for m, k in columns]  # –: a metric this model does not report (plain_inverse, newton_unconverged)
         cells.append(e.get("optimiser", ""))
         lines.append("| " + " | ".join(cells) + " |")
     note = f"\nPublished values: {source}\n" if source and paper_keys else ""

@@ -126,3 +126,18 @@ def test_user_file_trains_end_to_end(tmp_path, train_run):
                  chart=np.array("angle"))
     results = train_run(["system=from_file", f"system.path={path}", "model=node"])
     assert np.isfinite(results["test/traj_rel_err"]) and "test/energy_abs_err" not in results
+
+
+def test_val_batch_size_batches_the_same_validation_windows(tmp_path):
+    """``val_batch_size`` regroups the validation windows (null keeps ``batch_size``); training batches
+    and the windows themselves do not change."""
+    default, whole = make(tmp_path, chunk_len=21, batch_size=1), make(tmp_path, chunk_len=21, batch_size=1,
+                                                                         val_batch_size=128)
+    for dm in (default, whole):
+        dm.prepare_data()
+        dm.setup()
+    small, one = list(default.val_dataloader()), list(whole.val_dataloader())
+    assert [len(b["states"]) for b in small] == [1, 1, 1] and [len(b["states"]) for b in one] == [3]
+    assert torch.equal(torch.cat([b["states"] for b in small]), one[0]["states"])
+    assert all(torch.equal(a["states"], b["states"]) for a, b in zip(default.train_dataloader(),
+                                                                   whole.train_dataloader()))

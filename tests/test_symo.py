@@ -237,3 +237,70 @@ def test_newton_failures_reach_the_test_metrics(train_run):
                          "evaluators.santos.steps=6", "evaluators.santos.n_trajectories=2", "trainer.max_epochs=1"])
     assert results["test/newton_unconverged"] == 1.0
     assert results["test/newton_unconverged_integration"] == 1.0
+
+
+def newton_without_stall_exit(model, c, q, guess, h, tol, iters):
+    """SyMo.newton as it was before samples whose every halved step failed stopped iterating and before the
+    full step's vjp gave the next Jacobian: the reference both speed-ups must reproduce bit for bit."""
+    from torch.func import grad
+
+    c, q, x = c.detach(), q.detach(), guess.detach()
+
+    def rms(value):
+        return value.pow(2).mean(-1).sqrt().nan_to_num(nan=float("inf"))
+
+    with torch.no_grad():
+        d1, jac = model.d1_and_jacobian(q, x, h)
+        g = c + d1
+        norm, it = rms(g), 0
+        while it < iters and (active := norm > tol).any():
+            it += 1
+            step = torch.linalg.solve_ex(jac, g.unsqueeze(-1))[0].squeeze(-1)
+            step = torch.where(active.unsqueeze(-1), step, torch.zeros_like(step)).nan_to_num(0.0, 0.0, 0.0)
+            scale, todo = torch.ones_like(norm), active.clone()
+            for _ in range(model.backtracks + 1):
+                trial = x - scale.unsqueeze(-1) * step
+                trial_norm = rms(c + grad(lambda a: model.discrete_lagrangian(a, trial, h).sum())(q))
+                better = todo & (trial_norm < norm)
+                x = torch.where(better.unsqueeze(-1), trial, x)
+                norm = torch.where(better, trial_norm, norm)
+                todo = todo & ~better
+                if not todo.any():
+                    break
+                scale = torch.where(todo, 0.5 * scale, scale)
+            d1, jac = model.d1_and_jacobian(q, x, h)
+            g = c + d1
+    return x, jac, it, rms(g) > tol
+
+
+@pytest.mark.parametrize("tol", [1e-5, 1e-12])
+def test_newton_speedups_leave_roots_losses_and_gradients_unchanged(tol):
+    """float32, as trained: E2E-SyMo's one-step loss, its gradients, the rollout and the non-converged
+    count are bit-identical to the reference Newton — at the §7 training tolerance and at one float32
+    cannot reach (every sample stalls), where the stall exit must also save iterations."""
+    from encons.module import TrainingModule
+
+    system = CartPole()
+    s0, u = draw(system, 6, seed=3)
+    t = torch.arange(9, dtype=torch.float64) * 0.05
+    batch = {"states": exact(system, s0, t, u).float(), "u": per_step(u, 9).float()}
+    outcomes = []
+    for reference in (False, True):
+        torch.manual_seed(0)
+        model = E2ESyMo(system, hidden=32, depth=2, train_tol=tol, eval_tol=tol)
+        if reference:
+            model.newton = lambda *args: newton_without_stall_exit(model, *args)
+        module = TrainingModule(model, system, 0.05, None, objective="onestep")
+        loss = module.loss(batch)
+        loss.backward()
+        iterations = sum(model.newton_iterations)
+        with torch.no_grad():
+            model.eval()
+            pred = model.rollout(batch["states"][:, :2], t.float(), batch["u"])
+        outcomes.append((loss.detach(), [p.grad for p in model.parameters() if p.grad is not None], pred,
+                         model.newton_unconverged, iterations))
+    (loss, grads, pred, failed, its), (ref_loss, ref_grads, ref_pred, ref_failed, ref_its) = outcomes
+    assert torch.equal(loss, ref_loss) and torch.equal(pred, ref_pred) and failed == ref_failed
+    assert len(grads) == len(ref_grads) > 0 and all(torch.equal(a, b) for a, b in zip(grads, ref_grads))
+    if tol < 1e-9:
+        assert failed > 0 and its < ref_its

@@ -2,7 +2,8 @@
 
 Training yields random windows of ``chunk_len`` states, one per trajectory per epoch, drawn
 from ``(seed, epoch)`` so a resumed run sees the same windows as an uninterrupted one.
-Validation yields fixed windows; test yields whole trajectories. Noise (σ = ``noise``) is
+Validation yields fixed windows, ``val_batch_size`` per batch (null: ``batch_size``; the validation loss is
+their mean either way, so it only sets how many rollouts run side by side); test yields whole trajectories. Noise (σ = ``noise``) is
 added to training states only: validation and test compare rollouts with the clean simulated
 trajectories (for a loaded file, with what the file holds), so the validation error that sweeps,
 pruners and the best checkpoint steer by sees the model, not the noise floor.
@@ -93,7 +94,7 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
                  n_train: Size = 800, n_val: Annotated[int, Range(ge=0)] = 100, n_test: Size = 100,
                  n_steps: Size = 100, test_steps: int | None = None, dt: Positive = 0.03,
                  noise: NonNegative = 0.01, substeps: Size = 10, chunk_len: int = 5, batch_size: Size = 200,
-                 seed: Seed = 0, cache_dir: str = ".cache/encons", objective: str | None = "rollout",
+                 val_batch_size: Size | None = None, seed: Seed = 0, cache_dir: str = ".cache/encons", objective: str | None = "rollout",
                  recording: dict | None = None):
         super().__init__()
         if test_steps is not None and test_steps < n_steps:
@@ -107,6 +108,7 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
         self.n_steps, self.dt, self.noise, self.substeps = n_steps, dt, noise, substeps
         self.test_steps = test_steps or n_steps
         self.chunk_len, self.batch_size, self.seed = chunk_len, batch_size, seed
+        self.val_batch_size = val_batch_size or batch_size
         self.objective, self.recording = objective, dict(recording or {})
         gen_config = dict(system=system_config or {"name": system.name}, sizes=self.sizes, n_steps=n_steps,
                           test_steps=self.test_steps, dt=dt, substeps=substeps, seed=seed)
@@ -213,18 +215,18 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
             return jvp(lambda s: self.system.to_chart(s, chart, self.chart), (clean,), (field,))[1]
         return torch.gradient(observed, spacing=self.dt, dim=1, edge_order=2)[0]
 
-    def _windows(self, split: str, shuffle: bool) -> DataLoader:
+    def _windows(self, split: str, shuffle: bool, batch_size: int) -> DataLoader:
         arrays = self.arrays[split]
         n, steps = arrays["states"].shape[:2]
         sampler = WindowSampler(n, steps - self.chunk_len + 1, self.seed, shuffle)
-        return DataLoader(Windows(arrays, self.chunk_len), sampler=sampler, batch_size=self.batch_size,
+        return DataLoader(Windows(arrays, self.chunk_len), sampler=sampler, batch_size=batch_size,
                           collate_fn=_identity)
 
     def train_dataloader(self) -> DataLoader:
-        return self._windows("train", shuffle=True)
+        return self._windows("train", True, self.batch_size)
 
     def val_dataloader(self) -> DataLoader:
-        return self._windows("val", shuffle=False)
+        return self._windows("val", False, self.val_batch_size)
 
     def test_dataloader(self) -> DataLoader:
         arrays = self.arrays["test"]

@@ -23,7 +23,7 @@ not differentiated.
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Callable
 
 import torch
 from torch import Tensor
@@ -111,16 +111,21 @@ class SyMo(DiscreteModel):
         return g if f is None else g + f[..., :-2, :] + f[..., 1:-1, :]
 
     # -- Newton root-find --------------------------------------------------------------------------
-    def d1_and_jacobian(self, a: Tensor, b: Tensor, h: Tensor) -> tuple[Tensor, Tensor]:
-        """D₁L_d(a, b) and its Jacobian in b (..., n, n): rows by one vjp per coordinate, batched by vmap
-        (reverse over reverse, rather than jvp over reverse)."""
-        def d1(y: Tensor) -> Tensor:
-            return grad(lambda x: self.discrete_lagrangian(x, y, h).sum())(a)
+    def d1_and_pullback(self, a: Tensor, b: Tensor, h: Tensor) -> tuple[Tensor, Callable]:
+        """D₁L_d(a, b) and the vjp of b ↦ D₁L_d(a, b), from which ``jacobian`` builds ∂D₁L_d/∂b."""
+        return vjp(lambda y: grad(lambda x: self.discrete_lagrangian(x, y, h).sum())(a), b)
 
-        value, pullback = vjp(d1, b)
+    def jacobian(self, pullback: Callable, b: Tensor) -> Tensor:
+        """∂D₁L_d/∂b (..., n, n) at the point of ``pullback``: rows by one vjp per coordinate, batched by
+        vmap (reverse over reverse, rather than jvp over reverse)."""
         basis = torch.eye(self.n, dtype=b.dtype, device=b.device).reshape(self.n, *[1] * (b.dim() - 1), self.n)
         (rows,) = vmap(pullback)(basis.expand(self.n, *b.shape))
-        return value, rows.movedim(0, -2)
+        return rows.movedim(0, -2)
+
+    def d1_and_jacobian(self, a: Tensor, b: Tensor, h: Tensor) -> tuple[Tensor, Tensor]:
+        """D₁L_d(a, b) and its Jacobian in b (..., n, n)."""
+        value, pullback = self.d1_and_pullback(a, b, h)
+        return value, self.jacobian(pullback, b)
 
     def newton(self, c: Tensor, q: Tensor, guess: Tensor, h: Tensor, tol: float,
                iters: int) -> tuple[Tensor, Tensor, int, Tensor]:
@@ -129,8 +134,11 @@ class SyMo(DiscreteModel):
         Each sample (leading index) converges on its own: it stops moving once its RMS residual over
         the n coordinates is ≤ ``tol``. A Newton step is safeguarded by backtracking: it is halved (up to
         ``backtracks`` times) until the sample's residual norm decreases; a sample whose residual no
-        halved step decreases keeps its iterate. Returns (root, ∂g/∂x at the root, Newton iterations
-        taken, mask of the samples not converged after ``iters`` iterations).
+        halved step decreases keeps its iterate and stops iterating: every later iteration would repeat
+        that step exactly (the samples' computations are independent), so the result is the one ``iters``
+        iterations give. When every sample takes its full step, that trial's vjp gives the next Jacobian
+        (no second evaluation at the same point). Returns (root, ∂g/∂x at the root, Newton iterations taken, mask of the samples
+        not converged after ``iters`` iterations).
         """
         c, q, x = c.detach(), q.detach(), guess.detach()
 
@@ -141,14 +149,19 @@ class SyMo(DiscreteModel):
             d1, jac = self.d1_and_jacobian(q, x, h)
             g = c + d1
             norm, it = rms(g), 0
-            while it < iters and (active := norm > tol).any():
+            stalled = torch.zeros_like(norm, dtype=torch.bool)
+            while it < iters and (active := (norm > tol) & ~stalled).any():
                 it += 1
                 step = torch.linalg.solve_ex(jac, g.unsqueeze(-1))[0].squeeze(-1)
                 step = torch.where(active.unsqueeze(-1), step, torch.zeros_like(step)).nan_to_num(0.0, 0.0, 0.0)
                 scale, todo = torch.ones_like(norm), active.clone()
-                for _ in range(self.backtracks + 1):
+                for halvings in range(self.backtracks + 1):
                     trial = x - scale.unsqueeze(-1) * step
-                    trial_norm = rms(c + grad(lambda a: self.discrete_lagrangian(a, trial, h).sum())(q))
+                    if halvings == 0:  # the full step: keep its vjp for the Jacobian should every sample take it
+                        trial_d1, pullback = self.d1_and_pullback(q, trial, h)
+                    else:
+                        trial_d1 = grad(lambda a: self.discrete_lagrangian(a, trial, h).sum())(q)
+                    trial_norm = rms(c + trial_d1)
                     better = todo & (trial_norm < norm)
                     x = torch.where(better.unsqueeze(-1), trial, x)
                     norm = torch.where(better, trial_norm, norm)
@@ -156,7 +169,11 @@ class SyMo(DiscreteModel):
                     if not todo.any():
                         break
                     scale = torch.where(todo, 0.5 * scale, scale)
-                d1, jac = self.d1_and_jacobian(q, x, h)
+                stalled |= todo  # same iterate, same step, same failed halvings in every later iteration
+                if halvings == 0 and not todo.any():  # every sample is at the full step's trial (inactive: step 0)
+                    d1, jac = trial_d1, self.jacobian(pullback, trial)
+                else:
+                    d1, jac = self.d1_and_jacobian(q, x, h)
                 g = c + d1
         return x, jac, it, rms(g) > tol
 
