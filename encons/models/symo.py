@@ -111,9 +111,13 @@ class SyMo(DiscreteModel):
         return g if f is None else g + f[..., :-2, :] + f[..., 1:-1, :]
 
     # -- Newton root-find --------------------------------------------------------------------------
+    def d1(self, a: Tensor, b: Tensor, h: Tensor) -> Tensor:
+        """D₁L_d(a, b), the first-slot gradient alone (the DEL unknown is b)."""
+        return grad(lambda x: self.discrete_lagrangian(x, b, h).sum())(a)
+
     def d1_and_pullback(self, a: Tensor, b: Tensor, h: Tensor) -> tuple[Tensor, Callable]:
         """D₁L_d(a, b) and the vjp of b ↦ D₁L_d(a, b), from which ``jacobian`` builds ∂D₁L_d/∂b."""
-        return vjp(lambda y: grad(lambda x: self.discrete_lagrangian(x, y, h).sum())(a), b)
+        return vjp(lambda y: self.d1(a, y, h), b)
 
     def jacobian(self, pullback: Callable, b: Tensor) -> Tensor:
         """∂D₁L_d/∂b (..., n, n) at the point of ``pullback``: rows by one vjp per coordinate, batched by
@@ -160,7 +164,7 @@ class SyMo(DiscreteModel):
                     if halvings == 0:  # the full step: keep its vjp for the Jacobian should every sample take it
                         trial_d1, pullback = self.d1_and_pullback(q, trial, h)
                     else:
-                        trial_d1 = grad(lambda a: self.discrete_lagrangian(a, trial, h).sum())(q)
+                        trial_d1 = self.d1(q, trial, h)
                     trial_norm = rms(c + trial_d1)
                     better = todo & (trial_norm < norm)
                     x = torch.where(better.unsqueeze(-1), trial, x)
@@ -187,7 +191,7 @@ class SyMo(DiscreteModel):
         self.newton_unconverged += int(unconverged.sum())
         if not torch.is_grad_enabled():
             return root
-        residual = c + grad(lambda x: self.discrete_lagrangian(x, root, h).sum())(q)
+        residual = c + self.d1(q, root, h)
         return ImplicitRoot.apply(residual, jac, root)
 
     def diagnostics(self) -> dict[str, float]:
