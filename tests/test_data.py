@@ -9,7 +9,7 @@ import torch
 from encons.data import store
 from encons.data.datamodule import TrajectoryDataModule, WindowSampler
 from encons.data.simulate import simulate
-from encons.errors import DataError
+from encons.errors import ConfigError, DataError
 from encons.systems.pendulum import NPendulum
 
 SMALL = dict(n_train=12, n_val=3, n_test=4, n_steps=20, batch_size=5)
@@ -82,6 +82,40 @@ def test_windows_are_deterministic_per_epoch_and_cover_every_trajectory():
     sampler.set_epoch(3)
     assert first == list(sampler) and first != other
     assert sorted(i for i, _ in first) == list(range(10)) and all(0 <= s < 7 for _, s in first)
+
+
+def test_random_windows_are_unchanged_and_all_windows_visit_every_window_once_per_epoch():
+    random = WindowSampler(5, 3, seed=2)
+    random.set_epoch(1)
+    assert list(random) == [(1, 1), (0, 0), (4, 1), (2, 1), (3, 1)]  # drawn before windows="all" existed
+    every = WindowSampler(5, 3, seed=2, every=True)
+    every.set_epoch(1)
+    first = list(every)
+    every.set_epoch(2)
+    assert len(every) == 15 and sorted(first) == [(i, s) for i in range(5) for s in range(3)]
+    assert sorted(every) == sorted(first) and list(every) != first
+    assert len({i for i, _ in first[:5]}) > 1  # shuffled across trajectories, not trajectory by trajectory
+
+
+def test_all_windows_make_an_epoch_a_pass_over_every_window(tmp_path):
+    dm = make(tmp_path, chunk_len=5, windows="all")
+    dm.prepare_data()
+    dm.setup()
+    n_train, states = dm.states["train"].shape[:2]
+    batches = list(dm.train_dataloader())
+    assert sum(b["states"].shape[0] for b in batches) == n_train * (states - 4)
+    assert len(batches) == -(-n_train * (states - 4) // dm.batch_size)
+    one = make(tmp_path, chunk_len=5)
+    one.prepare_data()
+    one.setup()
+    assert len(list(one.train_dataloader())) == -(-n_train // dm.batch_size)
+    val = [b["states"] for b in dm.val_dataloader()]
+    assert all(torch.equal(a, b["states"]) for a, b in zip(val, one.val_dataloader(), strict=True))  # training only
+
+
+def test_an_unknown_windows_value_is_refused(tmp_path):
+    with pytest.raises(ConfigError, match=r"^data.windows='some'; allowed: random, all$"):
+        make(tmp_path, windows="some")
 
 
 def test_train_batches_are_windows_of_chunk_len(tmp_path):

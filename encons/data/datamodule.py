@@ -1,7 +1,9 @@
 """LightningDataModule: simulate or load trajectories, serve them in the model's chart.
 
-Training yields random windows of ``chunk_len`` states, one per trajectory per epoch, drawn
-from ``(seed, epoch)`` so a resumed run sees the same windows as an uninterrupted one.
+Training yields windows of ``chunk_len`` states, drawn from ``(seed, epoch)`` so a resumed run sees the
+same windows as an uninterrupted one: ``windows="random"``, one per trajectory per epoch at a random
+start; ``"all"``, every window of every trajectory once per epoch, shuffled (a pass over all states, as a
+dataset of samples would make it; n_steps + 2 − chunk_len times the steps per epoch).
 Validation yields fixed windows, ``val_batch_size`` per batch (null: ``batch_size``; the validation loss is
 their mean either way, so it only sets how many rollouts run side by side); test yields whole trajectories. Noise (σ = ``noise``) is
 added to training states only: validation and test compare rollouts with the clean simulated
@@ -16,8 +18,9 @@ of the observed states for loaded data (second order, one-sided at trajectory en
 the recorded q̇).
 A loaded recording (``.npz`` or delimited text, one or several trials) is cut by time as
 ``encons.data.recording`` says (options ``recording``: ``encons.data.recording.OPTIONS``).
-An epoch is one pass over the training trajectories, ceil(n_train / batch_size) optimiser steps (logged
-at setup): with a small file that may be one step, so budget such runs with ``trainer.max_steps``.
+An epoch is ceil(n_train / batch_size) optimiser steps with ``windows="random"``, ceil(n_train × windows per
+trajectory / batch_size) with ``"all"`` (logged at setup): with a small file and ``"random"`` that may be one
+step, so budget such runs with ``trainer.max_steps`` or use ``"all"``.
 """
 
 from __future__ import annotations
@@ -61,22 +64,29 @@ class Windows(Dataset):
         return {key: array[at] for key, array in self.arrays.items()}
 
 
-class WindowSampler(Sampler):
-    """``(trajectory, start)`` pairs: a pass over trajectories (shuffled unless ``shuffle`` is
-    false) with random window starts, drawn from ``(seed, epoch)``."""
+WINDOWS = ("random", "all")
 
-    def __init__(self, n_traj: int, n_starts: int, seed: int, shuffle: bool = True):
-        self.n_traj, self.n_starts, self.seed, self.shuffle, self.epoch = n_traj, n_starts, seed, shuffle, 0
+
+class WindowSampler(Sampler):
+    """``(trajectory, start)`` pairs drawn from ``(seed, epoch)``: a pass over trajectories (shuffled unless
+    ``shuffle`` is false) with random window starts, or with ``every``, every (trajectory, start) pair once."""
+
+    def __init__(self, n_traj: int, n_starts: int, seed: int, shuffle: bool = True, every: bool = False):
+        self.n_traj, self.n_starts, self.seed, self.shuffle, self.every = n_traj, n_starts, seed, shuffle, every
+        self.epoch = 0
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
 
     def __len__(self) -> int:
-        return self.n_traj
+        return self.n_traj * (self.n_starts if self.every else 1)
 
     def __iter__(self):
         gen = torch.Generator().manual_seed(self.seed * 1_000_003 + (self.epoch if self.shuffle else 0))
-        order = torch.randperm(self.n_traj, generator=gen) if self.shuffle else torch.arange(self.n_traj)
+        n = len(self)
+        order = torch.randperm(n, generator=gen) if self.shuffle else torch.arange(n)
+        if self.every:
+            return iter(zip((order // self.n_starts).tolist(), (order % self.n_starts).tolist()))
         starts = torch.randint(self.n_starts, (self.n_traj,), generator=gen)
         return iter(zip(order.tolist(), starts[order].tolist()))
 
@@ -95,8 +105,10 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
                  n_steps: Size = 100, test_steps: int | None = None, dt: Positive = 0.03,
                  noise: NonNegative = 0.01, substeps: Size = 10, chunk_len: int = 5, batch_size: Size = 200,
                  val_batch_size: Size | None = None, seed: Seed = 0, cache_dir: str = ".cache/encons", objective: str | None = "rollout",
-                 recording: dict | None = None):
+                 recording: dict | None = None, windows: str = "random"):
         super().__init__()
+        if windows not in WINDOWS:
+            raise ConfigError(f"data.windows={windows!r}; allowed: {', '.join(WINDOWS)}")
         if test_steps is not None and test_steps < n_steps:
             raise ConfigError(f"data.test_steps={test_steps} is shorter than data.n_steps={n_steps}; allowed: "
                               f"null (= n_steps) or an integer >= {n_steps}")
@@ -109,6 +121,7 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
         self.test_steps = test_steps or n_steps
         self.chunk_len, self.batch_size, self.seed = chunk_len, batch_size, seed
         self.val_batch_size = val_batch_size or batch_size
+        self.windows = windows
         self.objective, self.recording = objective, dict(recording or {})
         gen_config = dict(system=system_config or {"name": system.name}, sizes=self.sizes, n_steps=n_steps,
                           test_steps=self.test_steps, dt=dt, substeps=substeps, seed=seed)
@@ -198,10 +211,13 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
                                 f"{splits['train'].shape[0] + splits['val'].shape[0]} in all, 1 in 10 held out for "
                                 f"validation); allowed: >= 2 train trajectories, or a 'val' array")
 
-        n_train = self.arrays["train"]["states"].shape[0]
-        log.info("train: %d trajectories in batches of %d: %d optimiser step(s) per epoch%s", n_train,
-                 self.batch_size, -(-n_train // self.batch_size),
-                 " (a file: budget training with trainer.max_steps)" if self.path is not None else "")
+        n_train, states = self.arrays["train"]["states"].shape[:2]
+        n_windows = n_train * (states - self.chunk_len + 1 if self.windows == "all" else 1)
+        log.info("train: %d windows of %d states (%s) in batches of %d: %d optimiser step(s) per epoch%s", n_windows,
+                 self.chunk_len, f"every window of {n_train} trajectories" if self.windows == "all" else
+                 f"one per trajectory, {n_train} trajectories", self.batch_size, -(-n_windows // self.batch_size),
+                 " (a file: budget training with trainer.max_steps)" if self.path is not None and
+                 self.windows == "random" else "")
 
     @property
     def states(self) -> dict[str, Tensor]:
@@ -218,7 +234,7 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
     def _windows(self, split: str, shuffle: bool, batch_size: int) -> DataLoader:
         arrays = self.arrays[split]
         n, steps = arrays["states"].shape[:2]
-        sampler = WindowSampler(n, steps - self.chunk_len + 1, self.seed, shuffle)
+        sampler = WindowSampler(n, steps - self.chunk_len + 1, self.seed, shuffle, every=shuffle and self.windows == "all")
         return DataLoader(Windows(arrays, self.chunk_len), sampler=sampler, batch_size=batch_size,
                           collate_fn=_identity)
 
