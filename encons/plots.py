@@ -416,12 +416,14 @@ PIXEL_MSE = "pixel MSE [intensity², intensity in 0–1]"
 DATA_TIME = "time t [the data's time unit]"
 
 
-def pixel_mse_figure(t: Tensor, mse: Tensor, title: str) -> dict[str, Figure]:
+def pixel_mse_figure(t: Tensor, mse: Tensor, title: str, references: dict[str, Tensor]) -> dict[str, Figure]:
     """Pixel MSE (N, T) of decoded predictions against the true frames over time, median and 2.5–97.5 %
-    band over test videos, with the mean (``pixel_mse``)."""
+    band over test videos, with the mean and the means of ``references`` (name: (N, ≤ T), from t[0] on) (``pixel_mse``)."""
     fig, ax = subplots(figsize=(6.5, 4))
     _band(ax, t, mse.clamp_min(1e-12), PIXEL_MSE)
     ax.plot(t, mse.mean(0), "k--", lw=1, label="mean over test videos")
+    for (name, ref), style in zip(references.items(), (":", "-.")):
+        ax.plot(t[:ref.shape[1]], ref.mean(0), color="grey", ls=style, lw=1.2, label=f"{name} (mean)")
     ax.set_xlabel(DATA_TIME)
     ax.legend(fontsize=8)
     ax.set_title(f"{title}\npredicted frames from the first encoded state", fontsize=9)

@@ -165,6 +165,7 @@ HEADLINE = ("wall_time_s", "test/diverged", "test/traj_rel_err", "test/geom_rel_
             "test/mse_train", "test/mse_test", "test/mse_integration", "test/energy_mse_integration",
             "test/mass_mse", "test/newton_unconverged", "test/newton_unconverged_integration",
             "test/pixel_mse", "test/pixel_mse_final", "test/pixel_mse_final_median",
+            "test/baseline_constant/pixel_mse", "test/autoencoder/pixel_mse", "test/autoencoder/pixel_mse_final",
             "test/control/success_rate", "test/oracle/success_rate", "test/control/time_to_upright_s",
             "test/oracle/time_to_upright_s", "test/control/effort", "test/oracle/effort", "test/control/pred_rmse",
             "test/control/b_rel_err")

@@ -194,6 +194,28 @@ def test_every_latent_model_trains_on_pixels(train_run, tmp_path, name):
     assert (tmp_path / "run" / "figures" / "pixel_mse.png").is_file()
 
 
+def test_pixel_scores_stand_beside_a_still_first_frame_and_the_autoencoder_floor(train_run, tmp_path):
+    """``baseline_constant/`` is each test video's first frame held (0 at t = 0, then the true motion's own
+    pixel change); ``autoencoder/`` decodes the encoded true frames — at t = 0 the rollout starts from the
+    first encoded state, so there the model's pixel MSE is exactly the floor."""
+    metrics = train_run(["model=node", "system=pixel_pendulum", "data.n_train=6", "data.n_val=2", "data.n_test=3",
+                         "data.n_steps=8", "horizon=4", "trainer.max_epochs=1"])
+    curves = np.load(tmp_path / "run" / "test_curves.npz")
+    still, floor, mse = (curves[k] for k in ("baseline_constant/pixel_mse", "autoencoder/pixel_mse", "pixel_mse"))
+    cfg = api.compose("debug=fast", "system=pixel_pendulum", "data.n_train=6", "data.n_val=2", "data.n_test=3",
+                      "data.n_steps=8", output_dir=tmp_path / "again", cache_dir=tmp_path / "cache")
+    data, _ = api.build(cfg)
+    data.setup("test")
+    frames = next(iter(data.test_dataloader()))["obs"].double()
+    assert still.shape == mse.shape == frames.shape[:2] and floor.shape == (3, frames.shape[1] - 1)
+    np.testing.assert_allclose(still, (frames[:, :1] - frames).square().mean((-1, -2)).numpy(), rtol=1e-6)
+    assert still[:, 0].max() == 0 and still[:, 1:].min() > 0
+    np.testing.assert_allclose(mse[:, 0], floor[:, 0], rtol=1e-5)
+    assert metrics["test/baseline_constant/pixel_mse"] == pytest.approx(still.mean(), rel=1e-6)
+    assert metrics["test/autoencoder/pixel_mse_final"] == pytest.approx(floor[:, -1].mean(), rel=1e-6)
+    assert (tmp_path / "run" / "figures" / "pixel_mse.png").is_file()
+
+
 def test_pixel_rollouts_of_a_briefly_trained_model_stay_within_the_frames_range(tmp_path):
     """The decoder is bounded to the frames' range [0, 1]: after a few optimiser steps, the decoded
     latent rollouts of the test videos to t = 100 — and latents far outside anything encoded — give

@@ -24,7 +24,11 @@ class Pixels(Evaluator):
     ``pixel_mse`` (over pixels, steps and videos), its value at the last step (mean, median) and the
     fraction of rollouts with a non-finite frame (``diverged``); curves: pixel MSE and relative error per
     video and step, the latent rollouts and the encoder's latents of the true frames (Lim & Kasim §6).
-    Runs through an observation model only; no oracle (the frames have no true latent field)."""
+    Beside them, the same pixel MSEs of two references: ``baseline_constant/`` holds each video's first
+    frame (a pendulum that never moves: what a model that learned no motion can reach) and ``autoencoder/``
+    decodes the encoder's latents of the true frames (the floor the autoencoder sets: a perfect latent
+    rollout scores no lower; every frame but the last ``stack`` − 1, which begin no encoder input). Runs through an observation model only; no oracle (the frames have no true
+    latent field)."""
 
     def check(self, module: TrainingModule) -> None:
         if module.observation.identity:
@@ -43,6 +47,8 @@ class Pixels(Evaluator):
         frames = module.observation.decode(pred).double()
         x = x.double()
         mse = (frames - x).square().mean((-1, -2))                                       # (N, T)
+        still = (x[:, :1] - x).square().mean((-1, -2))
+        floor = (module.observation.decode(states).double() - x[:, :states.shape[1]]).square().mean((-1, -2))
         t = module.times(x.shape[1], x).cpu()
         tre = metrics.trajectory_relative_error(frames.flatten(2), x.flatten(2), module.horizon)
         finite = mse.isfinite().all(-1)
@@ -50,17 +56,21 @@ class Pixels(Evaluator):
                   "pixel_mse": mse.mean().item(), "pixel_mse_final": mse[:, -1].mean().item(),
                   "pixel_mse_final_median": mse[:, -1].median().item(),
                   "diverged": 1.0 - finite.double().mean().item()}
+        for name, ref in (("baseline_constant", still), ("autoencoder", floor)):
+            scores |= {f"{name}/pixel_mse": ref.mean().item(), f"{name}/pixel_mse_final": ref[:, -1].mean().item()}
         log.info("pixel MSE of predicted frames: %s", ", ".join(
             f"t={t[k]:.0f}: {mse[:, k].mean().item():.4g}" for k in sorted({0, len(t) // 4, len(t) // 2, len(t) - 1})))
-        curves = {"t": t.numpy(), "pixel_mse": mse.cpu().numpy(),
+        curves = {"t": t.numpy(), "pixel_mse": mse.cpu().numpy(), "baseline_constant/pixel_mse": still.cpu().numpy(),
+                  "autoencoder/pixel_mse": floor.cpu().numpy(),
                   "rel_err": metrics.relative_error(frames.flatten(2), x.flatten(2)).cpu().numpy(),
                   "latent_pred": pred.cpu().numpy(), "latent_encoded": states.cpu().numpy()}
-        self.drawn = t, mse.cpu(), pred.cpu(), states.cpu(), frames.cpu(), x.cpu()
+        self.drawn = t, mse.cpu(), still.cpu(), floor.cpu(), pred.cpu(), states.cpu(), frames.cpu(), x.cpu()
         return Result(scores, curves)
 
     def figures(self, module: TrainingModule) -> dict[str, Figure]:
         """``pixel_mse`` against time, ``latent_phase`` (Lim & Kasim Fig. 4) and ``frames`` (Figs. 5–6)."""
-        t, mse, pred, states, frames, x = self.drawn
+        t, mse, still, floor, pred, states, frames, x = self.drawn
         title = module.run_title()
-        return {**plots.pixel_mse_figure(t, mse, title), **plots.latent_phase_figure(pred, states, title),
+        references = {"first frame held": still, "autoencoder floor": floor}
+        return {**plots.pixel_mse_figure(t, mse, title, references), **plots.latent_phase_figure(pred, states, title),
                 **plots.frames_figure(t, frames, x, title)}
