@@ -141,6 +141,7 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
     try:
         trained = runs.train(cfg, summary=False)
         results, error, wall = dict(trained.metrics), "", time.perf_counter() - started  # training time only
+        steps = trained.module.trainer.global_step
         if control:
             from encons.control import score_control
 
@@ -149,24 +150,25 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
         raise Interrupted(f"{run.id}: {str(err).split(';')[0]}; rerun the same benchmark command: finished runs "
                           f"are skipped and this one resumes from its last.ckpt") from None
     except EnconsError as err:
-        results, error, wall = {}, str(err), time.perf_counter() - started
+        results, error, wall, steps = {}, str(err), time.perf_counter() - started, None
     row = {"system": run.system, "model": run.label, "seed": run.seed, "n_train": cfg.data.n_train,
            "data_efficiency": run.n_train is not None, "run_dir": str(run_dir), "error": error,
-           "wall_time_s": wall, "overrides": " ".join(run.overrides), "optimiser": optimiser(cfg),
+           "wall_time_s": wall, "overrides": " ".join(run.overrides), "optimiser": optimiser(cfg, steps),
            **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))}}
     write_json(done, row, indent=1)  # atomic: a run killed before it is rerun
     return row
 
 
-def optimiser(cfg: DictConfig) -> str:
-    """The optimiser, its lr and weight decay, the schedule and the epochs a run trained with, as the
-    report's optimiser column shows them (class names of the ``optimizer`` and ``scheduler`` configs)."""
+def optimiser(cfg: DictConfig, steps: int | None = None) -> str:
+    """The optimiser, its lr and weight decay, the schedule and the epochs (and optimiser ``steps``, where
+    known: what an epoch is differs between data protocols) a run trained with, as the report's optimiser
+    column shows them (class names of the ``optimizer`` and ``scheduler`` configs)."""
     o, s = cfg.optimizer, cfg.get("scheduler")
     name = str(o._target_).rsplit(".", 1)[-1]
     keys = ", ".join(f"{k} {v:g}" for k, v in o.items() if not k.startswith("_") and isinstance(v, (int, float)))
     schedule = "constant lr" if not s else str(s._target_).rsplit(".", 1)[-1] + "".join(
         f", {k} {v:g}" for k, v in s.items() if not k.startswith("_") and isinstance(v, (int, float)))
-    return f"{name} {keys}; {schedule}; {cfg.trainer.max_epochs} epochs"
+    return f"{name} {keys}; {schedule}; {cfg.trainer.max_epochs} epochs" + (f" ({steps} steps)" if steps else "")
 
 
 def resume_or_clear(cfg: DictConfig, checkpoints: Path) -> None:

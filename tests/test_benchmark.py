@@ -35,7 +35,9 @@ def test_smoke_profile_writes_report_and_resumes(tmp_path, capsys):
     assert "| pendulum1 | hnn | 16 |" in md and "traj_rel_err" in md
     # the floor beside the models (the true field, same evaluation), and the optimiser each model used
     assert "| pendulum1 | oracle (true field) |" in md and "optimiser |" in md.splitlines()[2]
-    assert "AdamW lr 0.001, weight_decay 0.01; constant lr; 2 epochs |" in md
+    # the budget in optimiser steps too (an epoch is one window per trajectory here: 2 × ceil(n_train / batch))
+    hnn16 = next(line for line in md.splitlines() if line.startswith("| pendulum1 | hnn | 16 |"))
+    assert hnn16.endswith("| AdamW lr 0.001, weight_decay 0.01; constant lr; 2 epochs (4 steps) |")
     oracle_row = next(line for line in md.splitlines() if "oracle (true field)" in line)
     assert float(oracle_row.split("|")[md.splitlines()[2].split("|").index(" geom_rel_err ")].split("±")[0]) < 1e-6
     for name in ("summary.csv", *FIGURES):
