@@ -67,7 +67,7 @@ def test_the_cli_trains_on_a_csv_recording_for_a_budget_in_steps(tmp_path, caplo
         run = api.train(cfg)
     assert math.isfinite(run.metrics["test/traj_rel_err"])
     assert "54 trajectories in batches of 8: 7 optimiser step(s) per epoch (a file: budget training with " \
-           "trainer.max_steps)" in caplog.text
+           "trainer.max_steps, or data.windows=all)" in caplog.text
     last = torch.load(run.run_dir / "checkpoints" / "last.ckpt", weights_only=True, map_location="cpu")
     assert last["global_step"] == 9 and last["epoch"] == 1                 # 9 steps: epoch 0 whole, 2 of epoch 1
 

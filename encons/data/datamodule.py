@@ -212,12 +212,13 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
                                 f"validation); allowed: >= 2 train trajectories, or a 'val' array")
 
         n_train, states = self.arrays["train"]["states"].shape[:2]
-        n_windows = n_train * (states - self.chunk_len + 1 if self.windows == "all" else 1)
-        log.info("train: %d windows of %d states (%s) in batches of %d: %d optimiser step(s) per epoch%s", n_windows,
-                 self.chunk_len, f"every window of {n_train} trajectories" if self.windows == "all" else
-                 f"one per trajectory, {n_train} trajectories", self.batch_size, -(-n_windows // self.batch_size),
-                 " (a file: budget training with trainer.max_steps)" if self.path is not None and
-                 self.windows == "random" else "")
+        every = self.windows == "all"
+        n_windows = n_train * (states - self.chunk_len + 1 if every else 1)
+        log.info("train: %s in batches of %d: %d optimiser step(s) per epoch%s",
+                 f"every window of {n_train} trajectories ({n_windows})" if every else f"{n_train} trajectories",
+                 self.batch_size, -(-n_windows // self.batch_size),
+                 " (a file: budget training with trainer.max_steps, or data.windows=all)"
+                 if self.path is not None and not every else "")
 
     @property
     def states(self) -> dict[str, Tensor]:
