@@ -235,7 +235,8 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
     def _windows(self, split: str, shuffle: bool, batch_size: int) -> DataLoader:
         arrays = self.arrays[split]
         n, steps = arrays["states"].shape[:2]
-        sampler = WindowSampler(n, steps - self.chunk_len + 1, self.seed, shuffle, every=shuffle and self.windows == "all")
+        every = shuffle and self.windows == "all"   # validation keeps its fixed windows
+        sampler = WindowSampler(n, steps - self.chunk_len + 1, self.seed, shuffle, every)
         return DataLoader(Windows(arrays, self.chunk_len), sampler=sampler, batch_size=batch_size,
                           collate_fn=_identity)
 

@@ -25,10 +25,10 @@ class Pixels(Evaluator):
     fraction of rollouts with a non-finite frame (``diverged``); curves: pixel MSE and relative error per
     video and step, the latent rollouts and the encoder's latents of the true frames (Lim & Kasim §6).
     Beside them, the same pixel MSEs of two references: ``baseline_constant/`` holds each video's first
-    frame (a pendulum that never moves: what a model that learned no motion can reach) and ``autoencoder/``
-    decodes the encoder's latents of the true frames (the floor the autoencoder sets: a perfect latent
-    rollout scores no lower; every frame but the last ``stack`` − 1, which begin no encoder input). Runs through an observation model only; no oracle (the frames have no true
-    latent field)."""
+    frame (a pendulum that never moves) and ``autoencoder/`` decodes the encoder's latents of the true frames
+    (the floor the autoencoder sets: what a latent rollout equal to the encoded states scores; every frame but
+    the last ``stack`` − 1, which begin no encoder input).
+    Runs through an observation model only; no oracle (the frames have no true latent field)."""
 
     def check(self, module: TrainingModule) -> None:
         if module.observation.identity:
