@@ -211,9 +211,9 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
                                 f"{splits['train'].shape[0] + splits['val'].shape[0]} in all, 1 in 10 held out for "
                                 f"validation); allowed: >= 2 train trajectories, or a 'val' array")
 
-        n_train, states = self.arrays["train"]["states"].shape[:2]
+        n_train = self.arrays["train"]["states"].shape[0]
         every = self.windows == "all"
-        n_windows = n_train * (states - self.chunk_len + 1 if every else 1)
+        n_windows = len(self._sampler("train", True))
         log.info("train: %s in batches of %d: %d optimiser step(s) per epoch%s",
                  f"every window of {n_train} trajectories ({n_windows})" if every else f"{n_train} trajectories",
                  self.batch_size, -(-n_windows // self.batch_size),
@@ -232,13 +232,14 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
             return jvp(lambda s: self.system.to_chart(s, chart, self.chart), (clean,), (field,))[1]
         return torch.gradient(observed, spacing=self.dt, dim=1, edge_order=2)[0]
 
-    def _windows(self, split: str, shuffle: bool, batch_size: int) -> DataLoader:
-        arrays = self.arrays[split]
-        n, steps = arrays["states"].shape[:2]
+    def _sampler(self, split: str, shuffle: bool) -> WindowSampler:
+        n, steps = self.arrays[split]["states"].shape[:2]
         every = shuffle and self.windows == "all"   # validation keeps its fixed windows
-        sampler = WindowSampler(n, steps - self.chunk_len + 1, self.seed, shuffle, every)
-        return DataLoader(Windows(arrays, self.chunk_len), sampler=sampler, batch_size=batch_size,
-                          collate_fn=_identity)
+        return WindowSampler(n, steps - self.chunk_len + 1, self.seed, shuffle, every)
+
+    def _windows(self, split: str, shuffle: bool, batch_size: int) -> DataLoader:
+        return DataLoader(Windows(self.arrays[split], self.chunk_len), sampler=self._sampler(split, shuffle),
+                          batch_size=batch_size, collate_fn=_identity)
 
     def train_dataloader(self) -> DataLoader:
         return self._windows("train", True, self.batch_size)
