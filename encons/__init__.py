@@ -3,6 +3,7 @@
 The public surface (``encons.api``), imported on first use so ``import encons`` stays light::
 
     cfg = encons.compose("model=hnn_angle", "system=pendulum1")   # overrides as on the CLI
+    data, module = encons.build(cfg)   # the objects, without training (a notebook)
     run = encons.train(cfg)        # Run: .module (best checkpoint), .metrics, .run_dir
     run = encons.load(run_dir)     # a run folder or a .ckpt (checkpoints carry their config)
     encons.evaluate(run)           # test metrics, figures under <run>/evaluation
@@ -12,7 +13,7 @@ The public surface (``encons.api``), imported on first use so ``import encons`` 
 
 from importlib import metadata
 
-__all__ = ["Run", "catalogue", "compose", "evaluate", "load", "rollout", "score_control", "train"]
+__all__ = ["Run", "build", "catalogue", "compose", "evaluate", "load", "rollout", "score_control", "train"]
 
 try:
     __version__ = metadata.version("encons")

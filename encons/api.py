@@ -6,8 +6,8 @@
     again = encons.load(run.run_dir)     # from the checkpoint alone: it carries its config
     encons.evaluate(again)               # the same test metrics, to the digit
 
-A facade over ``encons.build`` (compose, check, instantiate) and ``encons.runs`` (train, load,
-evaluate); the CLI (``encons.cli``) calls the same functions. Lightning and torch are imported on
+A facade over ``encons.build`` (compose, instantiate), ``encons.config`` (validate once) and
+``encons.runs`` (train, load, evaluate); the CLI (``encons.cli``) calls the same functions. Lightning and torch are imported on
 first use, not at import.
 """
 
@@ -21,9 +21,11 @@ from omegaconf import DictConfig
 from encons.build import build, build_trainer, catalogue
 from encons.build import compose as _compose
 from encons import runs
+from encons.config import validate
 from encons.runs import Run, evaluate, load
 
-__all__ = ["Run", "compose", "build", "build_trainer", "train", "load", "evaluate", "rollout", "catalogue"]
+__all__ = ["Run", "compose", "validate", "build", "build_trainer", "train", "load", "evaluate", "rollout",
+           "catalogue"]
 
 
 def __getattr__(name: str):  # ``rollout`` re-exported without importing torch at ``import encons.api``

@@ -27,8 +27,7 @@ from encons.bounds import declare
 from encons.errors import ConfigError
 
 if TYPE_CHECKING:
-    from encons.build import Request
-    from encons.models.base import DynamicsModel
+    from encons.config import Request
 
 #: Where a diverged plain-inverse attempt's files go, inside the run folder.
 SET_ASIDE = "diverged_plain"
@@ -60,11 +59,13 @@ def has_guard(cls: type) -> bool:
 
 
 @declare("", plain_solve=bool)
-def plan(cfg: DictConfig, request: Request) -> list[Attempt]:
-    """The attempts of a checked config (its model target trusted), in order: the plain inverse, then the
-    guarded solve from scratch (no ``ckpt_path``); or one: a model without a guard, no ``plain_solve``,
-    ``model.guard=0``, or a resume (``ckpt_path``) of a checkpoint trained with the guarded solve."""
-    if not cfg.get("plain_solve") or not has_guard(trust.locate(cfg.model._target_, "model")):
+def plan(cfg: DictConfig, request: Request, model: type | None = None) -> list[Attempt]:
+    """The attempts of a checked config (its model target trusted; ``model``: its class, if looked up
+    already), in order: the plain inverse, then the guarded solve from scratch (no ``ckpt_path``); or one:
+    a model without a guard, no ``plain_solve``, ``model.guard=0``, or a resume (``ckpt_path``) of a
+    checkpoint trained with the guarded solve."""
+    model = trust.locate(cfg.model._target_, "model") if model is None else model
+    if not cfg.get("plain_solve") or not has_guard(model):
         return [Attempt(cfg, request)]
     if cfg.model.guard == 0:
         return [Attempt(cfg, request, plain=True)]
@@ -92,12 +93,13 @@ def _resumes_guarded(plain: DictConfig, guarded: DictConfig) -> bool:
     return False
 
 
-def record(cfg: DictConfig, model: DynamicsModel) -> dict[str, float]:
-    """What a test reports of the solve under ``plain_solve``: ``plain_inverse`` 1 (guard 0) or 0 (guarded);
-    nothing for a model without a guard or a run without ``plain_solve``."""
-    if not cfg.get("plain_solve") or not has_guard(type(model)):
+def record(cfg: DictConfig, model: type) -> dict[str, float]:
+    """What a test reports of the solve under ``plain_solve`` for model class ``model`` built from ``cfg``:
+    ``plain_inverse`` 1 (``model.guard`` 0) or 0 (guarded); nothing for a model without a guard or a run
+    without ``plain_solve``. The run (``encons.runs``) passes it down to ``encons.build.build``."""
+    if not cfg.get("plain_solve") or not has_guard(model):
         return {}
-    return {"plain_inverse": float(model.guard == 0)}
+    return {"plain_inverse": float(cfg.model.guard == 0)}
 
 
 def set_aside(run_dir: Path) -> Path:

@@ -237,7 +237,7 @@ def usage() -> str:
     return f"{__doc__}\nprofiles: {', '.join(profiles)}\n\nconf/benchmark.yaml:\n{keys}"
 
 
-if __name__ == "__main__":
-    from encons.cli import benchmark
+if __name__ == "__main__":  # python -m encons.benchmark ...: the same as python -m encons benchmark ...
+    from encons.aliases import run_command
 
-    benchmark()
+    run_command("benchmark")

@@ -1,24 +1,29 @@
-"""From overrides to objects, in one direction: compose → check → instantiate.
+"""From overrides to objects, in one direction: compose → validate → instantiate.
 
-:func:`compose` is the one composition of ``conf/train.yaml`` and ``conf/benchmark.yaml``;
-:func:`build` checks a composed config (targets first, then ``encons.config``'s checks) and
-instantiates system → observation → model → data → LightningModule; :func:`build_trainer` the
-Trainer with its loggers and callbacks. What the user asked for (group choices, command-line
-overrides) travels in a :class:`Request`, never read from Hydra's process-global state here.
+:func:`compose` is the one composition of ``conf/train.yaml`` and ``conf/benchmark.yaml`` (presets
+applied there); ``encons.config.validate`` checks a composed config once and returns its
+``Checked`` value; :func:`build` instantiates one, without checking again, system → observation →
+model → data → LightningModule; :func:`build_trainer` the Trainer with its loggers and callbacks.
+Both take a plain config too and validate it first. What the user asked for (group choices,
+command-line overrides) travels in an ``encons.config.Request``, never read from Hydra's
+process-global state here. Imported, this module is also callable as the API's ``encons.build(cfg)``.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 from hydra.errors import InstantiationException
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from encons import attempts, trust
+from encons import trust
+from encons.aliases import callable_module
 from encons.bounds import Count, Fraction, NonNegative, Positive, Range, Seed, declare
+from encons.config import Checked, Request, apply_presets, check_node, validate
+from encons.config import run_config  # noqa: F401 - where scripts have imported it from
 from encons.errors import ConfigError, EnconsError
 from encons.paths import config_dir
 
@@ -28,28 +33,6 @@ if TYPE_CHECKING:
     from encons.models.observation import Observation
     from encons.module import TrainingModule
     from encons.systems.base import System
-
-
-@dataclass(frozen=True)
-class Request:
-    """What the user asked for: Hydra's group choices (``model=symo``) and the command-line overrides;
-    both empty for a config read back from a checkpoint."""
-
-    choices: Mapping[str, str] = field(default_factory=dict)
-    overrides: tuple[str, ...] = ()
-
-    @classmethod
-    def of(cls, cfg: DictConfig) -> Request:
-        """The request a composed config carries in its ``hydra`` node (empty without one)."""
-        hydra = cfg.get("hydra") if isinstance(cfg, DictConfig) else None
-        if hydra is None:
-            return cls()
-        choices = {k: v for k, v in OmegaConf.to_container(hydra.runtime.choices).items() if isinstance(v, str)}
-        return cls(choices, tuple(hydra.overrides.task))
-
-    def overridden(self) -> set[str]:
-        """The keys the overrides set (``+``/``~`` stripped)."""
-        return {o.split("=", 1)[0].lstrip("+~") for o in self.overrides}
 
 
 def compose(overrides: Sequence[str] = (), output_dir: str | Path | None = None,
@@ -65,8 +48,10 @@ def compose(overrides: Sequence[str] = (), output_dir: str | Path | None = None,
     from hydra.core.hydra_config import HydraConfig
     from hydra.errors import MissingConfigException
 
+    from encons import threads
     from encons.errors import user_line
 
+    threads.register()  # the parallel launcher's ${encons_threads:...}
     if isinstance(overrides, str):
         overrides = [overrides]
     GlobalHydra.instance().clear()
@@ -82,6 +67,7 @@ def compose(overrides: Sequence[str] = (), output_dir: str | Path | None = None,
             if cache_dir is not None:
                 cfg.paths.cache_dir = str(cache_dir)
     _resolve_hydra_references(cfg)
+    apply_presets(cfg, Request.of(cfg))
     return cfg
 
 
@@ -100,12 +86,6 @@ def _resolve_hydra_references(cfg: DictConfig) -> None:
             walk(plain[top], str(top))
 
 
-def run_config(cfg: DictConfig) -> DictConfig:
-    """The resolved run config without Hydra's own node: what a run is rebuilt from."""
-    return OmegaConf.create(OmegaConf.to_container(
-        OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"]), resolve=True))
-
-
 def catalogue(group: str) -> list[str]:
     """The options of a config group, read from ``conf/<group>/*.yaml`` (e.g. ``catalogue("model")``).
 
@@ -118,21 +98,28 @@ def catalogue(group: str) -> list[str]:
     return sorted(p.stem for p in folder.glob("*.yaml") if not p.name.startswith("_"))
 
 
-def instantiate_node(cfg: DictConfig, key: str, request: Request = Request(), **kwargs: Any) -> Any:
-    """``instantiate(cfg[key])`` with its values type-checked against the target's constructor, and any
-    error the constructor raises turned into one ``ConfigError`` line naming the node (the keys the
-    message names, else those the request overrides, else all).
+def _plain(cfg: DictConfig | Checked, request: Request) -> tuple[DictConfig, Request]:
+    """The config and request of a checked value (its own request), or of a plain config and ``request``."""
+    return (cfg.cfg, cfg.request) if isinstance(cfg, Checked) else (cfg, request)
+
+
+def instantiate_node(cfg: DictConfig | Checked, key: str, request: Request = Request(), **kwargs: Any) -> Any:
+    """``instantiate(cfg[key])``, its values type-checked against the target's constructor unless ``cfg``
+    is ``Checked`` (``encons.config.validate`` did it), and any error the constructor raises turned into
+    one ``ConfigError`` line naming the node (the keys the message names, else those the request
+    overrides, else all).
 
     Hydra 1.4 re-raises the target's own exception (adding a ``full_key`` note) rather than an
     ``InstantiationException``, so both are caught here, at the one place configs become objects.
     """
     from hydra.utils import instantiate
 
-    from encons.config import check_node
-
+    checked = isinstance(cfg, Checked)
+    cfg, request = _plain(cfg, request)
     node = OmegaConf.select(cfg, key)
     values = OmegaConf.to_container(node, resolve=True)
-    check_node(cfg, key)
+    if not checked:
+        check_node(cfg, key)
     try:
         with trust.whitelist():
             return instantiate(node, **kwargs)
@@ -151,81 +138,102 @@ def instantiate_node(cfg: DictConfig, key: str, request: Request = Request(), **
                           f"in conf/{key.split('.')[0]}/ for {values.get('_target_', '?')}") from None
 
 
-def build_system(cfg: DictConfig, request: Request = Request()) -> System:
+def build_system(cfg: DictConfig | Checked, request: Request = Request()) -> System:
     """The system of ``cfg.system``."""
     return instantiate_node(cfg, "system", request)
 
 
-def build_observation(cfg: DictConfig, system: System, request: Request = Request()) -> Observation:
+def build_observation(cfg: DictConfig | Checked, system: System, request: Request = Request()) -> Observation:
     """The observation model of ``cfg.observation``: the identity for ``observation=none``, whose node has
     no ``_target_`` (keys a pixel system sets for its autoencoder, e.g. ``latent``, then do not apply)."""
     from encons.models.observation import Observation
 
-    if not cfg.get("observation") or "_target_" not in cfg.observation:
+    node = _plain(cfg, request)[0].get("observation")
+    if not node or "_target_" not in node:
         return Observation()
     return instantiate_node(cfg, "observation", request, system=system)
 
 
-def build_model(cfg: DictConfig, system: System, observation: Observation | None = None,
+def build_model(cfg: DictConfig | Checked, system: System, observation: Observation | None = None,
                 request: Request = Request()) -> DynamicsModel:
     """Instantiate ``cfg.model`` for ``system`` seen through ``observation`` (default: built from
-    ``cfg.observation``) after checking that the (latent) system offers what it needs."""
-    from encons.config import check_capabilities, objective_of
+    ``cfg.observation``) after checking that the (latent) system offers what it needs (all of the
+    model's capabilities for a plain config; for a ``Checked`` one, what only the system can say)."""
+    from encons.config import check_capabilities, check_fit, check_observation, objective_of
 
     observation = observation if observation is not None else build_observation(cfg, system, request)
-    if observation.objectives is not None and objective_of(cfg) not in observation.objectives:
-        raise ConfigError(f"objective={objective_of(cfg)} does not apply to observation="
-                          f"{type(observation).__name__.lower()} (no true latent derivatives); allowed: "
-                          f"{', '.join(observation.objectives)}")
     system = observation.latent_system(system)
-    check_capabilities(cfg, trust.locate(cfg.model._target_, "model"), system, request)
+    if isinstance(cfg, Checked):
+        check_fit(cfg.cfg, cfg.model, system, cfg.request)
+    else:
+        check_observation(type(observation), objective_of(cfg))
+        check_capabilities(cfg, trust.locate(cfg.model._target_, "model"), system, request)
     model = instantiate_node(cfg, "model", request, system=system)
-    if cfg.get("compile"):
+    if _plain(cfg, request)[0].get("compile"):
         model.compile()  # torch.compile of the module's call, i.e. the field, in place (nn.Module.compile)
     return model
 
 
 @declare("", seed=Seed, horizon=Count, compile=bool, test=bool)  # ``test``: read by encons.runs.train
-def build(cfg: DictConfig, request: Request | None = None) -> tuple[TrajectoryDataModule, TrainingModule]:
-    """System → data → model → LightningModule from a composed config, seeded by ``cfg.seed``.
-
-    Every ``_target_`` is checked against the trust list before anything is imported, then the
-    config's types, ranges and combinations (``encons.config``), then the objects are built.
-    """
+def build(cfg: DictConfig | Checked, request: Request | None = None,
+          recorded: Mapping[str, float] | None = None) -> tuple[TrajectoryDataModule, TrainingModule]:
+    """System → data → model → LightningModule from a checked config (``encons.config.validate``; a plain
+    one is validated first, with ``request``, default the one its ``hydra`` node carries), seeded by
+    ``cfg.seed``, its folders made. ``recorded``: facts of the run the test reports beside its scores
+    (``encons.attempts.record``), passed down by the run."""
     import lightning.pytorch as pl
 
     from encons import threads
 
-    request = Request.of(cfg) if request is None else request
-    check(cfg, request)
+    checked = cfg if isinstance(cfg, Checked) else validate(cfg, request)
+    make_folders(checked.cfg)
     _route_lightning_logs()
-    threads.apply(cfg.get("threads"))  # before the data are simulated
-    pl.seed_everything(cfg.seed, workers=True, verbose=False)
-    return _instantiate(cfg, request)
+    threads.apply(checked.cfg.get("threads"))  # before the data are simulated
+    pl.seed_everything(checked.cfg.seed, workers=True, verbose=False)
+    return _instantiate(checked, recorded)
 
 
-def check(cfg: DictConfig, request: Request = Request()) -> None:
-    """Every check of a composed config before anything is built: no key left ``???``, every target
-    trusted (before any import), then ``encons.config``'s types, ranges and folders."""
-    from encons.config import check_config
-
-    task = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])
-    missing = sorted(OmegaConf.missing_keys(task), key=lambda k: not _is_unset(task, k))  # "???" before what refers to it
-    if missing:
-        raise ConfigError(f"{missing[0]} has no value; allowed: give it one ({missing[0]}=...)")
-    trust.check_targets(OmegaConf.to_container(run_config(cfg)))
-    check_config(cfg, request)
+def check(cfg: DictConfig, request: Request = Request()) -> Checked:
+    """``encons.config.validate`` (kept under this name): every check of a composed config before anything is built."""
+    return validate(cfg, request)
 
 
-def _instantiate(cfg: DictConfig, request: Request):
-    from encons.config import objective_of
+#: (group, key) of the folders loggers and callbacks write to, made and refused like the run's own.
+FOLDER_KEYS = (("logger", "save_dir"), ("callbacks", "dirpath"))
+
+
+def make_folders(cfg: DictConfig) -> None:
+    """Create the run's output folders, the cache folder and those of its loggers and callbacks, refusing a
+    path that is a file or unwritable."""
+    out = Path(cfg.paths.output_dir)
+    folders = [("paths.output_dir", out), ("paths.output_dir", out / "figures"),
+               ("paths.cache_dir", Path(cfg.paths.cache_dir))]  # checkpoints/: the callbacks' dirpath, if any
+    for group, leaf in FOLDER_KEYS:  # folders a logger or callback writes to
+        for name, node in (cfg.get(group) or {}).items():
+            if isinstance(node, DictConfig) and node.get(leaf) is not None:
+                folders.append((f"{group}.{name}.{leaf}", Path(node[leaf])))
+    for key, folder in folders:
+        blocking = next((p for p in (folder, *folder.parents) if p.exists() and not p.is_dir()), None)
+        if blocking is not None:
+            raise ConfigError(f"{key}={str(folder)!r}: {str(blocking)!r} is a file, not a folder; "
+                              f"allowed: a folder path (move the file or pick another)")
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise ConfigError(f"{key}={str(folder)!r} cannot be created ({err.strerror}); allowed: a writable folder") from None
+        if not os.access(folder, os.W_OK | os.X_OK):
+            raise ConfigError(f"{key}={str(folder)!r} is not writable; allowed: a writable folder")
+
+
+def _instantiate(checked: Checked, recorded: Mapping[str, float] | None):
     from encons.data.datamodule import TrajectoryDataModule
     from encons.module import TrainingModule
 
-    system = build_system(cfg, request)
-    observation = build_observation(cfg, system, request)
-    model = build_model(cfg, system, observation, request)
-    objective = objective_of(cfg)
+    cfg = checked.cfg
+    system = build_system(checked)
+    observation = build_observation(checked, system)
+    model = build_model(checked, system, observation)
+    objective = checked.objective
     data_cfg = {**OmegaConf.to_container(cfg.data, resolve=True), "objective": objective}
     data = TrajectoryDataModule(system, observation.data_chart(system, model.chart),
                                 OmegaConf.to_container(cfg.system, resolve=True),
@@ -238,40 +246,41 @@ def _instantiate(cfg: DictConfig, request: Request):
     if cfg.horizon > test_steps:
         raise ConfigError(f"horizon={cfg.horizon} exceeds the {test_steps} steps of a test trajectory; "
                           f"allowed: 1..{test_steps}")
-    regulariser = instantiate_node(cfg, "regulariser", request) if cfg.get("regulariser") else None
-    optimizer, scheduler = build_optimizer(cfg, model, request)
-    module = TrainingModule(model, system, data.dt, instantiate_node(cfg, "integrator", request), optimizer,
+    regulariser = instantiate_node(checked, "regulariser") if cfg.get("regulariser") else None
+    optimizer, scheduler = build_optimizer(checked, model)
+    module = TrainingModule(model, system, data.dt, instantiate_node(checked, "integrator"), optimizer,
                             scheduler, objective=objective, regulariser=regulariser, observation=observation,
                             horizon=cfg.horizon, model_name=cfg.get("model_name"),
-                            evaluation=build_evaluation(cfg, request),
-                            evaluators=build_evaluators(cfg, observation.identity, request),
-                            recorded=attempts.record(cfg, model))
+                            evaluation=build_evaluation(checked),
+                            evaluators=build_evaluators(checked, observation.identity),
+                            recorded=recorded)
     return data, module
 
 
-def build_evaluation(cfg: DictConfig, request: Request = Request()):
+def build_evaluation(cfg: DictConfig | Checked, request: Request = Request()):
     """The run's ``evaluation`` node as an ``encons.evaluation.Evaluation`` (how test rollouts are
     integrated); a config saved before the node existed gets the default."""
     from encons.evaluation import Evaluation
 
-    return instantiate_node(cfg, "evaluation", request) if cfg.get("evaluation") else Evaluation()
+    return instantiate_node(cfg, "evaluation", request) if _plain(cfg, request)[0].get("evaluation") else Evaluation()
 
 
-def build_evaluators(cfg: DictConfig, identity: bool = True, request: Request = Request()) -> dict:
+def build_evaluators(cfg: DictConfig | Checked, identity: bool = True, request: Request = Request()) -> dict:
     """The run's evaluators (``encons.evaluators``), name → object, from the ``evaluators`` node that
     ``conf/evaluators`` composes (``evaluators=[states,santos]``); a config saved before the node existed
     gets the one its test ran then (``states``, or ``pixels`` through an observation model: ``identity``
     false)."""
     from encons.evaluators import Pixels, States
 
-    if "evaluators" not in cfg:
+    plain = _plain(cfg, request)[0]
+    if "evaluators" not in plain:
         return {"states": States()} if identity else {"pixels": Pixels()}
-    return {name: instantiate_node(cfg, f"evaluators.{name}", request) for name in cfg.evaluators or {}}
+    return {name: instantiate_node(cfg, f"evaluators.{name}", request) for name in plain.evaluators or {}}
 
 
 @declare("optimizer", lr=Positive, weight_decay=NonNegative)
 @declare("scheduler", patience=Annotated[int, Range(ge=0)], factor=Fraction, pct_start=Fraction)
-def build_optimizer(cfg: DictConfig, model: DynamicsModel, request: Request = Request()):
+def build_optimizer(cfg: DictConfig | Checked, model: DynamicsModel, request: Request = Request()):
     """The ``optimizer`` and ``scheduler`` partials (``conf/optimizer``, ``conf/scheduler``; the scheduler
     None when unset), each built once here on ``model``'s parameters so that a value its constructor
     refuses is one line now, not a traceback once training starts."""
@@ -279,18 +288,12 @@ def build_optimizer(cfg: DictConfig, model: DynamicsModel, request: Request = Re
 
     optimizer = instantiate_node(cfg, "optimizer", request)
     instantiate_node(cfg, "optimizer", request, _partial_=False, params=model.parameters())
-    if not cfg.get("scheduler"):
+    if not _plain(cfg, request)[0].get("scheduler"):
         return optimizer, None
     scheduler = instantiate_node(cfg, "scheduler", request)
     probe = {"total_steps": 100} if takes_total_steps(scheduler) else {}
     instantiate_node(cfg, "scheduler", request, _partial_=False, optimizer=optimizer(model.parameters()), **probe)
     return optimizer, scheduler
-
-
-def _is_unset(cfg: DictConfig, key: str) -> bool:
-    """Whether ``key`` itself is ``???`` (not an interpolation of a key that is)."""
-    parent, _, leaf = key.rpartition(".")
-    return OmegaConf.is_missing(OmegaConf.select(cfg, parent) if parent else cfg, leaf)
 
 
 def _route_lightning_logs() -> None:
@@ -305,20 +308,27 @@ def _route_lightning_logs() -> None:
 
 
 @declare("trainer", max_epochs=Annotated[int, Range(ge=1, says="an integer >= 1")] | None, gradient_clip_val=NonNegative | None)
-def build_trainer(cfg: DictConfig, request: Request = Request()):
-    """The Lightning Trainer of ``cfg.trainer`` with the configured loggers and callbacks; every
-    checkpoint it writes carries the resolved run config (``encons.checkpoints``) and is written
-    atomically (``encons.lightning_io``); a test's results go to ``cfg.paths.output_dir``
-    (``encons.callbacks.TestResults``)."""
+def build_trainer(cfg: DictConfig | Checked, request: Request = Request()):
+    """The Lightning Trainer of ``cfg.trainer`` with the configured loggers and callbacks (a plain config is
+    validated first, and the folders made); every checkpoint it writes carries the resolved run config
+    (``encons.checkpoints``) and is written atomically (``encons.lightning_io``); a test's results go to
+    ``cfg.paths.output_dir`` (``encons.callbacks.TestResults``)."""
     from encons.callbacks import RunConfigInCheckpoints, TestResults
     from encons.compat import drop_wandb_anonymous
     from encons.lightning_io import AtomicCheckpointIO
 
-    loggers = [instantiate_node(cfg, f"logger.{name}", request) for name in (cfg.get("logger") or {})]
+    checked = cfg if isinstance(cfg, Checked) else validate(cfg, request)
+    cfg = checked.cfg
+    make_folders(cfg)
+    _route_lightning_logs()  # before the Trainer prints its device lines
+    loggers = [instantiate_node(checked, f"logger.{name}") for name in (cfg.get("logger") or {})]
     for lg in loggers:
         drop_wandb_anonymous(lg)
-    callbacks = [instantiate_node(cfg, f"callbacks.{name}", request) for name in (cfg.get("callbacks") or {})]
-    callbacks += [RunConfigInCheckpoints(run_config(cfg)), TestResults(cfg.paths.output_dir)]
-    trainer = instantiate_node(cfg, "trainer", request, logger=loggers or False, callbacks=callbacks,
+    callbacks = [instantiate_node(checked, f"callbacks.{name}") for name in (cfg.get("callbacks") or {})]
+    callbacks += [RunConfigInCheckpoints(checked.resolved), TestResults(cfg.paths.output_dir)]
+    trainer = instantiate_node(checked, "trainer", logger=loggers or False, callbacks=callbacks,
                                plugins=[AtomicCheckpointIO()])
     return trainer, loggers
+
+
+callable_module(__name__, build)

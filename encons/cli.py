@@ -1,14 +1,18 @@
-"""The command-line entry points, as plain functions (console scripts and ``python -m encons.<name>``).
+"""The one entry room: every command's argv handling, as plain functions.
 
-    encons-train / python -m encons.train model=<model> system=<system> [overrides]
-    encons-evaluate / python -m encons.evaluate RUN_DIR|CKPT [ckpt=best|last|PATH] [overrides]
-    encons-benchmark / python -m encons.benchmark [profile=NAME] [overrides]
-    encons-report / python -m encons.report DIR
-    python -m encons.sweep STORAGE STUDY [OUT]
+    python -m encons train model=<model> system=<system> [overrides]    (encons-train, python -m encons.train)
+    python -m encons evaluate RUN_DIR|CKPT [ckpt=best|last|PATH] [overrides]   (encons-evaluate, python -m encons.evaluate)
+    python -m encons benchmark [profile=NAME] [overrides]               (encons-benchmark, python -m encons.benchmark)
+    python -m encons report DIR                                         (encons-report, python -m encons.report)
+    python -m encons sweep STORAGE STUDY [OUT]                          (python -m encons.sweep)
+    python -m encons control RUN [ckpt=…] [starts=…] [seed=…] [duration=…]   (python -m encons.control)
 
-Each wraps one library function in :func:`encons.errors.one_line_errors`: a user's error is one
-line on stderr and exit status 2; a bug keeps its traceback. Hydra's process-global state is read
-here, at the top, and passed down explicitly (``encons.build.Request``).
+:func:`main` dispatches ``python -m encons <command>`` (``encons/__main__.py``); the console scripts
+call the command functions directly; ``python -m encons.<command>`` is an alias of the same
+(``encons.aliases``). Each wraps one library function in :func:`encons.errors.one_line_errors`: a
+user's error is one line on stderr and exit status 2; a bug keeps its traceback. What must exist
+before Hydra composes anything (the resolvers of ``conf/``) is registered here, and Hydra's
+process-global state is read here, at the top, and passed down explicitly (``encons.config.Request``).
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from contextlib import nullcontext
 from omegaconf import DictConfig
 
 from encons.compat import quiet_upstream
+from encons.config import Request, apply_presets
 from encons.errors import ConfigError, one_line_errors
 from encons.paths import config_dir
 from encons.trust import TRUST_VARIABLE, trusted_targets
@@ -36,6 +41,15 @@ for a longer test set; metrics sum over the first ``horizon`` steps (4), so add
 """
 
 
+def register_resolvers() -> None:
+    """The OmegaConf resolvers ``conf/`` uses, registered before Hydra composes (and instantiates its
+    launcher): ``${encons_threads:...}`` (``conf/hydra/launcher/parallel.yaml``) and ``${encons_help_groups:}``."""
+    from encons import help, threads
+
+    help.register()
+    threads.register()
+
+
 def train_job(cfg: DictConfig) -> float | None:
     """One Hydra job: train ``cfg`` and return its ``optimized_metric`` (best checkpoint's value) for a sweep.
 
@@ -46,7 +60,6 @@ def train_job(cfg: DictConfig) -> float | None:
     from hydra.types import RunMode
 
     from encons import runs
-    from encons.build import Request
 
     hydra = HydraConfig.get()
     # a single run reports a user's error here, before Hydra adds its own "Error executing job" line;
@@ -56,6 +69,7 @@ def train_job(cfg: DictConfig) -> float | None:
             raise ConfigError(f"hydra.job.env_set.{TRUST_VARIABLE} is set by a config; allowed: "
                               f"{TRUST_VARIABLE} in the environment that starts encons (a config cannot widen trust)")
         request = Request(dict(hydra.runtime.choices), tuple(hydra.overrides.task))
+        apply_presets(cfg, request)  # as encons.build.compose does: the config as composed, before it is checked
         results = runs.train(cfg, request=request).metrics
     return results.get(f"best/{cfg.optimized_metric}", results.get(cfg.optimized_metric))
 
@@ -64,9 +78,7 @@ def train() -> None:
     """``python -m encons.train``: Hydra's command line (``-m`` for sweeps) around :func:`train_job`."""
     import hydra
 
-    from encons import help
-
-    help.register()
+    register_resolvers()
     os.environ.setdefault("WANDB_SILENT", "true")
     quiet_upstream()
     # Hydra then lets its own errors through to us (else it prints them with its search path and
@@ -99,6 +111,7 @@ def benchmark(argv: list[str] | None = None) -> None:
     from encons import benchmark as bench
     from encons.build import compose
 
+    register_resolvers()
     os.environ.setdefault("WANDB_MODE", "disabled")
     quiet_upstream()
     import lightning.pytorch  # noqa: F401 - its import sets its loggers' level: quieten them after it
@@ -143,3 +156,53 @@ def report(argv: list[str] | None = None) -> None:
     with one_line_errors():
         for path in rep.write_folder_report(Path(argv[0])):
             print(path)
+
+
+def control(argv: list[str] | None = None) -> None:
+    """``python -m encons.control RUN [ckpt=…] [starts=…] [seed=…] [duration=…]``: the run's swing-up
+    controller scored beside the oracle's (:func:`encons.control.score_control`)."""
+    from encons import control as ctl
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(ctl.__doc__)
+        sys.exit(0 if argv else 2)
+    quiet_upstream()
+    kinds = {"ckpt": str, "starts": int, "seed": int, "duration": float}
+    with one_line_errors():
+        options = {}
+        for arg in argv[1:]:
+            key, eq, value = arg.partition("=")
+            if not eq or key not in kinds:
+                raise ConfigError(f"{arg} is not an option of encons.control; allowed: "
+                                  f"{', '.join(f'{k}=…' for k in kinds)}")
+            try:
+                options[key] = kinds[key](value)
+            except ValueError:
+                raise ConfigError(f"{key}={value} is not a{'n integer' if kinds[key] is int else ' number'}; "
+                                  f"allowed: {kinds[key].__name__} values") from None
+        ctl.score_control(argv[0], **options)
+
+
+#: ``python -m encons <command>``: each command's function.
+COMMANDS = {"train": train, "evaluate": evaluate, "benchmark": benchmark, "report": report, "sweep": sweep_report,
+            "control": control}
+USAGE = "usage: python -m encons {" + ",".join(COMMANDS) + "} [arguments]   (python -m encons <command> --help)"
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m encons <command> [arguments]``: the command's function with the rest of the command line
+    (Hydra's ``train`` reads ``sys.argv``, so it is set to the command's own)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(USAGE)
+        sys.exit(0 if argv else 2)
+    if argv[0] not in COMMANDS:
+        print(f"encons: error: command {argv[0]!r} does not exist; allowed: {', '.join(COMMANDS)}", file=sys.stderr)
+        sys.exit(2)
+    command, rest = COMMANDS[argv[0]], argv[1:]
+    if command is train:
+        sys.argv = [f"{sys.argv[0]} train", *rest]
+        train()
+    else:
+        command(rest)

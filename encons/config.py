@@ -1,10 +1,17 @@
-"""Checks on a composed config, run before anything is built: one clear error per problem."""
+"""The one validation pass of a composed config, run before anything is built: one clear error per problem.
+
+:func:`validate` runs every check once (no key left ``???``, every target trusted and looked up once,
+the bounds of every node, the model's capabilities, the objective) and returns a :class:`Checked` value
+that ``encons.build`` instantiates without checking again. It neither rewrites the config (presets are
+applied when it is composed, :func:`apply_presets`) nor creates folders (the run does,
+``encons.build.make_folders``). What the user asked for travels in a :class:`Request`.
+"""
 
 from __future__ import annotations
 
 import inspect
-import os
-from pathlib import Path
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from omegaconf import DictConfig, OmegaConf, open_dict
@@ -13,15 +20,113 @@ from encons import bounds, trust
 from encons.errors import ConfigError
 
 if TYPE_CHECKING:
-    from encons.build import Request
     from encons.models.base import DynamicsModel
     from encons.systems.base import System
 
 
-def check_node(cfg: DictConfig, key: str, target: Any = None) -> None:
+@dataclass(frozen=True)
+class Request:
+    """What the user asked for: Hydra's group choices (``model=symo``) and the command-line overrides;
+    both empty for a config read back from a checkpoint."""
+
+    choices: Mapping[str, str] = field(default_factory=dict)
+    overrides: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, cfg: DictConfig) -> Request:
+        """The request a composed config carries in its ``hydra`` node (empty without one)."""
+        hydra = cfg.get("hydra") if isinstance(cfg, DictConfig) else None
+        if hydra is None:
+            return cls()
+        choices = {k: v for k, v in OmegaConf.to_container(hydra.runtime.choices).items() if isinstance(v, str)}
+        return cls(choices, tuple(hydra.overrides.task))
+
+    def overridden(self) -> set[str]:
+        """The keys the overrides set (``+``/``~`` stripped)."""
+        return {o.split("=", 1)[0].lstrip("+~") for o in self.overrides}
+
+
+@dataclass(frozen=True)
+class Checked:
+    """A config that passed :func:`validate`: a read-only copy of it (``cfg``), its resolved run config
+    without Hydra's node (``resolved``: what a run is rebuilt from), the ``request``, every ``_target_``
+    string's object (``targets``), the model's class and the run's objective."""
+
+    cfg: DictConfig
+    resolved: DictConfig
+    request: Request
+    targets: Mapping[str, Any]
+    model: type
+    objective: str
+
+    def derived(self, cfg: DictConfig) -> Checked:
+        """The same checked run with ``cfg``, a copy of this one's config that a policy changed within its
+        checked bounds (``encons.attempts``: ``model.guard=0``, ``ckpt_path=null``); not checked again."""
+        return Checked(_frozen(cfg), run_config(cfg), self.request, self.targets, self.model, self.objective)
+
+
+def run_config(cfg: DictConfig) -> DictConfig:
+    """The resolved run config without Hydra's own node: what a run is rebuilt from."""
+    return OmegaConf.create(OmegaConf.to_container(
+        OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"]), resolve=True))
+
+
+def _frozen(cfg: DictConfig) -> DictConfig:
+    copy = cfg.copy()
+    OmegaConf.set_readonly(copy, True)
+    return copy
+
+
+#: The nodes :func:`validate` checks by the declarations of their target (and ``encons.bounds.DECLARED``).
+NODES = ("system", "model", "regulariser", "observation", "optimizer", "scheduler", "integrator", "evaluation",
+         "trainer")
+#: The groups whose every entry is a node built by its target.
+GROUPS = ("logger", "callbacks", "evaluators")
+
+
+def validate(cfg: DictConfig, request: Request | None = None) -> Checked:
+    """Every check of a composed config, each once, before anything is built: no key left ``???``, every
+    target trusted (on the string, before any import) and looked up once, the types and ranges of every
+    node (``encons.bounds``), the model's capabilities and the objective. ``request`` defaults to the one
+    ``cfg``'s ``hydra`` node carries."""
+    from encons.data.datamodule import TrajectoryDataModule
+
+    request = Request.of(cfg) if request is None else request
+    task = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])
+    missing = sorted(OmegaConf.missing_keys(task), key=lambda k: not _is_unset(task, k))  # "???" before what refers to it
+    if missing:
+        raise ConfigError(f"{missing[0]} has no value; allowed: give it one ({missing[0]}=...)")
+    resolved = run_config(cfg)
+    targets = trust.check_targets(OmegaConf.to_container(resolved))
+    check_node(cfg, "")
+    check_node(cfg, "data", TrajectoryDataModule)
+    keys = [k for k in NODES if cfg.get(k)]
+    keys += [f"{group}.{name}" for group in GROUPS for name in (cfg.get(group) or {})]
+    for key in keys:
+        check_node(cfg, key, targets=targets)
+    if cfg.data.get("n_val") == 0 and str(cfg.optimized_metric).startswith("val/"):
+        raise ConfigError(f"data.n_val=0 leaves no validation set for optimized_metric={cfg.optimized_metric}; "
+                          f"allowed: data.n_val >= 1, or optimized_metric=train/loss")
+    model = targets[cfg.model._target_]
+    objective = cfg.objective or model.objectives[0]
+    observation = cfg.get("observation")
+    if isinstance(observation, DictConfig) and "_target_" in observation:
+        check_observation(targets[observation._target_], objective)
+    check_model(cfg, model, objective, request)
+    return Checked(_frozen(cfg), resolved, request, targets, model, objective)
+
+
+def _is_unset(cfg: DictConfig, key: str) -> bool:
+    """Whether ``key`` itself is ``???`` (not an interpolation of a key that is)."""
+    parent, _, leaf = key.rpartition(".")
+    return OmegaConf.is_missing(OmegaConf.select(cfg, parent) if parent else cfg, leaf)
+
+
+def check_node(cfg: DictConfig, key: str, target: Any = None, targets: Mapping[str, Any] | None = None) -> None:
     """Check the values of node ``cfg[key]`` (``""``: the top level) against the declarations of its
-    ``_target_``'s constructor (or ``target``'s) and those of the functions that read it
-    (``encons.bounds.DECLARED``), by ``encons.bounds.check``."""
+    ``_target_``'s constructor (or ``target``'s; ``targets`` maps target strings already looked up to
+    their objects) and those of the functions that read it (``encons.bounds.DECLARED``), by
+    ``encons.bounds.check``."""
     node = OmegaConf.select(cfg, key) if key else cfg
     if not isinstance(node, DictConfig):
         return
@@ -29,37 +134,12 @@ def check_node(cfg: DictConfig, key: str, target: Any = None) -> None:
     if key:
         values = OmegaConf.to_container(node, resolve=True)
         name = values.get("_target_")
-        target = target or (trust.locate(name, key) if isinstance(name, str) else None)  # trusted: build() checked
+        if target is None and isinstance(name, str):
+            target = targets[name] if targets is not None and name in targets else trust.locate(name, key)
         declared = {**(bounds.hints(target) if target is not None else {}), **declared}
     else:
         values = {k: node.get(k) for k in declared if k in node}
     bounds.check({k: v for k, v in values.items() if not k.startswith("_")}, declared, key)
-
-
-#: (group, key) of the folders loggers and callbacks write to, checked like the run's own.
-FOLDER_KEYS = (("logger", "save_dir"), ("callbacks", "dirpath"))
-
-
-def check_folders(cfg: DictConfig) -> None:
-    """Create the run's output folders and the cache folder, refusing a path that is a file or unwritable."""
-    out = Path(cfg.paths.output_dir)
-    folders = [("paths.output_dir", out), ("paths.output_dir", out / "figures"),
-               ("paths.cache_dir", Path(cfg.paths.cache_dir))]  # checkpoints/: the callbacks' dirpath, if any
-    for group, leaf in FOLDER_KEYS:  # folders a logger or callback writes to
-        for name, node in (cfg.get(group) or {}).items():
-            if isinstance(node, DictConfig) and node.get(leaf) is not None:
-                folders.append((f"{group}.{name}.{leaf}", Path(node[leaf])))
-    for key, folder in folders:
-        blocking = next((p for p in (folder, *folder.parents) if p.exists() and not p.is_dir()), None)
-        if blocking is not None:
-            raise ConfigError(f"{key}={str(folder)!r}: {str(blocking)!r} is a file, not a folder; "
-                              f"allowed: a folder path (move the file or pick another)")
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise ConfigError(f"{key}={str(folder)!r} cannot be created ({err.strerror}); allowed: a writable folder") from None
-        if not os.access(folder, os.W_OK | os.X_OK):
-            raise ConfigError(f"{key}={str(folder)!r} is not writable; allowed: a writable folder")
 
 
 def apply_presets(cfg: DictConfig, request: Request) -> None:
@@ -82,41 +162,23 @@ def apply_presets(cfg: DictConfig, request: Request) -> None:
                 del node[name]
 
 
-def check_config(cfg: DictConfig, request: Request) -> None:
-    """Reject types, sizes, budgets and folders that cannot work, naming the key and what is allowed."""
-    apply_presets(cfg, request)
-    from encons.data.datamodule import TrajectoryDataModule
-
-    check_node(cfg, "")
-    check_node(cfg, "data", TrajectoryDataModule)
-    for key in ("system", "model", "regulariser", "observation", "optimizer", "scheduler", "integrator",
-                "evaluation", "trainer"):
-        if cfg.get(key):
-            check_node(cfg, key)
-    if cfg.data.get("n_val") == 0 and str(cfg.optimized_metric).startswith("val/"):
-        raise ConfigError(f"data.n_val=0 leaves no validation set for optimized_metric={cfg.optimized_metric}; "
-                          f"allowed: data.n_val >= 1, or optimized_metric=train/loss")
-    check_folders(cfg)
-
-
 def objective_of(cfg: DictConfig) -> str:
     """The run's objective: ``cfg.objective``, or when null the model's default (its first)."""
     return cfg.objective or trust.locate(cfg.model._target_, "model").objectives[0]
 
 
-def check_capabilities(cfg: DictConfig, cls: type[DynamicsModel], system: System, request: Request) -> None:
-    """Refuse a model × system × objective × regulariser × integrator it does not support (the
-    model's class attributes, ``encons.models.base``); ``request`` names the model as the user chose it
-    and says whether the user overrode the integrator."""
+def check_observation(cls: type, objective: str) -> None:
+    """Refuse an objective the observation model (class ``cls``, ``encons.models.observation``) cannot train."""
+    if cls.objectives is not None and objective not in cls.objectives:
+        raise ConfigError(f"objective={objective} does not apply to observation={cls.__name__.lower()} (no true "
+                          f"latent derivatives); allowed: {', '.join(cls.objectives)}")
+
+
+def check_model(cfg: DictConfig, cls: type[DynamicsModel], objective: str, request: Request) -> None:
+    """Refuse an objective × compile × regulariser × integrator override model class ``cls`` does not support
+    (its class attributes, ``encons.models.base``); ``request`` names the model as the user chose it and
+    says whether the user overrode the integrator."""
     name = request.choices.get("model") or cls.__name__
-    chart = cfg.model.get("chart") or getattr(cls, "default_chart", None) or system.base_chart
-    if chart not in system.charts:
-        raise ConfigError(f"model {cls.__name__} needs the '{chart}' chart, which system '{system.name}' "
-                          f"lacks; allowed: a model for its charts {list(system.charts)}")
-    if getattr(cls, "needs_constraints", False) and system.layout is None:
-        raise ConfigError(f"model {cls.__name__} needs holonomic constraints, which system '{system.name}' "
-                          f"does not declare; allowed: a model in generalised coordinates")
-    objective = objective_of(cfg)
     if objective not in cls.objectives:
         raise ConfigError(f"objective={objective} does not apply to model={name}; allowed: {', '.join(cls.objectives)}")
     if cfg.get("compile") and (cls.discrete or cfg.get("regulariser")):
@@ -126,11 +188,30 @@ def check_capabilities(cfg: DictConfig, cls: type[DynamicsModel], system: System
     if cfg.get("regulariser") and cls.discrete:
         raise ConfigError(f"regulariser={cfg.regulariser._target_.rsplit('.', 1)[-1].lower()} needs a vector field "
                           f"and model={name} is discrete (it steps itself); allowed: regulariser=none")
-    if system.n_controls and not cls.supports_controls:
-        raise ConfigError(f"model={name} cannot take control inputs, and system '{system.name}' has "
-                          f"{system.n_controls}; allowed: a model that supports controls (e.g. node, lnode, symo)")
     if cls.discrete:
         overridden = [o for o in request.overrides if o.lstrip("+~").startswith("integrator")]
         if overridden:
             raise ConfigError(f"{overridden[0]} does not apply to model={name}: a discrete model advances by its "
                               f"own step; allowed: no integrator override")
+
+
+def check_fit(cfg: DictConfig, cls: type[DynamicsModel], system: System, request: Request) -> None:
+    """Refuse a model class ``cls`` the built (latent) ``system`` cannot serve: its chart, holonomic
+    constraints, control inputs (the one check that needs the system object, made where it is built)."""
+    name = request.choices.get("model") or cls.__name__
+    chart = cfg.model.get("chart") or getattr(cls, "default_chart", None) or system.base_chart
+    if chart not in system.charts:
+        raise ConfigError(f"model {cls.__name__} needs the '{chart}' chart, which system '{system.name}' "
+                          f"lacks; allowed: a model for its charts {list(system.charts)}")
+    if getattr(cls, "needs_constraints", False) and system.layout is None:
+        raise ConfigError(f"model {cls.__name__} needs holonomic constraints, which system '{system.name}' "
+                          f"does not declare; allowed: a model in generalised coordinates")
+    if system.n_controls and not cls.supports_controls:
+        raise ConfigError(f"model={name} cannot take control inputs, and system '{system.name}' has "
+                          f"{system.n_controls}; allowed: a model that supports controls (e.g. node, lnode, symo)")
+
+
+def check_capabilities(cfg: DictConfig, cls: type[DynamicsModel], system: System, request: Request) -> None:
+    """:func:`check_fit` and :func:`check_model` of a config that did not pass :func:`validate`."""
+    check_fit(cfg, cls, system, request)
+    check_model(cfg, cls, objective_of(cfg), request)

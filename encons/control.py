@@ -47,8 +47,7 @@ from __future__ import annotations
 
 import copy
 import math
-import sys
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 import numpy as np
 import scipy.linalg
@@ -336,31 +335,7 @@ def score_control(run, starts: int = 100, seed: int = 0, duration: float | None 
     return outcome.metrics
 
 
-def main(argv: Iterable[str] | None = None) -> None:
-    """``python -m encons.control RUN [ckpt=…] [starts=…] [seed=…] [duration=…]``."""
-    from encons.compat import quiet_upstream
-    from encons.errors import one_line_errors
+if __name__ == "__main__":  # python -m encons.control RUN ...: the same as python -m encons control RUN ...
+    from encons.aliases import run_command
 
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] in ("-h", "--help"):
-        print(__doc__)
-        sys.exit(0 if argv else 2)
-    quiet_upstream()
-    kinds = {"ckpt": str, "starts": int, "seed": int, "duration": float}
-    with one_line_errors():
-        options = {}
-        for arg in argv[1:]:
-            key, eq, value = arg.partition("=")
-            if not eq or key not in kinds:
-                raise ConfigError(f"{arg} is not an option of encons.control; allowed: "
-                                  f"{', '.join(f'{k}=…' for k in kinds)}")
-            try:
-                options[key] = kinds[key](value)
-            except ValueError:
-                raise ConfigError(f"{key}={value} is not a{'n integer' if kinds[key] is int else ' number'}; "
-                                  f"allowed: {kinds[key].__name__} values") from None
-        score_control(argv[0], **options)
-
-
-if __name__ == "__main__":
-    main()
+    run_command("control")

@@ -44,7 +44,9 @@ Batch = dict[str, Tensor]
 class TrainingModule(pl.LightningModule):
     """Trains ``model`` on windows of ``system`` trajectories sampled every ``dt``; tests by ``evaluators``
     (name → ``encons.evaluators.Evaluator``; none: testing scores nothing), each checked against the run here.
-    ``recorded``: facts of the run reported beside the scores (``plain_inverse``, ``encons.attempts``)."""
+    ``recorded``: facts of the run reported beside the scores (``plain_inverse``, ``encons.attempts``).
+    Objectives and evaluators see it as an ``encons.learner.Learner``; its arguments come checked
+    (``encons.config.validate``), so it does not check them again."""
 
     def __init__(self, model: DynamicsModel, system: System, dt: float, integrator: Integrator,
                  optimizer: Callable[..., Optimizer] | None = None, scheduler: Callable[..., Any] | None = None,
@@ -54,14 +56,8 @@ class TrainingModule(pl.LightningModule):
                  recorded: Mapping[str, float] | None = None):
         super().__init__()
         self.model_name = model_name  # the model's config name (hnn_angle, not the class HNN) for titles
-        objective = objective or model.objectives[0]
+        objective = objective or model.objectives[0]  # checked against model and observation by encons.config
         self.observation = observation if observation is not None else Observation()
-        if self.observation.objectives is not None and objective not in self.observation.objectives:
-            raise ConfigError(f"objective={objective} does not apply to observation={type(self.observation).__name__}; "
-                              f"allowed: {', '.join(self.observation.objectives)}")
-        if objective not in model.objectives:
-            raise ConfigError(f"objective={objective} does not apply to {type(model).__name__}; "
-                              f"allowed: {', '.join(model.objectives)}")
         self.model, self.system, self.dt, self.integrator = model, system, dt, integrator
         self.optimizer = optimizer or partial(torch.optim.AdamW, lr=1e-3, weight_decay=1e-2)
         self.scheduler = scheduler

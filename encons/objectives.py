@@ -17,10 +17,10 @@ from encons.errors import ConfigError
 from encons.integrators import state_derivative
 
 if TYPE_CHECKING:
-    from encons.module import TrainingModule
+    from encons.learner import Learner
 
 Batch = dict[str, Tensor]
-Objective = Callable[["TrainingModule", Batch], Tensor]
+Objective = Callable[["Learner", Batch], Tensor]
 OBJECTIVES: dict[str, Objective] = {}
 
 
@@ -34,7 +34,7 @@ def objective(name: str) -> Callable[[Objective], Objective]:
 
 
 @objective("rollout")
-def rollout(module: TrainingModule, batch: Batch) -> Tensor:
+def rollout(module: Learner, batch: Batch) -> Tensor:
     """Zhong et al. §4.1: L1 over a window rolled out from its first state (first ``history`` states),
     summed over the window, plus the observation's own terms."""
     x, states = module.observe(batch)
@@ -42,14 +42,14 @@ def rollout(module: TrainingModule, batch: Batch) -> Tensor:
 
 
 @objective("residual")
-def residual(module: TrainingModule, batch: Batch) -> Tensor:
+def residual(module: Learner, batch: Batch) -> Tensor:
     """The squared norm of a discrete model's own residual (e.g. SyMo's discrete Euler–Lagrange equations)."""
     _, states = module.observe(batch)
     return (module.model.residual(states, module.times(states.shape[1], states), batch.get("u")) ** 2).sum(-1).mean()
 
 
 @objective("onestep")
-def onestep(module: TrainingModule, batch: Batch) -> Tensor:
+def onestep(module: Learner, batch: Batch) -> Tensor:
     """Santos et al. §7: MSE over states and coordinates of every state of a window predicted from the
     true ``model.history`` states before it."""
     _, states = module.observe(batch)
@@ -60,7 +60,7 @@ def onestep(module: TrainingModule, batch: Batch) -> Tensor:
     return (module.predict(one)[:, -1] - one["states"][:, -1]).square().mean()
 
 
-def _rates(module: TrainingModule, batch: Batch, name: str) -> tuple[Tensor, Tensor]:
+def _rates(module: Learner, batch: Batch, name: str) -> tuple[Tensor, Tensor]:
     """The model's state derivatives at the batch's states and the true ones (``rates``)."""
     if "rates" not in batch:
         raise ConfigError(f"objective={name} needs batches with rates; allowed: a data module built "
@@ -70,14 +70,14 @@ def _rates(module: TrainingModule, batch: Batch, name: str) -> tuple[Tensor, Ten
 
 
 @objective("derivative")
-def derivative(module: TrainingModule, batch: Batch) -> Tensor:
+def derivative(module: Learner, batch: Batch) -> Tensor:
     """Lim & Kasim eq. (2): squared error of the field against the true state derivatives."""
     pred, true = _rates(module, batch, "derivative")
     return ((pred - true) ** 2).sum(-1).mean()
 
 
 @objective("acceleration")
-def acceleration(module: TrainingModule, batch: Batch) -> Tensor:
+def acceleration(module: Learner, batch: Batch) -> Tensor:
     """Xiao et al. §3: the derivative objective on the q̈ half only (``encons.metrics.acceleration_mse``, also
     the test metric ``accel_mse`` of ``encons.evaluators.Acceleration``)."""
     return metrics.acceleration_mse(*_rates(module, batch, "acceleration"))

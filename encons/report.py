@@ -305,7 +305,7 @@ def write_folder_report(folder: Path) -> list[Path]:
     return (write_sweep_report if (folder / "multirun.yaml").is_file() else write_report)(folder)
 
 
-if __name__ == "__main__":
-    from encons.cli import report
+if __name__ == "__main__":  # python -m encons.report ...: the same as python -m encons report ...
+    from encons.aliases import run_command
 
-    report()
+    run_command("report")

@@ -1,7 +1,9 @@
 """A run's life: train one model on one system, load a run back, evaluate it.
 
-Each function goes one way: ``encons.build`` composes, checks and instantiates; Lightning trains
-and tests; ``encons.checkpoints`` reads every checkpoint (``weights_only=True``).
+Each function goes one way: ``encons.build`` composes, ``encons.config.validate`` checks once,
+``encons.build`` instantiates the checked value; Lightning trains and tests; ``encons.checkpoints``
+reads every checkpoint (``weights_only=True``). The attempt policy (``encons.attempts``) is applied
+here and its facts passed down to ``build``.
 """
 
 from __future__ import annotations
@@ -19,7 +21,8 @@ from typing import TYPE_CHECKING
 from omegaconf import DictConfig, OmegaConf
 
 from encons import attempts, checkpoints, compat
-from encons.build import Request, build, build_trainer, run_config
+from encons.build import build, build_trainer
+from encons.config import Checked, Request, validate
 from encons.errors import ConfigError, DivergenceError, Interrupted
 from encons.io import write_yaml
 
@@ -98,7 +101,7 @@ def train(cfg: DictConfig | str | list[str], summary: bool = True, request: Requ
         cfg = _composed(cfg)
     try:
         with log_file(Path(cfg.paths.output_dir) / "train.log"):
-            return _train(cfg, summary, Request.of(cfg) if request is None else request)
+            return _train(cfg, summary, request)
     except EnconsError as err:
         to_log_files(f"encons: error: {err}", logging.ERROR)  # the CLI prints the same line on stderr
         raise
@@ -115,36 +118,34 @@ def _composed(overrides: object) -> DictConfig:
     return compose(list(items))
 
 
-def _train(cfg: DictConfig, summary: bool, request: Request) -> Run:
-    """Train the run's attempts (``encons.attempts``) until one does not diverge; the last one's
-    divergence is the run's error."""
-    from encons.build import check
-
+def _train(cfg: DictConfig, summary: bool, request: Request | None) -> Run:
+    """Validate the run once, then train its attempts (``encons.attempts``) until one does not diverge;
+    the last one's divergence is the run's error."""
     started = time.perf_counter()
-    check(cfg, request)
-    planned = attempts.plan(cfg, request)
-    for attempt in planned[:-1]:
+    checked = validate(cfg, request)
+    planned = attempts.plan(cfg, checked.request, checked.model)
+    derived = [checked if a.cfg is cfg else checked.derived(a.cfg) for a in planned]  # the policy's changes
+    for attempt, attempt_checked in zip(planned[:-1], derived):
         try:
-            return _attempt(attempt, summary, started)
+            return _attempt(attempt, attempt_checked, summary, started)
         except DivergenceError as err:
             aside = attempts.set_aside(Path(cfg.paths.output_dir))
             why = f"the plain inverse (model.guard=0) diverged first ({str(err).split(';')[0]}; its files: {aside})"
             log.warning("%s; training again from scratch at model.guard=%g", why, cfg.model.guard)
             planned[-1] = replace(planned[-1], why=why)
-    return _attempt(planned[-1], summary, started)
+    return _attempt(planned[-1], derived[-1], summary, started)
 
 
-def _attempt(attempt: attempts.Attempt, summary: bool, started: float) -> Run:
-    """One training of the run (``encons.attempts.Attempt``), its time counted from ``started``."""
+def _attempt(attempt: attempts.Attempt, checked: Checked, summary: bool, started: float) -> Run:
+    """One training of the run (``encons.attempts.Attempt``) from its checked config (the run's own, or the
+    one the attempt policy derived from it), its time counted from ``started``."""
     import torch
 
-    from encons.build import _route_lightning_logs
     from encons.report import print_summary
 
-    cfg, request = attempt.cfg, attempt.request
-    _route_lightning_logs()  # before the Trainer prints its device lines
-    trainer, loggers = build_trainer(cfg, request)  # before any data: an accelerator, logger or callback that cannot work
-    data, module = build(cfg, request)
+    cfg, request = checked.cfg, checked.request
+    trainer, loggers = build_trainer(checked)  # before any data: an accelerator, logger or callback that cannot work
+    data, module = build(checked, recorded=attempts.record(cfg, checked.model))
     resume = checkpoints.resume_from(cfg)
     if resume is not None:
         checkpoints.check_fits(module, resume)
@@ -152,7 +153,7 @@ def _attempt(attempt: attempts.Attempt, summary: bool, started: float) -> Run:
         warnings.filterwarnings("ignore", message=r"Checkpoint directory .* exists and is not empty")
     run_dir = Path(cfg.paths.output_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    config = run_config(cfg)
+    config = checked.resolved.copy()
     write_yaml(run_dir / "config.yaml", config)
     for lg in loggers:
         lg.log_hyperparams(OmegaConf.to_container(config))
@@ -255,7 +256,8 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
     cfg = OmegaConf.merge(cfg, _key_overrides(cfg, overrides))
     cfg.paths.output_dir = str(run_dir / "evaluation")
     cfg.logger, cfg.callbacks = None, None
-    data, module = build(cfg)
+    checked = validate(cfg)
+    data, module = build(checked, recorded=attempts.record(cfg, checked.model))
     try:
         module.load_state_dict(state["state_dict"])
     except RuntimeError:
@@ -295,9 +297,6 @@ def evaluate(run: Run | str | Path, overrides: Iterable[str] = (), ckpt: str = "
     out = run.run_dir / "evaluation"
     config.paths.output_dir = str(out)
     with log_file(out / "evaluate.log"):
-        from encons.build import _route_lightning_logs
-
-        _route_lightning_logs()
         trainer, _ = build_trainer(config)
         trainer.test(run.module, datamodule=run.data, verbose=False, weights_only=True)
     run.metrics = {f"test/{k}": v for k, v in run.module.test_metrics.items()}

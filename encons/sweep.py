@@ -267,7 +267,7 @@ def load_study(storage: str, study_name: str) -> optuna.Study:
     return optuna.load_study(study_name=study_name, storage=store)
 
 
-if __name__ == "__main__":
-    from encons.cli import sweep_report
+if __name__ == "__main__":  # python -m encons.sweep ...: the same as python -m encons sweep ...
+    from encons.aliases import run_command
 
-    sweep_report()
+    run_command("sweep")

@@ -59,5 +59,8 @@ def apply(threads: int | str | None = None) -> int:
     return n
 
 
-# ``${encons_threads:${threads},${.n_jobs}}``: the launcher's number for its parallel workers
-OmegaConf.register_resolver("encons_threads", choose, replace=True)
+def register() -> None:
+    """Make ``${encons_threads:${threads},${.n_jobs}}`` (the parallel launcher's number for its workers,
+    ``conf/hydra/launcher/parallel.yaml``) resolve; the entries call it before Hydra composes anything
+    (``encons.cli``, ``encons.build.compose``)."""
+    OmegaConf.register_resolver("encons_threads", choose, replace=True)

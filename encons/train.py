@@ -1,10 +1,15 @@
-"""``python -m encons.train model=<model> system=<system> [overrides]``: runs :func:`encons.cli.train`.
+"""``python -m encons.train model=<model> system=<system> [overrides]``: an alias of ``python -m encons train``.
 
-The Python function is ``encons.train`` (``encons.api.train``); importing this module by name
-binds it over that attribute, so scripts call ``encons.cli.train`` or ``encons.api.train`` instead.
+Imported (``import encons.train``), this module is bound over the API's ``encons.train``; it is then
+callable as that function (``encons.aliases.callable_module``), so ``encons.train(cfg)`` still trains.
 """
 
-if __name__ == "__main__":
-    from encons.cli import train
+import sys
 
-    train()
+from encons import api, cli
+from encons.aliases import callable_module
+
+if __name__ == "__main__":
+    cli.main(["train", *sys.argv[1:]])
+else:
+    callable_module(__name__, api.train)

@@ -87,17 +87,23 @@ def targets(node: Any, key: str = "") -> Iterator[tuple[str, str]]:
             yield from targets(v, f"{key}[{i}]")
 
 
-def check_targets(cfg: Mapping, trusted: tuple[str, ...] | None = None) -> None:
+def check_targets(cfg: Mapping, trusted: tuple[str, ...] | None = None) -> dict[str, Any]:
     """Refuse every ``_target_`` of a plain config that is untrusted, an alias or not importable,
-    naming its key; every string is checked before any import."""
+    naming its key; every string is checked before any import. Returns each target string's object,
+    each looked up once."""
     trusted = trusted_targets() if trusted is None else trusted
     found = list(targets(cfg))
     for key, target in found:
         _refuse_untrusted(target, key, trusted)
+    located: dict[str, Any] = {}
     for key, target in found:
-        if locate(target, key, trusted) is None:
+        if target in located:
+            continue
+        located[target] = locate(target, key, trusted)
+        if located[target] is None:
             raise ConfigError(f"{key}._target_={target!r} cannot be imported; allowed: an importable "
                               f"module.Class (your own package on PYTHONPATH)".removeprefix("."))
+    return located
 
 
 @contextmanager

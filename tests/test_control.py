@@ -11,7 +11,7 @@ import scipy.linalg
 import scipy.signal
 import torch
 
-from encons import control
+from encons import cli, control
 from encons.errors import ConfigError
 from encons.models.hnn import HNNStructure
 from encons.models.lnode import forced_euler_lagrange
@@ -105,12 +105,12 @@ FAST = ["debug=fast", "logger=none", "trainer.enable_progress_bar=false", "~eval
 @pytest.mark.slow
 @pytest.mark.parametrize("model,system", [("lnode", "pendulum_control"), ("symo", "cartpole")])
 def test_control_command_scores_a_tiny_trained_run(model, system, tmp_path, capsys):
-    """Train a debug-size model, then ``python -m encons.control RUN``'s ``main``: metrics, figures."""
+    """Train a debug-size model, then ``python -m encons.control RUN`` (``encons.cli.control``): metrics, figures."""
     from encons import api
 
     api.train(api.compose(*FAST, f"model={model}", f"system={system}", output_dir=tmp_path / "run",
                           cache_dir=tmp_path / "cache"))
-    control.main([str(tmp_path / "run"), "starts=6", "seed=3", "duration=3"])
+    cli.control([str(tmp_path / "run"), "starts=6", "seed=3", "duration=3"])
     out = tmp_path / "run" / "control"
     saved = json.loads((out / "control_metrics.json").read_text())
     assert saved["starts"] == 6 and saved["duration_s"] == pytest.approx(3.0)
@@ -141,7 +141,7 @@ def test_control_command_refuses_a_node_run_and_a_bad_option_in_one_line(tmp_pat
                            ([str(tmp_path / "run"), "starts=many"], "encons: error: starts=many is not an integer"),
                            ([str(tmp_path / "run"), "steps=3"], "encons: error: steps=3 is not an option of encons.control")):
         with pytest.raises(SystemExit) as stop:
-            control.main(args)
+            cli.control(args)
         assert stop.value.code == 2
         err = capsys.readouterr().err.strip()
         assert err.startswith(expected) and "\n" not in err and "Traceback" not in err

@@ -11,7 +11,7 @@ from encons.evaluators.base import Evaluator, Result
 from encons.integrators import state_derivative
 
 if TYPE_CHECKING:
-    from encons.module import TrainingModule
+    from encons.learner import Learner
 
 log = logging.getLogger(__name__)
 
@@ -27,13 +27,13 @@ class Acceleration(Evaluator):
     its states; q̈ is the second half of the state in the model's chart; a discrete model (no field) scores
     nothing; the points are the test states, clean (no noise)."""
 
-    def check(self, module: TrainingModule) -> None:
+    def check(self, module: Learner) -> None:
         if not module.observation.identity or not module.system.known_physics:
             why = "its states are not the data's" if not module.observation.identity else "it has no true field"
             raise ConfigError(f"evaluators.acceleration does not apply to system {module.system.name} ({why}); "
                               f"allowed: a system of known physics observed in its states, or ~evaluators/acceleration")
 
-    def compute(self, module: TrainingModule) -> Result:
+    def compute(self, module: Learner) -> Result:
         if module.model.discrete:  # no field to score; its system may still choose this evaluator
             log.info("accel_mse skipped: %s is a discrete model (no field)", type(module.model).__name__)
             return Result()

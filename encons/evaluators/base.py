@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 from torch import Tensor
 
 if TYPE_CHECKING:
-    from encons.module import TrainingModule
+    from encons.learner import Learner
 
 
 @dataclass
@@ -40,7 +40,7 @@ class TestBatch:
 
     __test__ = False  # not a pytest class
 
-    def __init__(self, module: TrainingModule, batch: dict[str, Tensor]):
+    def __init__(self, module: Learner, batch: dict[str, Tensor]):
         self.module, self.batch = module, batch
         self.x, self.states = module.observe(batch)
 
@@ -53,27 +53,27 @@ class Evaluator(ABC):
     """One way to score a trained model at test time: one class and one ``conf/evaluators/<name>.yaml``
     (``# @package evaluators.<name>``, ``_target_`` and the constructor's arguments)."""
 
-    def check(self, module: TrainingModule) -> None:
+    def check(self, module: Learner) -> None:
         """Refuse, with one ``ConfigError`` line, a run this evaluator cannot score (called when the
         module is built). Default: every run."""
 
     def reset(self) -> None:
         """Forget what earlier tests fed in. Default: nothing kept."""
 
-    def update(self, module: TrainingModule, batch: TestBatch) -> None:
+    def update(self, module: Learner, batch: TestBatch) -> None:
         """Take one test batch. Default: ignore it (an evaluator that draws its own data)."""
 
     @abstractmethod
-    def compute(self, module: TrainingModule) -> Result:
+    def compute(self, module: Learner) -> Result:
         """The scores over every test batch fed in since ``reset`` (under DDP, every process's share)."""
 
-    def figures(self, module: TrainingModule) -> dict[str, Figure]:
+    def figures(self, module: Learner) -> dict[str, Figure]:
         """Figures of the last ``compute``, laid out, by file stem; called only where they are saved
         (a run with an output folder, its global-zero process). Default: none."""
         return {}
 
 
-def gathered(module: TrainingModule, batches: list[tuple[Tensor, ...]]) -> list[Tensor]:
+def gathered(module: Learner, batches: list[tuple[Tensor, ...]]) -> list[Tensor]:
     """The kept per-batch tensors concatenated along the batch; under DDP, every process's share
     (``LightningModule.all_gather``)."""
     parts = [torch.cat(p) for p in zip(*batches)]

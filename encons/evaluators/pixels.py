@@ -13,7 +13,7 @@ from encons.errors import ConfigError
 from encons.evaluators.base import Evaluator, Result, TestBatch, gathered
 
 if TYPE_CHECKING:
-    from encons.module import TrainingModule
+    from encons.learner import Learner
 
 log = logging.getLogger(__name__)
 
@@ -30,7 +30,7 @@ class Pixels(Evaluator):
     the last ``stack`` − 1, which begin no encoder input).
     Runs through an observation model only; no oracle (the frames have no true latent field)."""
 
-    def check(self, module: TrainingModule) -> None:
+    def check(self, module: Learner) -> None:
         if module.observation.identity:
             raise ConfigError("evaluators.pixels does not apply to a run without an observation model (no "
                               "frames to decode); allowed: evaluators=[states]")
@@ -38,10 +38,10 @@ class Pixels(Evaluator):
     def reset(self) -> None:
         self.batches: list[tuple[Tensor, ...]] = []
 
-    def update(self, module: TrainingModule, batch: TestBatch) -> None:
+    def update(self, module: Learner, batch: TestBatch) -> None:
         self.batches.append(tuple(p.detach() for p in (batch.x, batch.states, batch.pred.to(batch.states.dtype))))
 
-    def compute(self, module: TrainingModule) -> Result:
+    def compute(self, module: Learner) -> Result:
         x, states, pred = gathered(module, self.batches)
         self.batches.clear()
         frames = module.observation.decode(pred).double()
@@ -70,7 +70,7 @@ class Pixels(Evaluator):
         self.drawn = t, mse.cpu(), still.cpu(), floor.cpu(), pred.cpu(), states.cpu(), frames.cpu(), x.cpu()
         return Result(scores, curves)
 
-    def figures(self, module: TrainingModule) -> dict[str, Figure]:
+    def figures(self, module: Learner) -> dict[str, Figure]:
         """``pixel_mse`` against time, ``latent_phase`` (Lim & Kasim Fig. 4) and ``frames`` (Figs. 5–6)."""
         t, mse, still, floor, pred, states, frames, x = self.drawn
         title = module.run_title()

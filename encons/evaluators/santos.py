@@ -16,7 +16,7 @@ from encons.evaluators.base import Evaluator, Result
 from encons.integrators import rollout
 
 if TYPE_CHECKING:
-    from encons.module import TrainingModule
+    from encons.learner import Learner
 
 
 class SantosMetrics(Evaluator, Declared):
@@ -42,12 +42,12 @@ class SantosMetrics(Evaluator, Declared):
     def __init__(self, n_trajectories: Count = 16, steps: Annotated[int, Range(ge=2)] = 500, seed: Seed = 1):
         self.n_trajectories, self.steps, self.seed = n_trajectories, steps, seed
 
-    def check(self, module: TrainingModule) -> None:
+    def check(self, module: Learner) -> None:
         if not module.observation.identity:
             raise ConfigError(f"evaluators.santos does not apply to observation={type(module.observation).__name__} "
                               f"(§7's metrics are on the system's states); allowed: evaluators=[pixels]")
 
-    def compute(self, module: TrainingModule) -> Result:
+    def compute(self, module: Learner) -> Result:
         self.drawn = None
         if not module.system.known_physics:
             return Result()
@@ -57,7 +57,7 @@ class SantosMetrics(Evaluator, Declared):
         return Result(scores)
 
     @staticmethod
-    def one_step_mse(module: TrainingModule, arrays: dict[str, Tensor]) -> float:
+    def one_step_mse(module: Learner, arrays: dict[str, Tensor]) -> float:
         states, u, history, n = arrays["states"], arrays.get("u"), module.model.history, module.model.n
         windows = one_step_windows(states, history)
         dtype = next(module.model.parameters()).dtype  # test states are float64, the model need not be
@@ -67,7 +67,7 @@ class SantosMetrics(Evaluator, Declared):
         pred = module.predict(batch)[:, -1, :n]
         return metrics.configuration_mse(pred.double().cpu(), windows[:, -1, :n].double()).item()
 
-    def integration(self, module: TrainingModule, substeps: int) -> dict[str, float]:
+    def integration(self, module: Learner, substeps: int) -> dict[str, float]:
         model, system = module.model, module.system
         t = torch.arange(self.steps + 1, dtype=torch.float64) * module.dt
         s0 = system.sample_initial(self.n_trajectories, torch.Generator().manual_seed(self.seed))
@@ -90,7 +90,7 @@ class SantosMetrics(Evaluator, Declared):
         self.drawn = t, pred, true, energy_pred, energy_true
         return out
 
-    def figures(self, module: TrainingModule) -> dict[str, Figure]:
+    def figures(self, module: Learner) -> dict[str, Figure]:
         """``integration``: configuration and true energy along the first integration trajectory."""
         if self.drawn is None:
             return {}

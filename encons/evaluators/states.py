@@ -13,7 +13,7 @@ from encons.errors import ConfigError
 from encons.evaluators.base import Evaluator, Result, TestBatch, gathered
 
 if TYPE_CHECKING:
-    from encons.module import TrainingModule
+    from encons.learner import Learner
 
 log = logging.getLogger(__name__)
 
@@ -26,7 +26,7 @@ class States(Evaluator):
     physics, ``oracle/<metric>``: the true field rolled out by the same evaluation from the same starts in
     the model's chart and scored by the same metrics. Runs whose observations are the states only."""
 
-    def check(self, module: TrainingModule) -> None:
+    def check(self, module: Learner) -> None:
         if not module.observation.identity:
             raise ConfigError(f"evaluators.states does not apply to observation={type(module.observation).__name__} "
                               f"(the model's states are not the data's); allowed: evaluators=[pixels]")
@@ -35,7 +35,7 @@ class States(Evaluator):
         self.batches: list[tuple[Tensor, ...]] = []
         self.diagnostics: dict[str, float] = {}
 
-    def update(self, module: TrainingModule, batch: TestBatch) -> None:
+    def update(self, module: Learner, batch: TestBatch) -> None:
         x, pred = batch.x, batch.pred
         kept = (x, pred)
         if module.system.known_physics:  # the floor: the true field, same starts and integrator
@@ -44,7 +44,7 @@ class States(Evaluator):
         self.batches.append(tuple(p.detach() for p in kept))
         self.diagnostics = module.model.diagnostics()  # counters since the test began: the last is the total
 
-    def compute(self, module: TrainingModule) -> Result:
+    def compute(self, module: Learner) -> Result:
         true, pred, *oracle = (p.double() for p in gathered(module, self.batches))
         self.batches.clear()
         system, chart = module.system, module.model.chart
@@ -73,7 +73,7 @@ class States(Evaluator):
         self.drawn = t, pred_c, true_c, energies, curves, module.to_common(baselines["baseline_linear_ode"])
         return Result(scores, kept)
 
-    def figures(self, module: TrainingModule) -> dict[str, Figure]:
+    def figures(self, module: Learner) -> dict[str, Figure]:
         """``mse_vs_time`` (model and baselines), ``rollout`` (with the linear-ODE baseline's rollout),
         ``relative_error`` and ``energy_error`` (``encons.plots``)."""
         t, pred_c, true_c, energies, curves, baseline = self.drawn  # the linear-ODE rollout compute scored
