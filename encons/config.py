@@ -149,11 +149,14 @@ def apply_presets(cfg: DictConfig, request: Request) -> None:
     (``{debug: [model.hidden, model.depth]}``), so that the groups' mappings merge where lists would
     replace each other (``experiment=paper debug=fast``); a list is one group's (a config saved before)."""
     presets = cfg.get("preset_keys") or {}
+    located: dict[str, Any] = {}  # node key -> its target, each looked up once
     for full in dict.fromkeys(k for keys in (presets.values() if isinstance(presets, DictConfig) else [presets])
                               for k in keys or ()):
         node_key, _, name = str(full).rpartition(".")
         node = OmegaConf.select(cfg, node_key)
-        target = trust.locate(str(node.get("_target_", "")), node_key) if isinstance(node, DictConfig) and name in node else None
+        if isinstance(node, DictConfig) and name in node and node_key not in located:
+            located[node_key] = trust.locate(str(node.get("_target_", "")), node_key)
+        target = located.get(node_key) if isinstance(node, DictConfig) and name in node else None
         if target is None or full in request.overridden():
             continue
         params = inspect.signature(target).parameters
