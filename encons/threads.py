@@ -8,7 +8,7 @@ a core that another process may hold. So a run takes, in this order:
 1. ``threads=N`` (a positive integer) from its config;
 2. else ``OMP_NUM_THREADS`` (or ``MKL_NUM_THREADS``) from the environment;
 3. else ``threads=auto``: this process's cores ÷ the runs launched in parallel with it;
-4. else (``threads=null``, the default) :data:`DEFAULT`, measured fastest for the zoo (README "Speed").
+4. else (``threads=null``, the default) :data:`DEFAULT`, measured fastest for the zoo (docs/speed.md).
 
 Data are simulated in the run's process after the threads are set, so under the same number.
 A parallel sweep (``hydra/launcher=parallel``) resolves the policy once, in the launching process,

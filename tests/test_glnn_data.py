@@ -137,13 +137,13 @@ def test_unknown_system_skips_energy_with_a_note(tmp_path, train_run, caplog):
 
 
 def test_readme_worked_example(tmp_path, train_run):
-    """README "Measured data": the example recording and the command given there, at a tiny budget."""
+    """docs/data.md "Measured data": the example recording and the command given there, at a tiny budget."""
     import re
     from pathlib import Path
 
-    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    readme = (Path(__file__).parents[1] / "docs" / "data.md").read_text()
     command = re.search(r"python -m encons.train (system=from_file system.path=example\.npz[^\n]*)", readme)
-    assert command, "README lost its worked example"
+    assert command, "docs/data.md lost its worked example"
     write_example(tmp_path / "example.npz")
     args = [a.replace("example.npz", str(tmp_path / "example.npz")) for a in command.group(1).replace("\\", "").split()]
     m = train_run([*args, "trainer.max_epochs=1", "model.hidden=16"])

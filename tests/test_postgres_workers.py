@@ -1,5 +1,5 @@
 """Three sweep workers share one Optuna study on a real local PostgreSQL server: every trial is
-stored once, none lost, none duplicated (README "Beyond one machine")."""
+stored once, none lost, none duplicated (docs/sweeps.md "Beyond one machine")."""
 
 from __future__ import annotations
 

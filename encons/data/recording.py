@@ -106,7 +106,7 @@ def _read(path: Path, columns: dict | None, delimiter: str | None
     if not path.is_file():
         what = "is a folder" if path.is_dir() else "does not exist"
         raise DataError(f"system.path={str(path)!r} {what}; allowed: an .npz or delimited text file "
-                        "(README: Bring your own data)")
+                        "(docs/data.md)")
     if path.suffix == ".npz":
         with np.load(path, allow_pickle=False) as f:
             arrays = {k: f[k] for k in f.files}
@@ -303,7 +303,7 @@ def _stretch(times: np.ndarray, states: np.ndarray, u: np.ndarray | None, mask: 
 
 def write_example(path: str | Path, duration: float = 60.0, dt: float = 0.02,
                   dropped: tuple[tuple[int, int], ...] = ((700, 3), (1500, 1), (2200, 10))) -> Path:
-    """Write the README's worked example: one ``duration``-second recording of the compound pendulum
+    """Write docs/data.md's worked example: one ``duration``-second recording of the compound pendulum
     (Xiao et al. eq. (12)) with light axle friction (γ₁ = γ₂ = 0.05, so it winds over the top for
     about 30 s, then swings), sampled every ``dt``, with the samples ``dropped`` ((first, count) pairs)
     missing and both angles wrapped into [−π, π), as a measurement would give them. Simulated by RK4
@@ -324,5 +324,5 @@ if __name__ == "__main__":
     import sys
 
     if len(sys.argv) != 2:
-        sys.exit("usage: python -m encons.data.recording OUT.npz   (writes the README's example recording)")
+        sys.exit("usage: python -m encons.data.recording OUT.npz   (writes docs/data.md's example recording)")
     print(f"wrote {write_example(sys.argv[1])}")

@@ -48,7 +48,7 @@ def load(path: str | Path) -> tuple[Tensor, dict[str, Tensor], str | None]:
     path = Path(path)
     if not path.is_file():
         what = "is a folder" if path.is_dir() else "does not exist"
-        raise DataError(f"system.path={str(path)!r} {what}; allowed: an .npz file (README: Bring your own data)")
+        raise DataError(f"system.path={str(path)!r} {what}; allowed: an .npz file (docs/data.md)")
     try:
         with np.load(path, allow_pickle=False) as f:
             arrays = {k: f[k] for k in f.files}
