@@ -17,7 +17,7 @@ from encons.errors import ConfigError
 #: a script's entry, not dependencies: neither is counted).
 LAYERS = [
     ["errors", "bounds", "paths", "compat", "trust", "batching", "progress", "io", "checkpoints", "lightning_io", "threads",
-     "help", "schedules"],
+     "help", "schedules", "docs"],
     ["systems"],
     ["integrators"],
     ["data"],
