@@ -150,6 +150,13 @@ def report(argv: list[str] | None = None) -> None:
     from encons import report as rep
 
     argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["--docs"]:  # the README's and docs/' result tables from benchmarks/reports/
+        from encons import docs
+
+        with one_line_errors():
+            for path in docs.write():
+                print(path)
+        return
     if len(argv) != 1 or argv[0] in ("-h", "--help"):
         print(rep.__doc__)
         sys.exit(0 if len(argv) == 1 else 2)

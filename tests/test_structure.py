@@ -20,7 +20,7 @@ from encons.errors import ConfigError
 #: import counts. docs/architecture.md says what each layer is for.
 LAYERS = [
     ["errors", "bounds", "paths", "compat", "aliases", "trust", "batching", "progress", "io", "checkpoints",
-     "lightning_io", "threads", "help", "schedules"],                      # foundations: no physics, no training
+     "lightning_io", "threads", "help", "schedules", "docs"],                      # foundations: no physics, no training
     ["systems"],                                                            # the true physics
     ["models"],                                                             # networks with physical structure
     ["integrators"],

@@ -103,7 +103,7 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
     def __init__(self, system: System, chart: str, system_config: dict | None = None, path: str | None = None,
                  n_train: Size = 800, n_val: Annotated[int, Range(ge=0)] = 100, n_test: Size = 100,
                  n_steps: Size = 100, test_steps: int | None = None, dt: Positive = 0.03,
-                 noise: NonNegative = 0.01, substeps: Size = 10, chunk_len: int = 5, batch_size: Size = 200,
+                 noise: NonNegative = 0.01, substeps: Size = 10, chunk_len: int | None = 5, batch_size: Size = 200,
                  val_batch_size: Size | None = None, seed: Seed = 0, cache_dir: str = ".cache/encons", objective: str | None = "rollout",
                  recording: dict | None = None, windows: str = "random"):
         super().__init__()
@@ -112,6 +112,7 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
         if test_steps is not None and test_steps < n_steps:
             raise ConfigError(f"data.test_steps={test_steps} is shorter than data.n_steps={n_steps}; allowed: "
                               f"null (= n_steps) or an integer >= {n_steps}")
+        chunk_len = n_steps + 1 if chunk_len is None else chunk_len  # null: a window is a whole trajectory
         if not 2 <= chunk_len <= n_steps + 1:
             raise ConfigError(f"data.chunk_len={chunk_len}; allowed: [2, n_steps + 1 = {n_steps + 1}]")
         system.check_chart(chart)
