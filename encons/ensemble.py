@@ -36,11 +36,12 @@ import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from encons import checkpoints
+from encons import stacked as stacking
+from encons.module import takes_total_steps
 from encons.errors import ConfigError, DivergenceError
 
 if TYPE_CHECKING:
     from encons.build import Request
-    from encons.runs import Run
 
 log = logging.getLogger(__name__)
 
@@ -309,6 +310,115 @@ class MemberCheckpoints(pl.Callback):
             self._save(trainer, module)
 
 
+class StackedEnsemble(EnsembleModule):
+    """``EnsembleModule`` whose members train as one ``StackedTraining`` (one forward and backward for all)."""
+
+    def __init__(self, members: Sequence[TrainingModule], seeds: Sequence[int], clip=(None, None)):
+        super().__init__(members, seeds, clip)
+        m = members[0]
+        self.path = "stacked"
+        self.stacked = stacking.StackedTraining(stacking.StackedModel([x.model for x in members]), m.system, m.dt, m.integrator,
+                                       m.optimizer, m.scheduler, objective=m.objective, horizon=m.horizon,
+                                       model_name=m.model_name)
+        self.factors: list[Any] = []  # per member: a one-parameter optimiser whose lr its plateau scheduler moves
+
+    def configure_optimizers(self):
+        member = self.members[0]
+        opt = member.optimizer(self.stacked.parameters())
+        self.base_lr = [g["lr"] for g in opt.param_groups]
+        self.schedules = [None] * len(self.members)
+        if member.scheduler is None:
+            return opt
+        if takes_total_steps(member.scheduler):
+            sched = member.scheduler(opt, total_steps=max(1, int(self.trainer.estimated_stepping_batches)))
+            self.shared = Schedule(sched, "step")
+            return opt
+        probe_sched = member.scheduler(torch.optim.SGD([torch.zeros(1, requires_grad=True)], lr=1.0))
+        if isinstance(probe_sched, torch.optim.lr_scheduler.ReduceLROnPlateau):  # per member, on its own metric
+            for i in range(len(self.members)):
+                shadow = torch.optim.SGD([torch.zeros(1, requires_grad=True)], lr=self.base_lr[0])
+                self.factors.append(shadow)
+                self.schedules[i] = Schedule(member.scheduler(shadow), "epoch", "val/loss")
+        else:
+            self.shared = Schedule(member.scheduler(opt), "epoch")
+        return opt
+
+    def training_step(self, batch: dict, batch_idx: int) -> None:
+        opt = self.optimizers()
+        losses = self.stacked.member_losses(batch)
+        size = len(batch["states"])
+        finite = torch.isfinite(losses.detach())
+        for i in self.active:
+            self.log(f"seed{self.seeds[i]}/train/loss", losses[i].detach(), batch_size=size)
+            if not bool(finite[i]):
+                self.diverged[i] = (f"training diverged: loss is {float(losses[i])} at epoch {self.current_epoch}, "
+                                    f"step {self.global_step}")
+                self._diverge(i, Exception(self.diverged[i]))
+        active = self.active
+        if not active:
+            return
+        mask = torch.zeros(len(self.members), dtype=torch.bool)
+        mask[active] = True
+        self.log("train/loss", losses.detach()[mask].mean(), prog_bar=True, batch_size=size)
+        opt.zero_grad()
+        self.manual_backward(torch.where(mask, losses, torch.zeros_like(losses)).sum())
+        weights = list(self.stacked.model.weights)
+        with torch.no_grad():
+            for w in weights:
+                if w.grad is not None:
+                    w.grad[~mask] = 0
+            self._clip_stacked(weights)
+            before = [w.detach().clone() for w in weights] if self.factors else None
+        opt.step()
+        if before is not None:
+            self._scale_steps(weights, before)
+        shared = getattr(self, "shared", None)
+        if shared is not None and shared.interval == "step":
+            shared.scheduler.step()
+
+    def _clip_stacked(self, weights: list[Tensor]) -> None:
+        """``clip_grad_norm_`` / ``clip_grad_value_`` of the trainer's clipping, per member's slices."""
+        value, algorithm = self.clip
+        grads = [w.grad for w in weights if w.grad is not None]
+        if not value or not grads:
+            return
+        if algorithm == "value":
+            for g in grads:
+                g.clamp_(-value, value)
+            return
+        norms = torch.stack([g.flatten(1).norm(dim=1) for g in grads], 1).norm(dim=1)  # (K,)
+        coef = (value / (norms + 1e-6)).clamp(max=1.0)
+        for g in grads:
+            g.mul_(coef.reshape(-1, *[1] * (g.dim() - 1)))
+
+    @torch.no_grad()
+    def _scale_steps(self, weights: list[Tensor], before: list[Tensor]) -> None:
+        """Member k's step times its plateau factor (its lr over the optimiser's): exact for Adam/AdamW/SGD,
+        whose step (decoupled weight decay included) is linear in the learning rate."""
+        factors = torch.tensor([shadow.param_groups[0]["lr"] / self.base_lr[0] for shadow in self.factors])
+        if bool((factors == 1).all()):
+            return
+        for w, old in zip(weights, before):
+            f = factors.to(w).reshape(-1, *[1] * (w.dim() - 1))
+            w.copy_(torch.where(f == 1, w, old + f * (w - old)))
+
+    def on_train_epoch_end(self) -> None:
+        metrics = self.trainer.callback_metrics
+        shared = getattr(self, "shared", None)
+        if shared is not None and shared.interval == "epoch":
+            shared.scheduler.step()
+        for i in self.active:
+            s = self.schedules[i]
+            if s is not None and (key := f"seed{self.seeds[i]}/{s.monitor}") in metrics:
+                s.scheduler.step(metrics[key])
+
+    def on_validation_epoch_start(self) -> None:
+        self.stacked.model.copy_to([m.model for m in self.members])
+
+    def on_train_end(self) -> None:
+        self.stacked.model.copy_to([m.model for m in self.members])
+
+
 @dataclass
 class Ensemble:
     """A trained ensemble: one :class:`encons.runs.Run` per member (in ``seeds`` order; a diverged member's
@@ -316,7 +426,7 @@ class Ensemble:
     ``metrics`` over members (mean, ``_sd``, ``_min``, ``_max``) and the run folder; ``path`` says how the
     members were stepped (``stacked`` or ``loop``, and why not stacked)."""
 
-    members: list[Run]
+    members: list  # encons.runs.Run
     seeds: list[int]
     diverged: dict[int, str]
     metrics: dict[str, float]
@@ -340,11 +450,12 @@ def summarise(per_member: dict[int, dict[str, float]]) -> dict[str, float]:
     return out
 
 
-def train(cfg: DictConfig, summary: bool, request: Request,
+def train(cfg: DictConfig, summary: bool, request: Request, run_type: type,
           member_dir: Callable[[int], Path] | None = None, stacked: bool | None = None) -> Ensemble:
     """Train the ensemble ``cfg.seeds`` of ``cfg`` (see the module docstring); member ``k`` writes to
-    ``member_dir(k)`` (default ``<run>/seed<k>``). ``stacked``: None picks the stacked path where
-    ``encons.stacked.why_not`` allows it; False forces the loop."""
+    ``member_dir(k)`` (default ``<run>/seed<k>``) and is returned as a ``run_type`` (``encons.runs.Run``).
+    ``stacked``: None picks the stacked path where ``encons.stacked.why_not`` and the first batch allow it;
+    False forces the loop."""
     from encons.build import build, build_trainer, check, run_config
     from encons.io import write_json, write_yaml
     from encons.report import print_summary
@@ -375,7 +486,7 @@ def train(cfg: DictConfig, summary: bool, request: Request,
     write_yaml(run_dir / "config.yaml", run_config(cfg))
     for lg in loggers:
         lg.log_hyperparams(OmegaConf.to_container(run_config(cfg)))
-    module = EnsembleModule(members, seeds, _clip(cfg))
+    module = _module(cfg, members, seeds, data, stacked)
     monitor = _monitor(cfg)
     if monitor is not None:
         trainer.callbacks.append(MemberCheckpoints(dirs, [OmegaConf.to_container(c) for c in saved], *monitor))
@@ -386,24 +497,38 @@ def train(cfg: DictConfig, summary: bool, request: Request,
     try:
         trainer.fit(module, datamodule=data, weights_only=True)
     finally:
-        from encons.runs import _finish_wandb
+        if any(type(lg).__name__ == "WandbLogger" for lg in loggers):
+            import wandb
 
-        _finish_wandb(loggers)
+            wandb.finish()
     module.release()
-    return _test_members(cfg, request, module, data, configs, saved, dirs, keeper, trainer, started, summary)
+    return _test_members(cfg, request, module, data, configs, saved, dirs, keeper, trainer, started, summary, run_type)
+
+
+def _module(cfg: DictConfig, members: list, seeds: list[int], data, stacked: bool | None) -> EnsembleModule:
+    """The stacked ensemble where ``encons.stacked`` accepts the run (its settings, then its first batch),
+    else the loop, its path saying why."""
+    why = "stacked=False" if stacked is False else stacking.why_not(cfg, members)
+    if why is None:
+        module = StackedEnsemble(members, seeds, _clip(cfg))
+        why = stacking.probe(module.stacked, members, next(iter(data.train_dataloader())))
+        if why is None:
+            return module
+    module = EnsembleModule(members, seeds, _clip(cfg))
+    module.path = f"loop: {why}"
+    return module
 
 
 def _clip(cfg: DictConfig) -> tuple[float | None, str | None]:
     return cfg.trainer.get("gradient_clip_val"), cfg.trainer.get("gradient_clip_algorithm")
 
 
-def _test_members(cfg, request, module, data, configs, saved, dirs, keeper, trainer, started, summary) -> Ensemble:
+def _test_members(cfg, request, module, data, configs, saved, dirs, keeper, trainer, started, summary, run_type) -> Ensemble:
     """Test each member that did not diverge on its best checkpoint (else its last weights), as its separate
     run would; write the ensemble's ``test_metrics.json`` and summary."""
     from encons.build import build_trainer
     from encons.io import write_json
     from encons.report import print_summary
-    from encons.runs import Run
 
     seeds = module.seeds
     fit_metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
@@ -412,7 +537,7 @@ def _test_members(cfg, request, module, data, configs, saved, dirs, keeper, trai
         prefix = f"seed{seeds[i]}/"
         results = {k.removeprefix(prefix): v for k, v in fit_metrics.items() if k.startswith(prefix)}
         if i in module.diverged:
-            runs.append(Run(member, data, saved[i], d, None, {}))
+            runs.append(run_type(member, data, saved[i], d, None, {}))
             continue
         tested = keeper.best[i][1] if keeper is not None and i in keeper.best else None
         if tested is not None:
@@ -432,7 +557,7 @@ def _test_members(cfg, request, module, data, configs, saved, dirs, keeper, trai
         results["wall_time_s"] = time.perf_counter() - started
         results["threads"] = float(torch.get_num_threads())
         per_member[seeds[i]] = results
-        runs.append(Run(member, data, saved[i], d, tested, results))
+        runs.append(run_type(member, data, saved[i], d, tested, results))
     metrics = summarise(per_member)
     run_dir = Path(cfg.paths.output_dir)
     tests = summarise({s: {k.removeprefix("test/"): v for k, v in r.items() if k.startswith("test/")}

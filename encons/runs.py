@@ -103,7 +103,7 @@ def train(cfg: DictConfig | str | list[str], summary: bool = True, request: Requ
             if cfg.get("seeds") is not None:  # one member per seed, in this process (encons.ensemble)
                 from encons import ensemble
 
-                return ensemble.train(cfg, summary, request)
+                return ensemble.train(cfg, summary, request, Run)
             return _train(cfg, summary, request)
     except EnconsError as err:
         to_log_files(f"encons: error: {err}", logging.ERROR)  # the CLI prints the same line on stderr
