@@ -508,7 +508,8 @@ def train(cfg: DictConfig, summary: bool, request: Request, run_type: type,
 def _module(cfg: DictConfig, members: list, seeds: list[int], data, stacked: bool | None) -> EnsembleModule:
     """The stacked ensemble where ``encons.stacked`` accepts the run (its settings, then its first batch),
     else the loop, its path saying why."""
-    why = "stacked=False" if stacked is False else stacking.why_not(cfg, members)
+    why = ("stacked=False" if stacked is False else "one member: nothing to stack (the path of a single run)"
+           if len(members) == 1 else stacking.why_not(cfg, members))
     if why is None:
         module = StackedEnsemble(members, seeds, _clip(cfg))
         why = stacking.probe(module.stacked, members, next(iter(data.train_dataloader())))

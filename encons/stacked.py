@@ -93,8 +93,7 @@ class StackedTraining(TrainingModule):
 
     def member_losses(self, batch: dict) -> Tensor:
         k = self.model.k
-        folded = {key: v.unsqueeze(0).expand(k, *v.shape).reshape(k * v.shape[0], *v.shape[1:])
-                  for key, v in batch.items() if isinstance(v, Tensor)}
+        folded = {key: v.repeat(k, *[1] * (v.dim() - 1)) for key, v in batch.items() if isinstance(v, Tensor)}
         return self.loss(folded)
 
 

@@ -120,3 +120,23 @@ def test_bad_seeds_are_one_line(tmp_path, run, bad, says):
 def test_what_an_ensemble_cannot_be_is_refused(tmp_path, run, extra, says):
     with pytest.raises(ConfigError, match=says):
         run("bad", ["model=node", "system=pendulum1", "seeds=[0,1]", *extra])
+
+
+@pytest.mark.slow
+def test_a_profile_folds_its_seeds_into_one_ensemble_per_cell(tmp_path, cache):
+    from encons.cli import benchmark
+
+    out = tmp_path / "bench"
+    benchmark(["profile=smoke", "seeds=[0,1]", "models=[node]", "n_train=[]", f"out={out}", f"cache_dir={cache}",
+               'train=["evaluation.method=rk4","data.n_test=2"]'])
+    with (out / "results.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert sorted(r["seed"] for r in rows) == ["0", "1"] and not any(r["error"] for r in rows)
+    assert {r["ensemble"] for r in rows} == {"2 seeds, stacked"}
+    assert [p.name for p in (out / "runs").iterdir() if p.name.endswith("seeds0-1")] == ["pendulum1-node-seeds0-1"]
+    for seed in (0, 1):  # each member's files in its own run folder, as a separate run's
+        assert (out / "runs" / f"pendulum1-node-seed{seed}" / "test_curves.npz").is_file()
+    values = [float(r["test/traj_rel_err"]) for r in rows]
+    line = next(x for x in (out / "summary.md").read_text().splitlines() if x.startswith("| pendulum1 | node |"))
+    mean, sd = sum(values) / 2, abs(values[0] - values[1]) / math.sqrt(2)
+    assert f"{mean:.3g} ± {sd:.2g}" in line
