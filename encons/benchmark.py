@@ -6,7 +6,8 @@
 A profile lists its runs as a grid (``systems`` × ``models``), as explicit ``runs`` (a label and
 its train overrides, e.g. a model with a regulariser) and as data-efficiency runs (``n_train`` on
 each ``n_train_system``, models by name or as ``{label, overrides}``, ``per_n_train`` overrides);
-each is trained ``len(seeds)`` times through the training entry point, on datasets cached under
+each is trained for every seed of ``seeds``, the seeds of one cell as one ensemble in one process
+(``encons.ensemble``: each member the run of its seed, with its own ``runs/<id>/``), on datasets cached under
 ``paths.cache_dir`` (one per system and data config, shared by every model and seed). A finished
 run leaves ``runs/<id>/result.json``; a rerun skips it, so an interrupted benchmark resumes where it
 stopped. Progress (stdout, the stream a run logs to) prints ``benchmark run k of n (id), elapsed, ETA``. ``models=all`` /
@@ -43,9 +44,14 @@ class PlannedRun:
     paper: dict = field(default_factory=dict)
 
     @property
-    def id(self) -> str:
+    def cell(self) -> str:
+        """The (system, model, size) cell: the runs of its seeds train as one ensemble (``encons.ensemble``)."""
         size = f"-n{self.n_train}" if self.n_train is not None else ""
-        return f"{self.system}-{self.label}{size}-seed{self.seed}".replace("/", "_").replace("'", "p")
+        return f"{self.system}-{self.label}{size}".replace("/", "_").replace("'", "p")
+
+    @property
+    def id(self) -> str:
+        return f"{self.cell}-seed{self.seed}"
 
 
 def plain(cfg: DictConfig) -> dict:
@@ -159,6 +165,53 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
     return row
 
 
+def run_ensemble(members: list[PlannedRun], out: Path, cache_dir: str | None, control: bool = False) -> list[dict]:
+    """Train the seeds of one cell as one ensemble (``encons.ensemble``: each member the run of its seed) and
+    write each member's result row into its own ``runs/<id>/`` (its checkpoints, curves and figures there too),
+    as ``run_one`` would; ``wall_time_s`` is the whole ensemble's. A member that diverged is a failed row."""
+    from encons import ensemble, runs
+    from encons.build import Request, compose
+
+    first = members[0]
+    overrides = [o for o in first.overrides if not o.startswith("seed=")]
+    seeds = [m.seed for m in members]
+    by_seed = {m.seed: m for m in members}
+    ens_dir = out / "runs" / f"{first.cell}-seeds{'-'.join(map(str, seeds))}"
+    cfg = compose(["trainer.enable_model_summary=false", *overrides, f"seeds={json.dumps(seeds)}"], ens_dir, cache_dir)
+    for m in members:
+        shutil.rmtree(finished(m, out).parent / "checkpoints", ignore_errors=True)  # an ensemble starts afresh
+    started = time.perf_counter()
+    try:
+        with runs.log_file(ens_dir / "train.log"):
+            trained = ensemble.train(cfg, False, Request.of(cfg), runs.Run,
+                                     member_dir=lambda seed: finished(by_seed[seed], out).parent)
+        wall, error = time.perf_counter() - started, ""
+    except Interrupted as err:
+        raise Interrupted(f"{first.cell}: {str(err).split(';')[0]}; rerun the same benchmark command: finished "
+                          f"runs are skipped and this ensemble trains again") from None
+    except EnconsError as err:
+        trained, wall, error = None, time.perf_counter() - started, str(err)
+    rows = []
+    for i, m in enumerate(members):
+        results, why = {}, error
+        if trained is not None:
+            member = trained.members[i]
+            results, why = dict(member.metrics), trained.diverged.get(m.seed, "")
+            if control and not why:
+                from encons.control import score_control
+
+                results.update({f"test/{k}": v for k, v in score_control(member).items()})
+        steps = trained.members[i].module.trainer.global_step if trained is not None and not why else None
+        row = {"system": m.system, "model": m.label, "seed": m.seed, "n_train": cfg.data.n_train,
+               "data_efficiency": m.n_train is not None, "run_dir": str(finished(m, out).parent), "error": why,
+               "wall_time_s": wall, "ensemble": f"{len(members)} seeds, {trained.path if trained else 'failed'}",
+               "overrides": " ".join(m.overrides), "optimiser": optimiser(cfg, steps),
+               **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))}}
+        write_json(finished(m, out), row, indent=1)
+        rows.append(row)
+    return rows
+
+
 def optimiser(cfg: DictConfig, steps: int | None = None) -> str:
     """The optimiser, its lr and weight decay, the schedule and the epochs (and optimiser ``steps``, where
     known: what an epoch is differs between data protocols) a run trained with, as the report's optimiser
@@ -212,16 +265,24 @@ def run_profile(cfg: DictConfig) -> Path:
     cache_dir = cfg.get("cache_dir")
     todo = [run for run in runs if not finished(run, out).is_file()]
     progress = Progress(len(runs), "benchmark run", work=len(todo))  # the ETA counts runs still to train
+    cells: dict[str, list[PlannedRun]] = {}
     for run in runs:
-        if finished(run, out).is_file():
+        cells.setdefault(run.cell, []).append(run)
+    for members in cells.values():
+        for run in [m for m in members if finished(m, out).is_file()]:
             progress.start(f"{run.id}: finished before, skipped", work=0)
+        members = [m for m in members if not finished(m, out).is_file()]
+        if not members:
             continue
-        progress.start(run.id)
-        row = run_one(run, out, cache_dir, bool(cfg.get("control")))
-        if row["error"]:
-            print(f"{run.id} failed: {row['error']}", file=sys.stderr)
-        else:
-            print(f"{run.id}: {result_line(row)}", flush=True)
+        progress.start(members[0].id if len(members) == 1 else f"{members[0].cell}, seeds {[m.seed for m in members]}",
+                       work=len(members), items=len(members))
+        rows = ([run_one(members[0], out, cache_dir, bool(cfg.get("control")))] if len(members) == 1 else
+                run_ensemble(members, out, cache_dir, bool(cfg.get("control"))))
+        for run, row in zip(members, rows):
+            if row["error"]:
+                print(f"{run.id} failed: {row['error']}", file=sys.stderr)
+            else:
+                print(f"{run.id}: {result_line(row)}", flush=True)
     progress.done()
     write_report(out)
     errors = [row.get("error") for row in load_rows(out)]

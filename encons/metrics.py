@@ -116,11 +116,12 @@ def mass_matrix_mse(pred_mass: Tensor, true_mass: Tensor) -> Tensor:
 
 
 # Xiao, Zhang & Tang §3: the acceleration error of a field at given states, no rollout.
-def acceleration_mse(pred_rates: Tensor, true_rates: Tensor) -> Tensor:
+def acceleration_mse(pred_rates: Tensor, true_rates: Tensor, reduce: Callable[[Tensor], Tensor] = Tensor.mean) -> Tensor:
     """Mean over points of ‖q̈̂ − q̈‖², the squared error summed over the n coordinates, from state derivatives
-    (..., 2n) whose second half is q̈ (a (q, q̇) chart): Xiao et al.'s loss (1/|S|) Σ ‖q̈̃ − q̈‖² (§3); a scalar."""
+    (..., 2n) whose second half is q̈ (a (q, q̇) chart): Xiao et al.'s loss (1/|S|) Σ ‖q̈̃ − q̈‖² (§3); a scalar
+    (``reduce``: the mean over points, e.g. per ensemble member)."""
     error = pred_rates - true_rates
-    return (error[..., error.shape[-1] // 2:] ** 2).sum(-1).mean()
+    return reduce((error[..., error.shape[-1] // 2:] ** 2).sum(-1))
 
 
 # Long-rollout errors against time (Xiao, Zhang & Tang, Figs. 3 and 5) and two trivial baselines.

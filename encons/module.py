@@ -90,7 +90,11 @@ class TrainingModule(pl.LightningModule):
 
     def rollout_loss(self, x: Tensor, states: Tensor, pred: Tensor) -> Tensor:
         """L1 of the rollout against the (encoded) states, summed over the window, plus the observation's terms."""
-        return (pred[:, : states.shape[1]] - states).abs().sum((-1, -2)).mean() + self.observation.loss(x, states, pred)
+        return self.reduce((pred[:, : states.shape[1]] - states).abs().sum((-1, -2))) + self.observation.loss(x, states, pred)
+
+    def reduce(self, terms: Tensor) -> Tensor:
+        """The batch mean of a loss's terms (leading axis: windows or points); ``encons.stacked`` means per member."""
+        return terms.mean()
 
     def to_common(self, states: Tensor) -> Tensor:
         return self.system.to_chart(states, self.model.chart, self.system.common_chart)

@@ -3,7 +3,8 @@
 A model lists the names it supports in its ``objectives`` (the first is its default); the config's
 ``objective`` picks one, and the ``TrainingModule`` calls it. A new objective is one function here
 under :func:`objective`. Batches are dicts (``encons.data.datamodule``): ``states`` and, where present,
-inputs ``u`` and true derivatives ``rates``.
+inputs ``u`` and true derivatives ``rates``. An objective means over the batch by ``module.reduce`` (per member
+in a stacked ensemble, ``encons.stacked``).
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ def rollout(module: Learner, batch: Batch) -> Tensor:
 def residual(module: Learner, batch: Batch) -> Tensor:
     """The squared norm of a discrete model's own residual (e.g. SyMo's discrete Euler–Lagrange equations)."""
     _, states = module.observe(batch)
-    return (module.model.residual(states, module.times(states.shape[1], states), batch.get("u")) ** 2).sum(-1).mean()
+    return module.reduce((module.model.residual(states, module.times(states.shape[1], states), batch.get("u")) ** 2).sum(-1))
 
 
 @objective("onestep")
@@ -57,7 +58,7 @@ def onestep(module: Learner, batch: Batch) -> Tensor:
     one = {"states": states.unfold(1, size, 1).movedim(-1, -2).flatten(0, 1)}
     if u is not None:
         one["u"] = u[:, : states.shape[1]].unfold(1, size, 1).movedim(-1, -2).flatten(0, 1)
-    return (module.predict(one)[:, -1] - one["states"][:, -1]).square().mean()
+    return module.reduce((module.predict(one)[:, -1] - one["states"][:, -1]).square())
 
 
 def _rates(module: Learner, batch: Batch, name: str) -> tuple[Tensor, Tensor]:
@@ -73,11 +74,11 @@ def _rates(module: Learner, batch: Batch, name: str) -> tuple[Tensor, Tensor]:
 def derivative(module: Learner, batch: Batch) -> Tensor:
     """Lim & Kasim eq. (2): squared error of the field against the true state derivatives."""
     pred, true = _rates(module, batch, "derivative")
-    return ((pred - true) ** 2).sum(-1).mean()
+    return module.reduce(((pred - true) ** 2).sum(-1))
 
 
 @objective("acceleration")
 def acceleration(module: Learner, batch: Batch) -> Tensor:
     """Xiao et al. §3: the derivative objective on the q̈ half only (``encons.metrics.acceleration_mse``, also
     the test metric ``accel_mse`` of ``encons.evaluators.Acceleration``)."""
-    return metrics.acceleration_mse(*_rates(module, batch, "acceleration"))
+    return metrics.acceleration_mse(*_rates(module, batch, "acceleration"), reduce=module.reduce)

@@ -19,12 +19,13 @@ class Progress:
         self.total = float(items if work is None else work)  # the ETA assumes work proceeds at one rate
         self.done_work, self.count, self.started = 0.0, 0, time.perf_counter()
 
-    def start(self, label: str, work: float = 1.0) -> None:
-        """Item ``label`` begins; ``work`` is its cost in the units of ``work`` (one item by default)."""
+    def start(self, label: str, work: float = 1.0, items: int = 1) -> None:
+        """Item ``label`` begins (``items`` items at once, e.g. an ensemble's seeds); ``work`` is its cost in the
+        units of ``work`` (one item by default)."""
         elapsed = time.perf_counter() - self.started
         eta = (f", ETA {duration(elapsed / self.done_work * (self.total - self.done_work))}"
                if self.done_work else "")
-        self.count += 1
+        self.count += items
         self.done_work += work
         self._say(f"{self.what} {self.count} of {self.items} ({label}), elapsed {duration(elapsed)}{eta}")
 

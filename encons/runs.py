@@ -93,14 +93,20 @@ def train(cfg: DictConfig | str | list[str], summary: bool = True, request: Requ
     ``summary=False`` leaves the metrics table out of the console (it still goes to the log files).
     ``request`` (default: the one ``cfg``'s ``hydra`` node carries) names what the user chose.
     ``cfg`` may also be its overrides (``["model=hnn"]``, or one string), composed as ``encons.compose`` does.
+    With ``seeds`` set, trains one member per seed in this process and returns an ``encons.ensemble.Ensemble``.
     """
     from encons.errors import EnconsError
     from encons.report import to_log_files
 
     if not isinstance(cfg, DictConfig):
         cfg = _composed(cfg)
+    request = Request.of(cfg) if request is None else request
     try:
         with log_file(Path(cfg.paths.output_dir) / "train.log"):
+            if cfg.get("seeds") is not None:  # one member per seed, in this process (encons.ensemble)
+                from encons import ensemble
+
+                return ensemble.train(cfg, summary, request, Run)
             return _train(cfg, summary, request)
     except EnconsError as err:
         to_log_files(f"encons: error: {err}", logging.ERROR)  # the CLI prints the same line on stderr

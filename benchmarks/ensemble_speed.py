@@ -1,0 +1,140 @@
+"""Throughput of a seed ensemble (``encons.ensemble``) against the same members trained as separate models.
+
+Per cell, K members are built as the runs ``seed=0..K-1`` would be (``encons.build``); one training step
+is what the ensemble does per batch without Lightning around it: the members' losses on one batch, one
+backward, one optimiser step. "separate": each member alone (its own loss, backward and AdamW step), K of
+them in turn: K separate runs in one process, without their K-fold Lightning overhead (which an ensemble
+saves too, so the ratio is a lower bound of a whole run's). "ensemble": the path ``encons.ensemble`` takes for
+the cell (``stacked``: one vmapped forward/backward and one AdamW over stacked weights; ``loop``: the members'
+losses in turn, one backward). Reported: member-steps per second and the ratio ensemble / separate at K
+members, fastest of ``--repeats`` interleaved rounds of ``--steps`` steps, one thread.
+
+Cells (conf/profile): ``lim_kasim`` mass-spring NODE (2 × 200 softplus, derivative objective, one 30-state
+trajectory per batch), ``santos`` cart-pole NODE-RK4 at N_train = 8 (2 × 256 tanh, one-step objective, batch
+of one trajectory of 33 states), ``finzi`` gyroscope CHNN (3 × 200, batch 200 windows of 5; report only).
+Usage: ``python benchmarks/ensemble_speed.py [--cells lim_kasim santos finzi] [--members 1 2 4 8 16]
+[--steps 20] [--repeats 3] [--threads 1] [--out FILE.md]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+from encons import api, ensemble, threads
+from encons.build import build
+
+SMALL_DATA = ["data.n_val=2", "data.n_test=2", "logger=none"]
+CELLS = {
+    "lim_kasim": ["system=mass_spring", "model=node", "objective=derivative", "optimizer=adamw", "scheduler=none",
+                  "optimizer.lr=1e-4", "optimizer.weight_decay=0.0", "model.depth=2", "model.hidden=200",
+                  "data.batch_size=1", "data.chunk_len=30"],
+    "santos": ["experiment=symo_paper", "system=cartpole", "model=node", "integrator=rk4", "optimizer.lr=1e-3",
+               "model.hidden=256", "data.n_train=8", "data.batch_size=1"],
+    "finzi": ["system=gyroscope", "model=chnn", "data.noise=0.0", "data.chunk_len=5", "data.batch_size=200",
+              "model.hidden=200", "model.depth=3", "optimizer=adamw", "scheduler=none", "optimizer.lr=1e-2",
+              "optimizer.weight_decay=1e-4"],
+}
+
+
+def members(cell: list[str], k: int, cache: str) -> tuple[list, dict]:
+    """``k`` members (seeds 0..k-1) of ``cell`` and one training batch."""
+    mods, batch = [], None
+    for seed in range(k):
+        cfg = api.compose(*cell, *SMALL_DATA, f"seed={seed}", output_dir=tempfile.mkdtemp(), cache_dir=cache)
+        data, module = build(cfg)
+        mods.append(module)
+        batch = batch or next(iter(data.train_dataloader()))
+    return mods, batch
+
+
+def separate_step(mods: list, opts: list, batch: dict) -> None:
+    for m, opt in zip(mods, opts):
+        opt.zero_grad(set_to_none=True)
+        m.loss(batch).backward()
+        opt.step()
+
+
+def ensemble_step(module, opt, batch: dict) -> None:
+    opt.zero_grad(set_to_none=True)
+    if isinstance(module, ensemble.StackedEnsemble):
+        module.stacked.member_losses(batch).sum().backward()
+    else:
+        sum(m.loss(batch) for m in module.members).backward()
+    opt.step()
+
+
+def timed(step, steps: int) -> float:
+    step()  # warm-up
+    start = time.perf_counter()
+    for _ in range(steps):
+        step()
+    return (time.perf_counter() - start) / steps
+
+
+def measure(name: str, cell: list[str], ks: list[int], steps: int, repeats: int, cache: str) -> list[dict]:
+    rows = []
+    pool, batch = members(cell, max(ks), cache)
+    for k in ks:
+        mods = pool[:k]
+        module = ensemble._module(api.compose(*cell, *SMALL_DATA, output_dir=tempfile.mkdtemp(), cache_dir=cache),
+                                  mods, list(range(k)), _Data(batch), None)
+        if isinstance(module, ensemble.StackedEnsemble):
+            opt = mods[0].optimizer(module.stacked.parameters())
+        else:
+            opt = mods[0].optimizer([p for m in mods for p in m.parameters()])
+        opts = [m.optimizer(m.parameters()) for m in mods]
+        best_sep, best_ens = float("inf"), float("inf")
+        for _ in range(repeats):  # interleaved: load on the shared cores hits both alike
+            best_sep = min(best_sep, timed(lambda: separate_step(mods, opts, batch), steps))
+            best_ens = min(best_ens, timed(lambda: ensemble_step(module, opt, batch), steps))
+        row = {"cell": name, "K": k, "path": module.path.split(":")[0], "separate member-steps/s": k / best_sep,
+               "ensemble member-steps/s": k / best_ens, "ensemble / separate": best_sep / best_ens}
+        rows.append(row)
+        print(" | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in row.values()), flush=True)
+        if module.path.startswith("loop"):
+            print(f"  ({name}: {module.path})", flush=True)
+    return rows
+
+
+class _Data:
+    """The one batch ``encons.ensemble._module``'s probe reads, as a data module would serve it."""
+
+    def __init__(self, batch: dict):
+        self.batch = batch
+
+    def train_dataloader(self):
+        return [self.batch]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--cells", nargs="+", default=list(CELLS), choices=list(CELLS))
+    parser.add_argument("--members", nargs="+", type=int, default=[1, 2, 4, 8, 16])
+    parser.add_argument("--steps", type=int, default=20)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args()
+    threads.apply(args.threads)
+    cache = tempfile.mkdtemp()
+    header = ["cell", "K", "path", "separate member-steps/s", "ensemble member-steps/s", "ensemble / separate"]
+    print(" | ".join(header), flush=True)
+    rows = [r for name in args.cells
+            for r in measure(name, CELLS[name], args.members, max(1, args.steps // (10 if name == "finzi" else 1)),
+                             args.repeats, cache)]
+    if args.out:
+        lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        lines += ["| " + " | ".join(f"{r[h]:.3g}" if isinstance(r[h], float) else str(r[h]) for h in header) + " |"
+                  for r in rows]
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text("\n".join(lines) + f"\n\n{torch.get_num_threads()} thread(s); command: python "
+                            f"benchmarks/ensemble_speed.py {' '.join(__import__('sys').argv[1:])}\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,132 @@
+"""The stacked path of a seed ensemble (``encons.ensemble``): K members' networks as one model.
+
+``StackedModel`` holds the members' parameters stacked along a leading member axis
+(``torch.func.stack_module_state``) and evaluates the field of all members in one call: ``vmap`` over the
+member axis of ``functional_call`` on one template of the model. The member axis is folded into the batch
+axis (member-major: rows ``k·N … (k+1)·N − 1`` are member ``k``'s copy of the batch), so the integrator, the
+objective and the rollout code run once, unchanged, on K·N windows; each objective means its terms by
+``TrainingModule.reduce``, which ``StackedTraining`` takes per member, giving the K losses whose sum's
+gradient is each member's own. One optimiser over the stacked parameters is K optimisers when it acts
+elementwise (Adam, AdamW, SGD): ``StackedEnsemble`` checks this by name. Gradient clipping is per member (a
+norm over one member's slices); a schedule on a member's own metric (``ReduceLROnPlateau``) is one scheduler
+per member, whose learning-rate factor scales that member's step. Validation, checkpoints and tests use the
+members' own modules, into which the stacked weights are copied before each validation and at the end.
+
+``why_not`` names why a run cannot take this path (then the loop path trains it): a discrete model
+(SyMo/E2E-SyMo: Newton iterations), a regulariser (Jacobians of one sample's field), an observation model,
+a learned chart map (INN), a per-rollout cache (``rollout_scope``: CHNN, CLNN), a non-elementwise
+optimiser, ``compile``, or a first batch on which the stacked losses differ from the members' own or cannot
+be computed under ``vmap`` (data-dependent branches: LNN/GLNN's ``guarded_solve``).
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Sequence
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+from torch.func import functional_call, stack_module_state, vmap
+
+from encons.models.base import DynamicsModel
+from encons.module import TrainingModule
+
+ELEMENTWISE = ("Adam", "AdamW", "SGD", "RMSprop", "Adamax")  # optimisers whose step acts on each element alone
+
+
+class StackedModel(nn.Module):
+    """K copies of one ``DynamicsModel`` with their parameters stacked (``weights``: member axis first);
+    ``forward(t, s, u)`` takes states with the member axis folded into the leading axis (member-major)."""
+
+    def __init__(self, models: Sequence[DynamicsModel]):
+        super().__init__()
+        params, buffers = stack_module_state(list(models))
+        self.k = len(models)
+        self.names = list(params)
+        self.weights = nn.ParameterList([nn.Parameter(params[n].detach().clone()) for n in self.names])
+        self.buffer_names = list(buffers)
+        for i, name in enumerate(self.buffer_names):
+            self.register_buffer(f"stacked_buffer_{i}", buffers[name].clone())
+        self.__dict__["template"] = copy.deepcopy(models[0])  # not a submodule: its own weights are never used
+
+    def __getattr__(self, name: str) -> Any:  # chart, history, objectives, to_internal, ...: the template's
+        try:
+            return super().__getattr__(name)
+        except AttributeError:
+            return getattr(self.__dict__["template"], name)
+
+    def member_weights(self) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
+        buffers = {n: getattr(self, f"stacked_buffer_{i}") for i, n in enumerate(self.buffer_names)}
+        return dict(zip(self.names, self.weights)), buffers
+
+    def fold(self, x: Tensor) -> Tensor:
+        return x.reshape(self.k, x.shape[0] // self.k, *x.shape[1:])
+
+    def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
+        template = self.__dict__["template"]
+        params, buffers = self.member_weights()
+
+        def one(p: dict, b: dict, z: Tensor, u: Tensor | None) -> Tensor:
+            return functional_call(template, (p, b), (t, z) if u is None else (t, z, u))
+
+        out = vmap(one, in_dims=(0, 0, 0, None if u is None else 0))(params, buffers, self.fold(z),
+                                                                      None if u is None else self.fold(u))
+        return out.reshape(-1, *out.shape[2:])
+
+    @torch.no_grad()
+    def copy_to(self, models: Sequence[nn.Module]) -> None:
+        """Write member ``k``'s slices into ``models[k]``'s own parameters and buffers."""
+        params, buffers = self.member_weights()
+        for k, model in enumerate(models):
+            own = dict(model.named_parameters()) | dict(model.named_buffers())
+            for name, value in (params | buffers).items():
+                own[name].copy_(value[k])
+
+
+class StackedTraining(TrainingModule):
+    """The training objective of all members at once: a ``TrainingModule`` on a ``StackedModel`` whose
+    ``reduce`` means each member's rows, so ``loss`` returns the K members' losses."""
+
+    def reduce(self, terms: Tensor) -> Tensor:
+        return terms.reshape(self.model.k, -1).mean(1)
+
+    def member_losses(self, batch: dict) -> Tensor:
+        k = self.model.k
+        folded = {key: v.repeat(k, *[1] * (v.dim() - 1)) for key, v in batch.items() if isinstance(v, Tensor)}
+        return self.loss(folded)
+
+
+def why_not(cfg: Any, members: Sequence[TrainingModule]) -> str | None:
+    """Why the members cannot train stacked (None: they can), from the model, objective and settings alone."""
+    member = members[0]
+    model, name = member.model, member.model_name or type(member.model).__name__
+    if model.discrete:
+        return f"model={name} is discrete: it advances by its own step (Newton iterations), not a field"
+    if member.regulariser is not None:
+        return "a regulariser takes Jacobians of one sample's field, which the member axis does not reach"
+    if not member.observation.identity:
+        return f"observation={type(member.observation).__name__} trains an encoder beside the model"
+    for method in ("to_internal", "from_internal", "rollout_scope"):
+        if getattr(type(model), method) is not getattr(DynamicsModel, method):
+            return f"model={name} overrides {method} (parameter-dependent work outside its field)"
+    if cfg.get("compile"):
+        return "compile=true compiles one model's field"
+    opt = member.optimizer.func if hasattr(member.optimizer, "func") else member.optimizer
+    if getattr(opt, "__name__", "") not in ELEMENTWISE:
+        return f"optimizer {getattr(opt, '__name__', opt)} may mix elements across members; allowed stacked: {', '.join(ELEMENTWISE)}"
+    return None
+
+
+def probe(stacked: StackedTraining, members: Sequence[TrainingModule], batch: dict, rtol: float = 1e-4) -> str | None:
+    """None when the stacked losses on ``batch`` equal each member's own (relative ``rtol``), else why not
+    (the first line of the error ``vmap`` raised, e.g. at a data-dependent branch)."""
+    try:
+        got = stacked.member_losses(batch).detach()
+    except Exception as err:  # noqa: BLE001 - any failure of the stacked forward sends the run down the loop path
+        return f"the stacked field failed under vmap ({type(err).__name__}: {str(err).splitlines()[0][:120]})"
+    want = torch.stack([m.loss(batch).detach() for m in members])
+    diff = ((got - want).abs() / want.abs().clamp_min(1e-12)).max()
+    if not bool(diff <= rtol):
+        return f"the stacked losses differ from the members' own by {float(diff):.2g} (relative) on the first batch"
+    return None

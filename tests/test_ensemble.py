@@ -1,0 +1,142 @@
+"""Seed ensembles (``seeds=[...]``, ``encons.ensemble``): each member is the separate run of its seed."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import pytest
+import torch
+
+from encons import api, ensemble
+from encons.errors import ConfigError
+
+TINY = ["debug=fast", "logger=csv", "trainer.enable_progress_bar=false", "trainer.enable_model_summary=false",
+        "evaluation.method=rk4", "data.n_test=2"]
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    """One data cache for the module's runs: every run of a system trains on the same simulated data."""
+    return tmp_path_factory.mktemp("cache")
+
+
+@pytest.fixture
+def run(tmp_path, cache):
+    def train(name, overrides):
+        cfg = api.compose(*TINY, *overrides, output_dir=tmp_path / name, cache_dir=cache)
+        return api.train(cfg, summary=False)
+    return train
+
+
+def _losses(folder, key="train/loss"):
+    """The per-step training losses the CSV logger wrote under ``folder``."""
+    with next(folder.glob("csv/*/metrics.csv")).open() as f:
+        return [float(row[key]) for row in csv.DictReader(f) if row.get(key)]
+
+
+def _assert_member_is(ens, seed, separate, folder):
+    member = ens.members[ens.seeds.index(seed)]
+    got, want = _losses(ens.run_dir, f"seed{seed}/train/loss"), _losses(folder)
+    assert len(got) == len(want) > 1
+    assert got == pytest.approx(want, rel=1e-4)
+    tests = {k: v for k, v in separate.metrics.items() if k.startswith(("test/", "best/")) or k == "best_epoch"}
+    assert tests and {k: member.metrics[k] for k in tests} == pytest.approx(tests, rel=1e-4, nan_ok=True)
+
+
+@pytest.mark.parametrize("model, system, path, extra", [
+    pytest.param("node", "pendulum1", "stacked", [], marks=pytest.mark.slow),
+    pytest.param("node", "pendulum_control", "stacked", ["scheduler=plateau", "scheduler.patience=0"],
+                 marks=pytest.mark.slow),  # controls; ReduceLROnPlateau on each member's own val/loss
+    pytest.param("chnn", "gyroscope", "loop", [], marks=pytest.mark.slow),
+    pytest.param("lnn", "pendulum2", "loop", [], marks=pytest.mark.slow),
+    pytest.param("e2e_symo", "pendulum_control", "loop", [], marks=pytest.mark.slow),
+    pytest.param("glnn", "damped_oscillator", "loop", [], marks=pytest.mark.slow),
+])
+def test_members_equal_their_separate_runs(tmp_path, run, model, system, path, extra):
+    ovr = [f"model={model}", f"system={system}", *extra]
+    ens = run("ens", [*ovr, "seeds=[0,1]"])
+    assert ens.path.startswith(path) and not ens.diverged
+    for seed in (0, 1):
+        separate = run(f"seed{seed}", [*ovr, f"seed={seed}"])
+        _assert_member_is(ens, seed, separate, tmp_path / f"seed{seed}")
+    saved = json.loads((tmp_path / "ens" / "test_metrics.json").read_text())
+    values = [m.metrics["test/traj_rel_err"] for m in ens.members]
+    assert saved["traj_rel_err"] == pytest.approx(sum(values) / 2)
+    assert saved["traj_rel_err_sd"] == pytest.approx(abs(values[0] - values[1]) / math.sqrt(2))
+    assert (saved["traj_rel_err_min"], saved["traj_rel_err_max"]) == (min(values), max(values))
+
+
+@pytest.mark.parametrize("stacked", [True, pytest.param(False, marks=pytest.mark.slow)])
+def test_a_diverged_member_leaves_the_other_its_separate_run(tmp_path, run, monkeypatch, stacked):
+    """NaN in member seed=1's weights from the start: it is reported diverged; seed 0 is its separate run."""
+    original = ensemble._module
+
+    def poisoned(cfg, members, seeds, data, _):
+        module = original(cfg, members, seeds, data, None if stacked else False)
+        assert module.path.startswith("stacked" if stacked else "loop")
+        with torch.no_grad():
+            weights = module.stacked.model.weights if stacked else module.members[1].parameters()
+            for w in weights:
+                (w[1] if stacked else w).fill_(math.nan)
+        return module
+
+    monkeypatch.setattr(ensemble, "_module", poisoned)
+    ovr = ["model=node", "system=pendulum1"]
+    ens = run("ens", [*ovr, "seeds=[0,1]"])
+    assert list(ens.diverged) == [1] and "diverged" in ens.diverged[1]
+    assert ens.members[1].metrics == {} and ens.members[1].checkpoint is None
+    assert ens.metrics["members"] == 2 and ens.metrics["diverged"] == 1
+    separate = run("seed0", [*ovr, "seed=0"])
+    _assert_member_is(ens, 0, separate, tmp_path / "seed0")
+
+
+def test_a_members_best_checkpoint_is_a_single_seed_run(tmp_path, run):
+    ens = run("ens", ["model=node", "system=pendulum1", "seeds=[3,4]"])
+    member = ens.members[1]
+    assert member.run_dir == tmp_path / "ens" / "seed4" and member.checkpoint.parent == member.run_dir / "checkpoints"
+    loaded = api.load(member.run_dir)
+    assert loaded.config.seed == 4 and loaded.config.seeds is None and loaded.checkpoint == member.checkpoint
+    again = api.evaluate(loaded)
+    assert again == {k: v for k, v in member.metrics.items() if k.startswith("test/")}
+
+
+@pytest.mark.parametrize("bad, says", [
+    ("seeds=[0,0]", "seeds=[0, 0]; allowed: a non-empty list of distinct"),
+    ("seeds=[]", "seeds=[]; allowed"),
+    ("seeds=[0,-1]", "allowed: a non-empty list"),
+])
+def test_bad_seeds_are_one_line(tmp_path, run, bad, says):
+    with pytest.raises(ConfigError, match=says.replace("[", r"\[").replace("]", r"\]")):
+        run("bad", ["model=node", "system=pendulum1", bad])
+
+
+@pytest.mark.parametrize("extra, says", [
+    (["trainer=ddp", "trainer.devices=2"], "allowed: trainer.devices=1"),
+    (["seed=3"], "allowed: one of seed=K or seeds"),
+    (["ckpt_path=x.ckpt"], "allowed: ckpt_path=null"),
+])
+def test_what_an_ensemble_cannot_be_is_refused(tmp_path, run, extra, says):
+    with pytest.raises(ConfigError, match=says):
+        run("bad", ["model=node", "system=pendulum1", "seeds=[0,1]", *extra])
+
+
+@pytest.mark.slow
+def test_a_profile_folds_its_seeds_into_one_ensemble_per_cell(tmp_path, cache):
+    from encons.cli import benchmark
+
+    out = tmp_path / "bench"
+    benchmark(["profile=smoke", "seeds=[0,1]", "models=[node]", "n_train=[]", f"out={out}", f"cache_dir={cache}",
+               'train=["evaluation.method=rk4","data.n_test=2"]'])
+    with (out / "results.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert sorted(r["seed"] for r in rows) == ["0", "1"] and not any(r["error"] for r in rows)
+    assert {r["ensemble"] for r in rows} == {"2 seeds, stacked"}
+    assert [p.name for p in (out / "runs").iterdir() if p.name.endswith("seeds0-1")] == ["pendulum1-node-seeds0-1"]
+    for seed in (0, 1):  # each member's files in its own run folder, as a separate run's
+        assert (out / "runs" / f"pendulum1-node-seed{seed}" / "test_curves.npz").is_file()
+    values = [float(r["test/traj_rel_err"]) for r in rows]
+    line = next(x for x in (out / "summary.md").read_text().splitlines() if x.startswith("| pendulum1 | node |"))
+    mean, sd = sum(values) / 2, abs(values[0] - values[1]) / math.sqrt(2)
+    assert f"{mean:.3g} ± {sd:.2g}" in line
