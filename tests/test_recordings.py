@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -122,3 +123,54 @@ def test_a_recording_data_module_logs_the_steps_per_epoch(tmp_path, caplog):
     with caplog.at_level(logging.INFO, logger="encons"):
         data.setup()
     assert "train: 54 trajectories in batches of 8: 7 optimiser step(s) per epoch" in caplog.text
+
+
+def matlab_style(path, shift=0.0, samples=400):
+    """A whitespace recording whose first line is ``% time theta omega``: a pendulum q = 2.8 cos(2t) (+ shift)."""
+    t = DT * np.arange(samples)
+    q = 2.8 * np.cos(2 * t) + shift
+    rows = [f"{a:.6f} {b:.12f} {c:.12f}" for a, b, c in zip(t, q, -5.6 * np.sin(2 * t))]
+    path.write_text("% time theta omega\n" + "\n".join(rows) + "\n")
+    return path
+
+
+MATLAB = ["data.recording.comment='%'", "data.recording.columns={t: time, q: [theta], qdot: [omega]}"]
+
+
+def test_a_matlab_style_file_with_a_percent_header_trains(tmp_path):
+    from encons import api
+
+    path = matlab_style(tmp_path / "lab.txt")
+    with pytest.raises(DataError, match=r"line 1 \('% time theta omega'\) has 4 cell\(s\) where the table's other "
+                                        r"rows have 3; is it a header\? .* needs data.recording.comment='%'"):
+        load_recording(path, 4, 4, {"columns": {"t": "time", "q": ["theta"], "qdot": ["omega"]}})
+    cfg = api.compose("debug=fast", "system=from_file", f"system.path={path}", "model=node", "data.n_steps=10",
+                      *MATLAB, "trainer.max_epochs=null", "trainer.max_steps=3", output_dir=tmp_path / "run")
+    run = api.train(cfg)
+    assert math.isfinite(run.metrics["test/traj_rel_err"])
+    theta = run.data.states["test"][0, :, 0]                   # the named column, not the first data row as header
+    torch.testing.assert_close(theta, torch.from_numpy(2.8 * np.cos(2 * DT * (320 + np.arange(11)))), atol=1e-9, rtol=0)
+
+
+def test_a_commented_header_names_columns_and_numpy_warns_nothing(tmp_path):
+    path = matlab_style(tmp_path / "lab.txt")
+    path.write_text(path.read_text().replace("% time", "# time", 1))
+    columns = {"t": "time", "q": ["theta"], "qdot": ["omega"]}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _, splits, _, _ = load_recording(path, 10, 10, {"columns": columns})
+    assert splits["train"][0, 0, 0].item() == pytest.approx(2.8)
+    path.write_text("\n".join(path.read_text().splitlines()[1:]))   # no header at all: names cannot be found
+    with pytest.raises(DataError, match=r"its first row \(0.000000 2.800000000000 -0.000000000000\) holds numbers, "
+                                        r"not column names; allowed: a header row of names, a first comment line"):
+        load_recording(path, 10, 10, {"columns": columns})
+
+
+def test_a_boolean_option_refuses_a_word(tmp_path, monkeypatch):
+    from tests.helpers import in_process
+
+    path = matlab_style(tmp_path / "lab.txt")
+    done = in_process("encons.train", ["system=from_file", f"system.path={path}", *MATLAB,
+                                       "data.recording.resample=maybe", f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch)
+    assert done.returncode != 0
+    assert done.stderr.strip() == "encons: error: data.recording.resample='maybe' has type str; allowed: true or false"
