@@ -174,3 +174,20 @@ def test_a_boolean_option_refuses_a_word(tmp_path, monkeypatch):
                                        "data.recording.resample=maybe", f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch)
     assert done.returncode != 0
     assert done.stderr.strip() == "encons: error: data.recording.resample='maybe' has type str; allowed: true or false"
+
+
+def test_an_angle_shifted_by_2pi_gives_the_same_constant_baseline_metrics(tmp_path):
+    from encons import api
+    from encons.runs import evaluate
+
+    plain, shifted = matlab_style(tmp_path / "plain.txt"), matlab_style(tmp_path / "shifted.txt", shift=2 * math.pi)
+    common = ["debug=fast", "system=from_file", "model=node", "data.n_steps=10", "data.test_steps=20", *MATLAB,
+              "data.recording.angles=true", "trainer.max_epochs=null", "trainer.max_steps=1"]
+    run = api.train(api.compose(*common, f"system.path={plain}", output_dir=tmp_path / "run"), summary=False)
+    moved = evaluate(run.run_dir, [f"system.path={shifted}", f"data.path={shifted}"], ckpt="last")
+    keys = [k for k in run.metrics if k.startswith("test/baseline_constant/")]
+    assert len(keys) == 3
+    for key in keys:
+        assert moved[key] == pytest.approx(run.metrics[key], rel=1e-9), key
+    assert moved["test/baseline_linear_ode/traj_rel_err"] == pytest.approx(
+        run.metrics["test/baseline_linear_ode/traj_rel_err"], rel=1e-3)   # fitted with an intercept to float32 states

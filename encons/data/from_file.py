@@ -9,6 +9,8 @@ the file's chart.
 from __future__ import annotations
 
 import numpy as np
+import torch
+from torch import Tensor
 
 from encons.data import store
 from encons.data.recording import describe, is_recording, recording_angles
@@ -36,6 +38,10 @@ class FileSystem(DataOnlySystem):
         self.common_chart = self.charts[0]
         marked = recording_angles(angles, self.n)
         self.angles = tuple(marked) if any(marked) else None
+
+    def angle_entries(self, chart: str) -> Tensor | None:
+        """The ``angles`` of the file's one chart, whatever its name."""
+        return None if self.angles is None else torch.tensor([*self.angles, *(False,) * self.n])
 
     def units(self, chart: str) -> tuple[str, ...]:
         return ("file unit",) * self.n
