@@ -164,7 +164,7 @@ def _attempt(attempt: attempts.Attempt, summary: bool, started: float) -> Run:
         if best is not None:
             tested = Path(best.best_model_path)
             results[f"best/{best.monitor}"] = float(best.best_model_score)
-            results["best_epoch"] = float(checkpoints.read(tested)["epoch"])
+            results["best_epoch"] = float(checkpoints.read(tested)["epoch"] + 1)   # from 1, as the log counts
         if cfg.test:
             trainer.test(module, datamodule=data, ckpt_path=str(tested) if tested else None, verbose=False,
                          weights_only=True)
