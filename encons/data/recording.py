@@ -52,6 +52,7 @@ from torch import Tensor
 from encons import bounds
 from encons.errors import ConfigError, DataError
 from encons.io import save_npz
+from encons.progress import to_log_files
 
 log = logging.getLogger(__name__)
 
@@ -313,7 +314,7 @@ def load_recording(path: str | Path, n_steps: int, test_steps: int, options: dic
                         f"than data.recording.gap={gap} × the median step, or data.recording.resample=true (interpolate onto dt)")
     mask = recording_angles(opts["angles"], states.shape[1] // 2)
     pieces = {name: [] for name in SPLITS}             # per split: (states, inputs) of every trajectory
-    lines = []
+    lines, longest, gaps = [], dict.fromkeys(SPLITS, 0), 0   # longest: samples of a split's longest unbroken piece
     for label, rows, trial_steps in zip(labels, rows_of, steps_of):
         cuts = np.concatenate([[0], np.flatnonzero(trial_steps > gap * median) + 1, [len(rows)]])
         t0, span = t[rows[0]], t[rows[-1]] - t[rows[0]]
@@ -325,6 +326,7 @@ def load_recording(path: str | Path, n_steps: int, test_steps: int, options: dic
             part = np.searchsorted(edges, times, side="right")            # 0 train, 1 val, 2 test
             for k, name in enumerate(SPLITS):
                 inside = np.flatnonzero(part == k)
+                longest[name] = max(longest[name], len(inside))
                 length = (test_steps if name == "test" else n_steps) + 1
                 every = stride if name == "test" else length - 1
                 count = (len(inside) - length) // every + 1 if len(inside) >= length else 0
@@ -332,24 +334,36 @@ def load_recording(path: str | Path, n_steps: int, test_steps: int, options: dic
                     index = inside[0] + every * np.arange(count)[:, None] + np.arange(length)
                     pieces[name].append((s[index], None if inputs is None else inputs[index]))
                 counts[name] += count
-        lines.append(f"{'trial ' + str(label) + ': ' if trial is not None else ''}t {t0:.6g}..{t[rows[-1]]:.6g}, "
-                     f"{len(rows)} samples, {len(cuts) - 2} gap(s); train t < {edges[0]:.6g}: {counts['train']}, "
-                     f"val t < {edges[1]:.6g}: {counts['val']}, test: {counts['test']}")
+        gaps += len(cuts) - 2
+        end = t[rows[-1]]
+        lines.append(f"{'trial ' + str(label) + ': ' if trial is not None else ''}t {t0:.6g}..{end:.6g}, "
+                     f"{len(rows)} samples, {len(cuts) - 2} gap(s); train t {t0:.6g}..{edges[0]:.6g}: "
+                     f"{counts['train']}, val t {edges[0]:.6g}..{edges[1]:.6g}: {counts['val']}, test t "
+                     f"{edges[1]:.6g}..{end:.6g}: {counts['test']} trajectories")
     for name in SPLITS:
         if not pieces[name]:
-            raise DataError(f"recording {str(path)!r}: its {name} part holds no unbroken stretch of "
-                            f"{(test_steps if name == 'test' else n_steps) + 1} samples; allowed: a smaller "
-                            f"data.{'test_steps' if name == 'test' else 'n_steps'} or a larger share of it "
-                            f"(data.recording.test_fraction, val_fraction) or a longer recording")
+            key, need = ("test_steps", test_steps + 1) if name == "test" else ("n_steps", n_steps + 1)
+            share = "test_fraction" if name == "test" else "val_fraction" if name == "val" else "test_fraction, val_fraction"
+            raise DataError(
+                f"recording {str(path)!r}: its {name} part holds no unbroken stretch of {need} samples (its longest "
+                f"holds {longest[name]}; {gaps} gap(s) longer than data.recording.gap={gap:g} × the median step split "
+                f"the recording); allowed: data.{key} <= {max(longest[name] - 1, 0)}, a larger share (data.recording."
+                f"{share}), a larger data.recording.gap with data.recording.resample=true (interpolates over dropped "
+                f"samples), or a longer recording")
     splits = {name: torch.from_numpy(np.concatenate([p[0] for p in pieces[name]])) for name in SPLITS}
     inputs = ({name: torch.from_numpy(np.concatenate([p[1] for p in pieces[name]])) for name in SPLITS}
               if n_controls else {})
     log.info("recording %s: %d sample(s) in %d trial(s), dt %.6g (steps off dt by up to %.2g relative%s; "
              "data.recording.jitter=%g); split by time within each trial into trajectories of %d samples "
-             "(test: %d, starting every %d samples)%s", path.name, len(t), len(labels), dt, worst,
-             ", resampled" if worst > jitter else "", jitter, n_steps + 1, test_steps + 1, stride,
-             "".join("\n  " + line for line in lines[:10])
-             + (f"\n  ... and {len(lines) - 10} more trial(s)" if len(lines) > 10 else ""))
+             "(test: %d, starting every %d samples)", path.name, len(t), len(labels), dt, worst,
+             ", resampled" if worst > jitter else "", jitter, n_steps + 1, test_steps + 1, stride)
+    for k, line in enumerate(lines):     # where each split begins, per trial: the first 10 on the console, all in the log files
+        if k < 10:
+            log.info("recording %s, %s", path.name, line)
+        else:
+            to_log_files(f"recording {path.name}, {line}")
+    if len(lines) > 10:
+        log.info("recording %s: %d more trial(s) in the log files", path.name, len(lines) - 10)
     log.info("recording %s: trajectories train/val/test %d/%d/%d", path.name, *(len(splits[k]) for k in SPLITS))
     return torch.arange(n_steps + 1, dtype=torch.float64) * dt, splits, chart, inputs
 

@@ -19,8 +19,8 @@ log = logging.getLogger(__name__)
 
 
 class States(Evaluator):
-    """Test rollouts scored in the system's common chart (``encons.metrics.summarise``: trajectory and
-    final relative error, Finzi's geometric mean, valid prediction time, energy errors where the physics
+    """Test rollouts scored in the system's common chart (``encons.metrics.summarise``: trajectory relative
+    error over the ``horizon`` and, as ``traj_rel_err_window``, over the whole test window, final relative error, Finzi's geometric mean, valid prediction time, energy errors where the physics
     is known, the divergence fraction), the long-rollout MSE against time with the constant and linear-ODE
     baselines (``metrics.long_rollout_errors``), the model's solver counters, and, on a system of known
     physics, ``oracle/<metric>``: the true field rolled out by the same evaluation from the same starts in
@@ -56,6 +56,8 @@ class States(Evaluator):
         angles = module.compared_angles
         score = dict(horizon=module.horizon, dt=module.dt, vpt_threshold=module.evaluation.vpt_threshold, angles=angles)
         scores = metrics.summarise(pred_c, true_c, *(energies or (None, None)), **score)
+        window = true.shape[1] - 1   # the whole test window, beside the scored horizon (module.horizon)
+        scores["traj_rel_err_window"] = metrics.trajectory_relative_error(pred_c, true_c, window, angles).mean().item()
         train = module.trainer.datamodule.states["train"].to(true)
         baselines = metrics.baseline_rollouts(true, train, module.dt)
         scalars, curves = metrics.long_rollout_errors(true, pred, baselines, module.to_common, energy, module.horizon,
