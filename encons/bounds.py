@@ -107,14 +107,15 @@ def _hints(target: Any) -> tuple[tuple[str, Any], ...]:
 
 
 def check(values: Mapping[str, Any], declared: Mapping[str, Any], key: str, types: bool = True) -> None:
-    """Refuse a value of ``values`` whose type does not fit its ``declared`` hint (unless not ``types``) or
+    """Refuse a value of ``values`` whose type does not fit its ``declared`` hint (unless not ``types``; a
+    boolean's type is checked always: ``maybe`` or 1 is not true) or
     that lies outside its range (for a list, any entry), naming ``key.name``, the value and what is allowed."""
     for name, value in values.items():
         if name not in declared:
             continue
         bare, bounds = split(declared[name])
         full = f"{key}.{name}" if key else name
-        if types and not _matches(value, bare):
+        if (types or _boolean(bare)) and not _matches(value, bare):  # a word is never a boolean
             allowed = _type_name(bare) + ("" if bounds is None else f", {bounds}" if bounds.says else f", a number {bounds}")
             raise ConfigError(f"{full}={value!r} has type {type(value).__name__}; allowed: {allowed}")
         entries = list(value) if isinstance(value, (list, tuple)) else [value]
@@ -146,9 +147,16 @@ class Declared:
         cls.__init__ = checked
 
 
+def _boolean(hint: Any) -> bool:
+    """Whether a hint is ``bool`` or ``bool | None``: checked for its type even where types are left to the config."""
+    return hint is bool or set(typing.get_args(hint)) == {bool, type(None)}
+
+
 def _type_name(hint: Any) -> str:
     if hint is type(None):
         return "null"
+    if hint is bool:
+        return "true or false"
     if typing.get_origin(hint) in (typing.Union, types.UnionType):
         return " or ".join(_type_name(h) for h in typing.get_args(hint))
     if typing.get_origin(hint) in (list, tuple, Sequence):

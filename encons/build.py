@@ -313,7 +313,7 @@ def build_trainer(cfg: DictConfig | Checked, request: Request = Request()):
     validated first, and the folders made); every checkpoint it writes carries the resolved run config
     (``encons.checkpoints``) and is written atomically (``encons.lightning_io``); a test's results go to
     ``cfg.paths.output_dir`` (``encons.callbacks.TestResults``)."""
-    from encons.callbacks import RunConfigInCheckpoints, TestResults
+    from encons.callbacks import ProgressBar, RunConfigInCheckpoints, TestResults
     from encons.compat import drop_wandb_anonymous
     from encons.lightning_io import AtomicCheckpointIO
 
@@ -326,6 +326,7 @@ def build_trainer(cfg: DictConfig | Checked, request: Request = Request()):
         drop_wandb_anonymous(lg)
     callbacks = [instantiate_node(checked, f"callbacks.{name}") for name in (cfg.get("callbacks") or {})]
     callbacks += [RunConfigInCheckpoints(checked.resolved), TestResults(cfg.paths.output_dir)]
+    callbacks += [ProgressBar()] if cfg.trainer.get("enable_progress_bar", True) else []   # epochs from 1
     trainer = instantiate_node(checked, "trainer", logger=loggers or False, callbacks=callbacks,
                                plugins=[AtomicCheckpointIO()])
     return trainer, loggers

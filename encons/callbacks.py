@@ -1,5 +1,10 @@
-"""Lightning callbacks: the run config in every checkpoint, a per-epoch progress line, and the one writer of
-a test's results."""
+"""Lightning callbacks: the run config in every checkpoint, a progress line per epoch (at most one every
+``every_s`` seconds), a stall line, the best checkpoint and progress bar numbered like the log, and the one
+writer of a test's results.
+
+Epochs are numbered from 1 everywhere a user reads them (log lines, progress bar, ``best_epoch``, the best
+checkpoint's file name): "epoch k" is the k-th pass over the training data; Lightning counts from 0
+internally (``trainer.current_epoch``, a checkpoint's ``epoch`` entry)."""
 
 from __future__ import annotations
 
@@ -12,7 +17,10 @@ from pathlib import Path
 import lightning.pytorch as pl
 from omegaconf import DictConfig, OmegaConf
 
+from lightning.pytorch.callbacks import ModelCheckpoint, RichProgressBar
+
 from encons import checkpoints, plots
+from encons.bounds import Count, Positive
 from encons.io import save_npz, write_json
 from encons.progress import duration, to_log_files
 
@@ -51,33 +59,99 @@ class RunConfigInCheckpoints(pl.Callback):
 class EpochLine(pl.Callback):
     """One line per training epoch — ``epoch k of N: train/loss …, val/… …, elapsed, ETA`` — in the run's
     log files (``train.log``), and on the console too when stdout is not a terminal (a job's output file,
-    where the progress bar does not draw) and the run shows progress (``trainer.enable_progress_bar``).
+    where the progress bar does not draw) and the run shows progress (``trainer.enable_progress_bar``):
+    there the first and last epochs and at most one line every ``every_s`` seconds, so that a run of
+    one-step epochs (a small file budgeted by ``trainer.max_steps``) does not print a line per step.
     The ETA assumes the remaining epochs (``trainer.max_epochs``) take as long as the past ones."""
 
-    def __init__(self, metrics: tuple[str, ...] = ("train/loss", "val/loss")):
-        self.metrics = tuple(metrics)
+    def __init__(self, metrics: tuple[str, ...] = ("train/loss", "val/loss"), every_s: Positive = 10.0):
+        self.metrics, self.every_s = tuple(metrics), every_s
 
     def on_train_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         self.started, self.first_epoch = time.perf_counter(), trainer.current_epoch
+        self.shown = None                       # when the console last got a line
 
     def on_train_epoch_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         if not trainer.is_global_zero:
             return
         done = trainer.current_epoch + 1
         total = trainer.max_epochs if trainer.max_epochs and trainer.max_epochs > 0 else None
-        elapsed = time.perf_counter() - self.started
-        monitor = trainer.checkpoint_callback.monitor if trainer.checkpoint_callback is not None else None
-        keys = (*self.metrics, monitor or "val/traj_rel_err")
+        now = time.perf_counter()
+        elapsed = now - self.started
+        keys = (*self.metrics, monitored(trainer))
         shown = [f"{k} {float(trainer.callback_metrics[k]):.4g}" for k in dict.fromkeys(keys)
                  if k in trainer.callback_metrics]
         eta = (f", ETA {duration(elapsed / (done - self.first_epoch) * (total - done))}"
                if total and done > self.first_epoch else "")
         line = (f"epoch {done}{f' of {total}' if total else ''} (step {trainer.global_step}): {', '.join(shown)}, "
                 f"elapsed {duration(elapsed)}{eta}")
-        if trainer.progress_bar_callback is not None and not sys.stdout.isatty():
+        last = done == total or (trainer.max_steps > 0 and trainer.global_step >= trainer.max_steps)
+        due = self.shown is None or now - self.shown >= self.every_s or last
+        if due and trainer.progress_bar_callback is not None and not sys.stdout.isatty():
+            self.shown = now
             log.info(line)              # console and log files
         else:
-            to_log_files(line)          # the log files only: the progress bar shows it live
+            to_log_files(line)          # the log files only: the progress bar shows it live, or not yet due
+
+
+def monitored(trainer: pl.Trainer) -> str:
+    """The validation metric the best checkpoint follows (``optimized_metric``), else ``val/traj_rel_err``."""
+    return next((cb.monitor for cb in trainer.checkpoint_callbacks if cb.monitor), None) or "val/traj_rel_err"
+
+
+class StallLine(pl.Callback):
+    """Says once, as a warning, when the monitored validation metric (``monitored``) has stayed within
+    ``rtol`` (relative) of one value for ``patience`` validations in a row: training has stalled — the
+    model ends no better than where it froze, and the epochs left only cost time — with the likely remedies
+    (the learning rate, another objective the model allows)."""
+
+    def __init__(self, patience: Count = 20, rtol: Positive = 1e-6):
+        self.patience, self.rtol = patience, rtol
+
+    def on_fit_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        self.anchor, self.since, self.count, self.said = None, None, 0, False
+
+    def on_validation_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        key = monitored(trainer)
+        if trainer.sanity_checking or self.said or key not in trainer.callback_metrics:
+            return
+        value = float(trainer.callback_metrics[key])
+        if self.anchor is not None and abs(value - self.anchor) <= self.rtol * abs(self.anchor):
+            self.count += 1
+        else:
+            self.anchor, self.since, self.count = value, trainer.current_epoch + 1, 0
+        if self.count < self.patience:
+            return
+        self.said = True
+        others = [o for o in getattr(module.model, "objectives", ()) if o != getattr(module, "objective", None)]
+        if trainer.is_global_zero:
+            log.warning(
+                "stalled: %s has stayed at %.6g (within %g relative) for %d validations since epoch %d (now epoch "
+                "%d, step %d); the model is not learning. Likely remedies: another optimizer.lr (lower if the loss "
+                "jumped before it froze, higher if it never moved)%s; callbacks.stall.patience=%d sets when this is said",
+                key, value, self.rtol, self.count, self.since, trainer.current_epoch + 1, trainer.global_step,
+                f", or objective={' / '.join(others)} (docs/data.md: which objective for a recording)" if others else "",
+                self.patience)
+
+
+class BestCheckpoint(ModelCheckpoint):
+    """Lightning's ``ModelCheckpoint`` whose file name counts epochs from 1, like the log lines
+    (``best-epoch0094.ckpt`` holds the weights after the 94th epoch)."""
+
+    def format_checkpoint_name(self, metrics: dict, *args, **kwargs) -> str:
+        if "epoch" in metrics:
+            metrics = {**metrics, "epoch": metrics["epoch"] + 1}
+        return super().format_checkpoint_name(metrics, *args, **kwargs)
+
+
+class ProgressBar(RichProgressBar):
+    """Lightning's rich progress bar, numbering epochs from 1 (``Epoch 2/2`` in the second of two; no total
+    when the run is budgeted by steps)."""
+
+    def _get_train_description(self, current_epoch: int) -> str:
+        total = self.trainer.max_epochs
+        text = f"Epoch {current_epoch + 1}" + (f"/{total}" if total is not None and total > 0 else "")
+        return f"{text:{len(self.validation_description)}}" if len(self.validation_description) > len(text) else text
 
 
 class TestResults(pl.Callback):

@@ -1,40 +1,72 @@
-"""The papers' error and energy metrics: pure functions on (N, T, D) trajectories."""
+"""The papers' error and energy metrics: pure functions on (N, T, D) trajectories.
+
+Angles. Every function of states takes ``angles``, a boolean mask (D,) of the entries that are angles
+(``System.angle_entries``; None: none), and compares those on the circle, as Zhong et al. §3.3 say an
+angle lives ("q and q ± 2π represent the same angle … each angular coordinate lies on S¹"): the error
+of an angle is the wrapped difference ``wrap(q̂ − q)`` in [−π, π) (the geodesic distance on S¹), and
+the scale ‖s‖ of a relative error takes each angle as ``wrap(q)``, its distance from the angle's zero
+on the circle. Neither moves when q̂ and q (or either) shift by 2πk, so a score measures the model, not
+where an unwrapping began; on states whose angles lie in [−π, π) both equal the plain definitions.
+Zhong et al. and Finzi et al. (2020) score pendulums and the gyroscope in Cartesian coordinates (the
+common chart of those systems here), where a 2πk shift cannot appear; the wrapped scale is the
+angle-chart counterpart for systems known only in angles (recordings, Xiao's and Santos's systems).
+"""
 
 from __future__ import annotations
 
+import math
 from typing import Callable
 
 import torch
 from torch import Tensor
 
 
-def relative_error(pred: Tensor, true: Tensor) -> Tensor:
-    """‖ŝ_t − s_t‖₂ / ‖s_t‖₂ per step (Zhong et al. §4.1); shape (N, T)."""
-    return (pred - true).norm(dim=-1) / true.norm(dim=-1)
+def wrapped(values: Tensor, angles: Tensor | None) -> Tensor:
+    """``values`` (..., D) with the entries marked in ``angles`` (D,) wrapped into [−π, π)."""
+    if angles is None:
+        return values
+    angles = angles.to(values.device)
+    return torch.where(angles, torch.remainder(values + math.pi, 2 * math.pi) - math.pi, values)
 
 
-def trajectory_relative_error(pred: Tensor, true: Tensor, horizon: int = 4) -> Tensor:
+def difference(pred: Tensor, true: Tensor, angles: Tensor | None = None) -> Tensor:
+    """ŝ − s with angle entries wrapped into [−π, π): the error on the circle."""
+    return wrapped(pred - true, angles)
+
+
+def magnitude(states: Tensor, angles: Tensor | None = None) -> Tensor:
+    """‖s‖₂ with each angle taken as ``wrap(q)``: a scale that a 2πk shift leaves as it is; (...,)."""
+    return wrapped(states, angles).norm(dim=-1)
+
+
+def relative_error(pred: Tensor, true: Tensor, angles: Tensor | None = None) -> Tensor:
+    """‖ŝ_t − s_t‖₂ / ‖s_t‖₂ per step (Zhong et al. §4.1), angles on the circle; shape (N, T)."""
+    return difference(pred, true, angles).norm(dim=-1) / magnitude(true, angles)
+
+
+def trajectory_relative_error(pred: Tensor, true: Tensor, horizon: int = 4, angles: Tensor | None = None) -> Tensor:
     """Σ_{t=0..horizon} of the relative error (Zhong et al. §4.1, T = 4); shape (N,)."""
-    return relative_error(pred[..., : horizon + 1, :], true[..., : horizon + 1, :]).sum(-1)
+    return relative_error(pred[..., : horizon + 1, :], true[..., : horizon + 1, :], angles).sum(-1)
 
 
-def geometric_mean_relative_error(pred: Tensor, true: Tensor) -> Tensor:
-    """Finzi et al. (2020): geometric mean over t ≥ 1 of ‖ŝ−s‖ / (‖ŝ‖ + ‖s‖); shape (N,).
+def geometric_mean_relative_error(pred: Tensor, true: Tensor, angles: Tensor | None = None) -> Tensor:
+    """Finzi et al. (2020): geometric mean over t ≥ 1 of ‖ŝ−s‖ / (‖ŝ‖ + ‖s‖), angles on the circle; shape (N,).
 
     t = 0 is left out: a rollout starts on the truth, where the error is exactly zero.
     """
-    err = (pred - true).norm(dim=-1) / (pred.norm(dim=-1) + true.norm(dim=-1))
+    err = difference(pred, true, angles).norm(dim=-1) / (magnitude(pred, angles) + magnitude(true, angles))
     return err[..., 1:].clamp_min(1e-30).log().mean(-1).exp()
 
 
-def valid_prediction_time(pred: Tensor, true: Tensor, dt: float, threshold: float) -> Tensor:
+def valid_prediction_time(pred: Tensor, true: Tensor, dt: float, threshold: float,
+                          angles: Tensor | None = None) -> Tensor:
     """Valid prediction time per trajectory (N,): the last time t_k = k·dt such that the relative error
     ‖ŝ_τ − s_τ‖₂ / ‖s_τ‖₂ stays ≤ ``threshold`` at every step τ ≤ k (Jin et al. 2020's VPT; Botev et al.
     2021 use the same definition on a normalised MSE). A rollout that never exceeds it scores its horizon
     t_{T−1}: the value is censored there, so compare VPTs only over one horizon. A non-finite error
     counts as exceeding.
     """
-    within = (relative_error(pred, true) <= threshold).long()        # NaN compares False
+    within = (relative_error(pred, true, angles) <= threshold).long()        # NaN compares False
     return (within.cumprod(-1).sum(-1) - 1).clamp_min(0).double() * dt
 
 
@@ -72,8 +104,10 @@ def diverged(pred: Tensor, pred_energy: Tensor | None = None, true_energy: Tenso
 
 
 def summarise(pred: Tensor, true: Tensor, pred_energy: Tensor | None, true_energy: Tensor | None,
-              horizon: int = 4, dt: float = 1.0, vpt_threshold: float = 0.1) -> dict[str, float]:
-    """Scalar test metrics of rollouts ``pred`` against ``true`` in one common chart, sampled every ``dt``.
+              horizon: int = 4, dt: float = 1.0, vpt_threshold: float = 0.1,
+              angles: Tensor | None = None) -> dict[str, float]:
+    """Scalar test metrics of rollouts ``pred`` against ``true`` in one common chart, sampled every ``dt``,
+    ``angles`` compared on the circle.
 
     ``diverged`` is the fraction of rollouts that diverged (``diverged``: a non-finite state, or an
     energy error ≥ ``DIVERGED_ENERGY_ERROR``); with a non-finite one the means over trajectories are NaN
@@ -81,14 +115,14 @@ def summarise(pred: Tensor, true: Tensor, pred_energy: Tensor | None, true_energ
     is the mean ``valid_prediction_time`` at ``vpt_threshold``, ``vpt_censored`` the fraction of
     rollouts still valid at the last step (their VPT is the horizon).
     """
-    tre = trajectory_relative_error(pred, true, horizon)
-    vpt = valid_prediction_time(pred, true, dt, vpt_threshold)
+    tre = trajectory_relative_error(pred, true, horizon, angles)
+    vpt = valid_prediction_time(pred, true, dt, vpt_threshold, angles)
     out = {
         "diverged": diverged(pred, pred_energy, true_energy).double().mean().item(),
         "traj_rel_err": tre.mean().item(),
         "traj_rel_err_std": tre.std().item() if tre.numel() > 1 else 0.0,
-        "rel_err_final": relative_error(pred, true)[..., -1].mean().item(),
-        "geom_rel_err": geometric_mean_relative_error(pred, true).mean().item(),
+        "rel_err_final": relative_error(pred, true, angles)[..., -1].mean().item(),
+        "geom_rel_err": geometric_mean_relative_error(pred, true, angles).mean().item(),
         "vpt": vpt.mean().item(),
         "vpt_censored": (vpt == (pred.shape[-2] - 1) * dt).double().mean().item(),
     }
@@ -100,9 +134,10 @@ def summarise(pred: Tensor, true: Tensor, pred_energy: Tensor | None, true_energ
 
 
 # Santos, Ekal & Ventura §7: mean squared errors in configuration space, energy and inertia.
-def configuration_mse(pred_q: Tensor, true_q: Tensor) -> Tensor:
-    """MSE over every step and coordinate of configurations (N, T, n) (Santos et al. §7); a scalar."""
-    return ((pred_q - true_q) ** 2).mean()
+def configuration_mse(pred_q: Tensor, true_q: Tensor, angles: Tensor | None = None) -> Tensor:
+    """MSE over every step and coordinate of configurations (N, T, n) (Santos et al. §7), angles (n,) on the
+    circle; a scalar."""
+    return (difference(pred_q, true_q, angles) ** 2).mean()
 
 
 def energy_mse(pred_energy: Tensor, true_energy: Tensor) -> Tensor:
@@ -126,10 +161,10 @@ def acceleration_mse(pred_rates: Tensor, true_rates: Tensor, reduce: Callable[[T
 
 # Long-rollout errors against time (Xiao, Zhang & Tang, Figs. 3 and 5) and two trivial baselines.
 def mse_curves(pred: Tensor, true: Tensor, pred_energy: Tensor | None = None,
-               true_energy: Tensor | None = None) -> dict[str, Tensor]:
-    """State MSE (over trajectories and coordinates) and, given energies, energy MSE (over trajectories)
-    at each time; each of shape (T,)."""
-    curves = {"state_mse": ((pred - true) ** 2).mean((0, -1))}
+               true_energy: Tensor | None = None, angles: Tensor | None = None) -> dict[str, Tensor]:
+    """State MSE (over trajectories and coordinates, angles on the circle) and, given energies, energy MSE
+    (over trajectories) at each time; each of shape (T,)."""
+    curves = {"state_mse": (difference(pred, true, angles) ** 2).mean((0, -1))}
     if pred_energy is not None and true_energy is not None:
         curves["energy_mse"] = ((pred_energy - true_energy) ** 2).mean(0)
     return curves
@@ -173,12 +208,12 @@ def baseline_rollouts(true: Tensor, train: Tensor, dt: float) -> dict[str, Tenso
 
 def long_rollout_errors(true: Tensor, pred: Tensor, baselines: dict[str, Tensor],
                         to_common: Callable[[Tensor], Tensor] = lambda s: s,
-                        energy: Callable[[Tensor], Tensor] | None = None,
-                        horizon: int = 4) -> tuple[dict[str, float], dict[str, dict[str, Tensor]]]:
+                        energy: Callable[[Tensor], Tensor] | None = None, horizon: int = 4,
+                        angles: Tensor | None = None) -> tuple[dict[str, float], dict[str, dict[str, Tensor]]]:
     """State and energy MSE against time (Xiao et al. Figs. 3 and 5) of the model's rollouts ``pred`` and
     of the ``baselines`` (``baseline_rollouts``) on the same test windows ``true`` (N, T, 2n).
 
-    States are compared after ``to_common`` (the common chart); energies (``energy``, None when the
+    States are compared after ``to_common`` (the common chart, whose ``angles`` are compared on the circle); energies (``energy``, None when the
     physics is unknown) in the data chart. Returns scalars — ``state_mse`` (over all times) and
     ``state_mse_final`` (last step), the same for ``energy_mse``, and for the baselines also
     ``traj_rel_err``, under ``<baseline name>/`` — and the curves {predictor: {"state_mse"[, "energy_mse"]: (T,)}}.
@@ -189,9 +224,9 @@ def long_rollout_errors(true: Tensor, pred: Tensor, baselines: dict[str, Tensor]
     scalars, curves = {}, {}
     for name, p in predictions.items():
         p_c, prefix = to_common(p), "" if name == "model" else f"{name}/"
-        curves[name] = mse_curves(p_c, true_c, None if energy is None else energy(p), true_e)
+        curves[name] = mse_curves(p_c, true_c, None if energy is None else energy(p), true_e, angles)
         if name != "model":
-            scalars[f"{prefix}traj_rel_err"] = trajectory_relative_error(p_c, true_c, horizon).mean().item()
+            scalars[f"{prefix}traj_rel_err"] = trajectory_relative_error(p_c, true_c, horizon, angles).mean().item()
         for key, curve in curves[name].items():
             scalars.update({f"{prefix}{key}": curve.mean().item(), f"{prefix}{key}_final": curve[-1].item()})
     return scalars, curves

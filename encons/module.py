@@ -139,10 +139,15 @@ class TrainingModule(pl.LightningModule):
             return self.to_common(pred), self.to_common(x)
         return self.observation.decode(pred).flatten(2), x.flatten(2)
 
+    @property
+    def compared_angles(self) -> Tensor | None:
+        """The angle entries (bool (D,)) of what ``compared`` returns, which metrics compare on the circle."""
+        return self.system.angle_entries(self.system.common_chart) if self.observation.identity else None
+
     def validation_step(self, batch: Batch, batch_idx: int) -> None:
         x, states = self.observe(batch)
         pred = self.predict(batch, states)
-        tre = metrics.trajectory_relative_error(*self.compared(x, pred), self.horizon)
+        tre = metrics.trajectory_relative_error(*self.compared(x, pred), self.horizon, self.compared_angles)
         size = states.shape[0]
         self.log("val/loss", self.rollout_loss(x, states, pred), batch_size=size, sync_dist=True)
         self.log("val/traj_rel_err", tre.mean(), prog_bar=True, batch_size=size, sync_dist=True)

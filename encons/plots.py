@@ -50,31 +50,49 @@ def unit_label(units: tuple[str, ...], rate: bool = False) -> str:
     return f"[{next(iter(unique))}{'/s' if rate else ''}]" if len(unique) == 1 else "[see legend]"
 
 
-def _band(ax, t: Tensor, values: Tensor, ylabel: str) -> None:
+def _band(ax, t: Tensor, values: Tensor, ylabel: str, time_label: str = TIME) -> None:
     """Median over trajectories with the 2.5–97.5 percentile band, log scale."""
     lo, med, hi = torch.quantile(values.double(), torch.tensor([0.025, 0.5, 0.975], dtype=torch.float64), dim=0)
     ax.plot(t, med, label="median over test trajectories")
     ax.fill_between(t, lo, hi, alpha=0.25, label="2.5–97.5 percentile")
     ax.set_yscale("log")
-    ax.set_xlabel(TIME)
+    ax.set_xlabel(time_label)
     ax.set_ylabel(ylabel)
     ax.legend()
 
 
+def window_offset(true: Tensor, angles: Tensor | None) -> Tensor:
+    """Per window (N, 1, D): 2πk on each angle entry, k such that the window's first true angle minus it
+    lies in [−π, π); zero elsewhere. Subtracted from truth and predictions alike, it draws a window of an
+    unwrapped recording (at −42 rad, say) where the angle is, without the jumps that wrapping every sample makes."""
+    if angles is None:
+        return torch.zeros_like(true[..., :1, :])
+    turns = torch.round(true[..., :1, :] / (2 * torch.pi)) * (2 * torch.pi)
+    return torch.where(angles.to(true.device), turns, torch.zeros_like(turns))
+
+
 def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] | None, title: str,
-                    units: tuple[str, ...] | None = None, baseline: Tensor | None = None) -> dict[str, Figure]:
+                    units: tuple[str, ...] | None = None, baseline: Tensor | None = None,
+                    angles: Tensor | None = None, names: list[str] | None = None,
+                    time_label: str = None) -> dict[str, Figure]:
     """Rollout vs truth (every coordinate, positions and velocities) of three test trajectories — the
     best, median and worst by relative error summed over the rollout, each labelled so — with the
     linear-ODE ``baseline``'s rollout if given; relative error vs time and (if known) energy error vs
     time. States are in the system's common chart, whose coordinate ``units`` label the axes
-    (default: unitless). Figures by file stem, laid out: ``rollout``, ``relative_error``, ``energy_error``."""
+    (default: unitless) and ``names`` the legend (default q₁…, q̇₁…); ``angles`` (bool (D,)) are scored on
+    the circle and drawn offset by the 2πk that puts each window's start in [−π, π) (``window_offset``).
+    Figures by file stem, laid out: ``rollout``, ``relative_error``, ``energy_error``."""
     from matplotlib.lines import Line2D
 
     figures = {}
-    names = coordinate_names(true.shape[-1])
+    time_label = time_label or TIME
+    names = names or coordinate_names(true.shape[-1])
     n = true.shape[-1] // 2
     units = tuple(units) if units is not None else ("–",) * n
-    score = metrics.relative_error(pred, true).nan_to_num(float("inf")).sum(-1)
+    shift = window_offset(true, angles)
+    pred, true = pred - shift, true - shift
+    baseline = None if baseline is None else baseline - shift
+    score = metrics.relative_error(pred, true, angles).nan_to_num(float("inf")).sum(-1)
     order = torch.argsort(score).tolist()
     picks = dict.fromkeys([order[0], order[len(order) // 2], order[-1]])      # best, median, worst (distinct)
     tags = {order[0]: "best", order[len(order) // 2]: "median", order[-1]: "worst"}
@@ -90,8 +108,11 @@ def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor
                 if baseline is not None:
                     ax.plot(t, baseline[k, :, idx], ":", color=palette[d], lw=1.0)
             ax.set_ylabel(f"{'velocity q̇' if rate else 'position q'} {unit_label(units, rate)}")
-        axes[0, col].set_title(f"test trajectory {k} ({tags[k]} of {len(order)} by relative error)", fontsize=9)
-        axes[1, col].set_xlabel(TIME)
+        turns = [f"{names[d]} − {round(float(shift[k, 0, d]) / (2 * torch.pi)):d}·2π" for d in range(n)
+                 if float(shift[k, 0, d]) != 0]
+        axes[0, col].set_title(f"test trajectory {k} ({tags[k]} of {len(order)} by relative error)"
+                               + (f"\ndrawn as {', '.join(turns)}" if turns else ""), fontsize=9)
+        axes[1, col].set_xlabel(time_label)
     handles = [Line2D([], [], color=palette[d], lw=2, label=f"{names[d]} [{units[d]}], {names[d + n]} [{units[d]}/s]")
                for d in range(n)]
     handles += [Line2D([], [], color="k", lw=1.5, label="truth"), Line2D([], [], color="k", ls="--", lw=1.2, label="model")]
@@ -103,13 +124,13 @@ def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor
     figures["rollout"] = fig
 
     fig, ax = subplots(figsize=(6, 4))
-    _band(ax, t[1:], metrics.relative_error(pred, true)[:, 1:], REL_ERR)
+    _band(ax, t[1:], metrics.relative_error(pred, true, angles)[:, 1:], REL_ERR, time_label)
     ax.set_title(f"{title}\nrelative error of the state", fontsize=9)
     figures["relative_error"] = laid_out(fig)
 
     if energies is not None:
         fig, ax = subplots(figsize=(6, 4))
-        _band(ax, t[1:], metrics.energy_abs_error(*energies)[:, 1:].clamp_min(1e-12), ENERGY_ERR)
+        _band(ax, t[1:], metrics.energy_abs_error(*energies)[:, 1:].clamp_min(1e-12), ENERGY_ERR, time_label)
         ax.set_title(f"{title}\nabsolute error in true energy", fontsize=9)
         figures["energy_error"] = laid_out(fig)
     return figures

@@ -38,7 +38,7 @@ from encons.io import atomic_open, write_text
 
 
 def print_summary(title: str, results: dict[str, float], output_dir: Path, note: str = "",
-                  console: bool = True) -> None:
+                  console: bool = True, files: str = "checkpoints/, figures/, test_metrics.json") -> None:
     """One table of the run's validation and test metrics, ``note`` (which weights were tested) and
     where its files are, on the console (unless ``console`` is false) and in the run's log files
     (``train.log`` under the CLI)."""
@@ -52,7 +52,7 @@ def print_summary(title: str, results: dict[str, float], output_dir: Path, note:
     out.print(table)
     if note:
         out.print(note)
-    out.print(f"outputs: {output_dir}  (checkpoints/, figures/, test_metrics.json)")
+    out.print(f"outputs: {output_dir}  ({files})")
     to_log_files(out.export_text())
 
 

@@ -171,7 +171,7 @@ def _attempt(attempt: attempts.Attempt, checked: Checked, summary: bool, started
         if best is not None:
             tested = Path(best.best_model_path)
             results[f"best/{best.monitor}"] = float(best.best_model_score)
-            results["best_epoch"] = float(checkpoints.read(tested)["epoch"])
+            results["best_epoch"] = float(checkpoints.read(tested)["epoch"] + 1)   # from 1, as the log counts
         if cfg.test:
             trainer.test(module, datamodule=data, ckpt_path=str(tested) if tested else None, verbose=False,
                          weights_only=True)
@@ -186,7 +186,8 @@ def _attempt(attempt: attempts.Attempt, checked: Checked, summary: bool, started
     results["wall_time_s"] = time.perf_counter() - started
     results["threads"] = float(torch.get_num_threads())  # what wall_time_s ran on (encons.threads)
     if trainer.is_global_zero:
-        note = "; ".join(filter(None, (_which(tested, results), module.evaluation.describe(), attempt.describe())))
+        note = "; ".join(filter(None, (_which(tested, results), module.evaluation.describe(), attempt.describe(),
+                                       horizon_note(module, data) if cfg.test else "")))
         print_summary(module.run_title(), results, run_dir, note=note, console=summary)
     return Run(module, data, config, run_dir, tested, results)
 
@@ -306,10 +307,17 @@ def evaluate(run: Run | str | Path, overrides: Iterable[str] = (), ckpt: str = "
         trainer, _ = build_trainer(config)
         trainer.test(run.module, datamodule=run.data, verbose=False, weights_only=True)
     run.metrics = {f"test/{k}": v for k, v in run.module.test_metrics.items()}
-    note = f"tested: {run.checkpoint.name if run.checkpoint else 'in-memory weights'}; {run.module.evaluation.describe()}"
-    steps = run.data.states["test"].shape[1] - 1
-    if steps > run.module.horizon:
-        note += (f"; traj_rel_err sums the first {run.module.horizon} of {steps} test steps "
-                 f"(add horizon={steps} to score the whole trajectory)")
-    print_summary(run.module.run_title(), run.metrics, out, note=note)
+    note = (f"tested: {run.checkpoint.name if run.checkpoint else 'in-memory weights'}; "
+            f"{run.module.evaluation.describe()}; {horizon_note(run.module, run.data)}")
+    print_summary(run.module.run_title(), run.metrics, out, note=note, files="figures/, test_metrics.json")
     return run.metrics
+
+
+def horizon_note(module, data) -> str:
+    """The scored horizon, said beside every summary: traj_rel_err sums the first ``horizon`` steps of each
+    test window, traj_rel_err_window all of them."""
+    steps = data.states["test"].shape[1] - 1
+    if steps <= module.horizon:
+        return f"traj_rel_err sums all {steps} steps of each test window (horizon={module.horizon})"
+    return (f"traj_rel_err sums the first {module.horizon} of {steps} steps of each test window (horizon="
+            f"{module.horizon}, the papers' protocol); traj_rel_err_window sums all {steps}")

@@ -161,7 +161,7 @@ def test_a_disk_that_fills_during_training_keeps_the_last_good_checkpoints(tmp_p
     folder = tmp_path / "run" / "checkpoints"
     line = str(caught.value)
     assert "\n" not in line and line.startswith(f"folder={str(folder)!r}: cannot write ") and "No space left" in line
-    assert sorted(p.name for p in folder.iterdir()) == ["best-epoch0000.ckpt", "last.ckpt"]  # no partial file
+    assert sorted(p.name for p in folder.iterdir()) == ["best-epoch0001.ckpt", "last.ckpt"]  # no partial file (epochs counted from 1)
     for kept in folder.iterdir():
         assert torch.load(kept, weights_only=True)["epoch"] == 0
 

@@ -53,3 +53,47 @@ def test_energy_rmse_against_the_true_energy_at_each_time():
     true_e = torch.tensor([[1.0, 0.5, 0.25]])
     pred_e = torch.tensor([[1.0, 0.5, 0.0]])
     assert math.isclose(metrics.energy_deviation_rmse(pred_e, true_e).item(), math.sqrt(0.25 ** 2 / 3), rel_tol=1e-6)
+
+
+def _state_metrics():
+    """Every function of ``encons.metrics`` that scores predicted states against true ones (pred…, true…)."""
+    import inspect
+
+    found = {}
+    for name, fn in inspect.getmembers(metrics, inspect.isfunction):
+        params = list(inspect.signature(fn).parameters)
+        if fn.__module__ == metrics.__name__ and len(params) >= 2 and params[0].startswith("pred") \
+                and params[1].startswith("true") and not any(w in params[0] for w in ("energy", "mass", "rates")):
+            found[name] = fn
+    return found
+
+
+def test_every_state_metric_is_unchanged_when_an_angle_of_prediction_and_truth_shifts_by_2pi_k():
+    found = _state_metrics()
+    assert {"relative_error", "trajectory_relative_error", "geometric_mean_relative_error", "valid_prediction_time",
+            "summarise", "mse_curves", "configuration_mse"} <= set(found)
+    gen = torch.Generator().manual_seed(0)
+    true = torch.randn(5, 12, 4, generator=gen, dtype=torch.float64)
+    true[..., 0] = true[..., 0] * 2 + 2.5                       # an angle reaching past π
+    pred = true + 0.3 * torch.randn(true.shape, generator=gen, dtype=torch.float64)
+    pred[0, 6, 0] = true[0, 6, 0] + 2 * math.pi - 0.1            # one prediction one turn off: 0.1 on the circle
+    angles = torch.tensor([True, False, False, False])
+    extra = {"valid_prediction_time": (0.1, 0.5), "summarise": (None, None)}
+    for k in (1, -3, 7):
+        turn = torch.zeros(4, dtype=torch.float64)
+        turn[0] = 2 * math.pi * k
+        for name, fn in found.items():
+            args = extra.get(name, ())
+            base, moved = fn(pred, true, *args, angles=angles), fn(pred + turn, true + turn, *args, angles=angles)
+            for a, b in zip(*(v.values() if isinstance(v, dict) else [v] for v in (base, moved))):
+                torch.testing.assert_close(torch.as_tensor(b), torch.as_tensor(a), rtol=1e-9, atol=1e-12,
+                                           msg=f"{name} moved under a 2π·{k} shift")
+    # the error of an angle is the wrapped difference: 0.1, not 2π − 0.1
+    rel = metrics.relative_error(pred[:1, 6:7], true[:1, 6:7], angles)
+    d = (pred[0, 6] - true[0, 6]).clone()
+    d[0] = -0.1
+    s = true[0, 6].clone()
+    s[0] = torch.remainder(s[0] + math.pi, 2 * math.pi) - math.pi
+    assert math.isclose(rel.item(), (d.norm() / s.norm()).item(), rel_tol=1e-12)
+    # without angles the plain definitions hold (and a shift moves them: the test above can fail)
+    assert metrics.relative_error(pred + 2 * math.pi, true + 2 * math.pi).mean() < metrics.relative_error(pred, true).mean()

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -53,7 +54,8 @@ def test_two_trial_csv_with_jittered_stamps_keeps_trials_apart_and_splits_each_b
         assert begin + 0.7 * 4.0 - DT < of["val"].min() and of["val"].max() <= begin + 0.8 * 4.0
         assert begin + 0.8 * 4.0 - DT < of["test"].min() and of["test"].max() <= begin + 4.0 + 1e-9
     assert "2 trial(s)" in caplog.text and "trial A: t 100..104" in caplog.text and "trial B: t 105..109" in caplog.text
-    assert "train t < 102.8: 27, val t < 103.2: 4, test: 3" in caplog.text
+    assert "rig.csv, trial A: t 100..104, 401 samples, 0 gap(s); train t 100..102.8: 27, val t 102.8..103.2: 4, " \
+           "test t 103.2..104: 3 trajectories" in caplog.text
 
 
 def test_the_cli_trains_on_a_csv_recording_for_a_budget_in_steps(tmp_path, caplog):
@@ -122,3 +124,87 @@ def test_a_recording_data_module_logs_the_steps_per_epoch(tmp_path, caplog):
     with caplog.at_level(logging.INFO, logger="encons"):
         data.setup()
     assert "train: 54 trajectories in batches of 8: 7 optimiser step(s) per epoch" in caplog.text
+
+
+def matlab_style(path, shift=0.0, samples=400):
+    """A whitespace recording whose first line is ``% time theta omega``: a pendulum q = 2.8 cos(2t) (+ shift)."""
+    t = DT * np.arange(samples)
+    q = 2.8 * np.cos(2 * t) + shift
+    rows = [f"{a:.6f} {b:.12f} {c:.12f}" for a, b, c in zip(t, q, -5.6 * np.sin(2 * t))]
+    path.write_text("% time theta omega\n" + "\n".join(rows) + "\n")
+    return path
+
+
+MATLAB = ["data.recording.comment='%'", "data.recording.columns={t: time, q: [theta], qdot: [omega]}"]
+
+
+def test_a_matlab_style_file_with_a_percent_header_trains(tmp_path, capsys):
+    from encons import api
+
+    path = matlab_style(tmp_path / "lab.txt")
+    with pytest.raises(DataError, match=r"line 1 \('% time theta omega'\) has 4 cell\(s\) where the table's other "
+                                        r"rows have 3; is it a header\? .* needs data.recording.comment='%'"):
+        load_recording(path, 4, 4, {"columns": {"t": "time", "q": ["theta"], "qdot": ["omega"]}})
+    cfg = api.compose("debug=fast", "system=from_file", f"system.path={path}", "model=node", "data.n_steps=10",
+                      *MATLAB, "trainer.max_epochs=null", "trainer.max_steps=3", output_dir=tmp_path / "run")
+    run = api.train(cfg)
+    assert math.isfinite(run.metrics["test/traj_rel_err"]) and math.isfinite(run.metrics["test/traj_rel_err_window"])
+    assert ("traj_rel_err sums the first 4 of 10 steps of each test window (horizon=4, the papers' protocol); "
+            "traj_rel_err_window sums all 10") in " ".join(capsys.readouterr().out.split())   # the summary's note
+    theta = run.data.states["test"][0, :, 0]                   # the named column, not the first data row as header
+    torch.testing.assert_close(theta, torch.from_numpy(2.8 * np.cos(2 * DT * (320 + np.arange(11)))), atol=1e-9, rtol=0)
+
+
+def test_a_commented_header_names_columns_and_numpy_warns_nothing(tmp_path):
+    path = matlab_style(tmp_path / "lab.txt")
+    path.write_text(path.read_text().replace("% time", "# time", 1))
+    columns = {"t": "time", "q": ["theta"], "qdot": ["omega"]}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _, splits, _, _ = load_recording(path, 10, 10, {"columns": columns})
+    assert splits["train"][0, 0, 0].item() == pytest.approx(2.8)
+    path.write_text("\n".join(path.read_text().splitlines()[1:]))   # no header at all: names cannot be found
+    with pytest.raises(DataError, match=r"its first row \(0.000000 2.800000000000 -0.000000000000\) holds numbers, "
+                                        r"not column names; allowed: a header row of names, a first comment line"):
+        load_recording(path, 10, 10, {"columns": columns})
+
+
+def test_a_boolean_option_refuses_a_word(tmp_path, monkeypatch):
+    from tests.helpers import in_process
+
+    path = matlab_style(tmp_path / "lab.txt")
+    done = in_process("encons.train", ["system=from_file", f"system.path={path}", *MATLAB,
+                                       "data.recording.resample=maybe", f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch)
+    assert done.returncode != 0
+    assert done.stderr.strip() == "encons: error: data.recording.resample='maybe' has type str; allowed: true or false"
+
+
+def test_an_angle_shifted_by_2pi_gives_the_same_constant_baseline_metrics(tmp_path):
+    from encons import api
+    from encons.runs import evaluate
+
+    plain, shifted = matlab_style(tmp_path / "plain.txt"), matlab_style(tmp_path / "shifted.txt", shift=2 * math.pi)
+    common = ["debug=fast", "system=from_file", "model=node", "data.n_steps=10", "data.test_steps=20", *MATLAB,
+              "data.recording.angles=true", "trainer.max_epochs=null", "trainer.max_steps=1"]
+    run = api.train(api.compose(*common, f"system.path={plain}", output_dir=tmp_path / "run"), summary=False)
+    moved = evaluate(run.run_dir, [f"system.path={shifted}", f"data.path={shifted}"], ckpt="last")
+    keys = [k for k in run.metrics if k.startswith("test/baseline_constant/")]
+    assert len(keys) == 3
+    for key in keys:
+        assert moved[key] == pytest.approx(run.metrics[key], rel=1e-9), key
+    assert moved["test/baseline_linear_ode/traj_rel_err"] == pytest.approx(
+        run.metrics["test/baseline_linear_ode/traj_rel_err"], rel=1e-3)   # fitted with an intercept to float32 states
+
+
+def test_a_short_recording_names_its_longest_stretch_gap_count_and_the_keys_that_change_them(tmp_path):
+    t = np.delete(np.arange(300) * DT, [50, 51, 120, 200])        # 3 gaps: stretches of 50, 68, 79, 99 samples
+    np.savez(tmp_path / "rec.npz", t=t, states=np.stack([np.sin(t), np.cos(t)], -1))
+    with pytest.raises(DataError, match=r"its train part holds no unbroken stretch of 101 samples \(its longest holds "
+                                        r"79; 3 gap\(s\) longer than data.recording.gap=1.5 × the median step split the "
+                                        r"recording\); allowed: data.n_steps <= 78, a larger share \(data.recording."
+                                        r"test_fraction, val_fraction\), a larger data.recording.gap with data.recording."
+                                        r"resample=true"):
+        load_recording(tmp_path / "rec.npz", 100, 10, {})
+    with pytest.raises(DataError, match=r"its val part holds .* \(its longest holds 30;.*allowed: data.n_steps <= 29, "
+                                        r"a larger share \(data.recording.val_fraction\)"):
+        load_recording(tmp_path / "rec.npz", 78, 10, {})   # the train bound it named was enough: val is next

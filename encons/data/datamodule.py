@@ -36,7 +36,7 @@ from torch.func import jvp
 from torch.utils.data import DataLoader, Dataset, Sampler
 
 from encons.data import store
-from encons.data.recording import is_recording, load_recording
+from encons.data.recording import checked_options, is_recording, load_recording
 from encons.data.simulate import sample_trajectories
 from encons.bounds import Declared, NonNegative, Positive, Range, Seed
 from encons.errors import ConfigError, DataError
@@ -124,6 +124,8 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
         self.val_batch_size = val_batch_size or batch_size
         self.windows = windows
         self.objective, self.recording = objective, dict(recording or {})
+        if path is not None:
+            checked_options(self.recording, self.test_steps)   # before any training: one line, e.g. resample=maybe
         gen_config = dict(system=system_config or {"name": system.name}, sizes=self.sizes, n_steps=n_steps,
                           test_steps=self.test_steps, dt=dt, substeps=substeps, seed=seed)
         self.cache_file = Path(cache_dir) / f"{system.name}-{store.config_hash(gen_config)}.npz"

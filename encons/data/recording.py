@@ -8,11 +8,12 @@ A recording is an ``.npz`` with
     u       (T, m)   optional inputs per sample (``u[k]`` acts from t_k to t_{k+1})
     trial   (T,)     optional trial label per sample (several recordings in one file)
 
-or a delimited text file (``.csv``: commas, ``.tsv``: tabs, else whitespace, or ``delimiter``; ``#``
-starts a comment) read through ``columns``, a mapping {t: COL, q: [COL, ...], qdot: [COL, ...],
-trial: COL (optional), u: [COL, ...] (optional)}; COL is a header name (the first row is then the
-header) or a 0-based column index (every row is then data). Cells are unquoted numbers, except the
-trial column, whose labels may be any text.
+or a delimited text file (``.csv``: commas, ``.tsv``: tabs, else whitespace, or ``delimiter``;
+``comment``, default ``#``, starts a comment: ``%`` for MATLAB-style files) read through ``columns``, a
+mapping {t: COL, q: [COL, ...], qdot: [COL, ...], trial: COL (optional), u: [COL, ...] (optional)}; COL
+is a header name or a 0-based column index (every row is then data). The header is the first comment
+line when it holds one name per column and the first row holds numbers (``% time theta omega``), else
+the first row. Cells are numbers, except the trial column, whose labels may be any text.
 
 How it is cut (``load_recording``), for each trial on its own (a file without trials is one trial):
 
@@ -38,6 +39,7 @@ How it is cut (``load_recording``), for each trial on its own (a file without tr
 
 from __future__ import annotations
 
+import csv
 import logging
 import math
 from collections.abc import Mapping
@@ -47,13 +49,19 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from encons import bounds
 from encons.errors import ConfigError, DataError
 from encons.io import save_npz
+from encons.progress import to_log_files
 
 log = logging.getLogger(__name__)
 
+#: The options' types, checked by ``encons.bounds.check`` (``resample=maybe`` is refused, not taken as true).
+TYPES = {"test_fraction": float, "val_fraction": float, "angles": bool | list[bool] | None, "gap": float,
+         "jitter": float, "resample": bool, "test_stride": int | None, "columns": dict | None,
+         "delimiter": str | None, "comment": str | None}
 OPTIONS = {"test_fraction": 0.2, "val_fraction": 0.1, "angles": None, "gap": 1.5, "jitter": 1e-3,
-           "resample": False, "test_stride": None, "columns": None, "delimiter": None}
+           "resample": False, "test_stride": None, "columns": None, "delimiter": None, "comment": "#"}
 COLUMN_KEYS = ("t", "q", "qdot", "trial", "u")
 SPLITS = ("train", "val", "test")
 
@@ -85,7 +93,8 @@ def _angle_mask(angles: list[bool], width: int) -> Tensor:
     return torch.tensor(list(angles) + [False] * (width - len(angles)))
 
 
-def _angles(angles: bool | list[bool] | None, n: int) -> list[bool]:
+def recording_angles(angles: bool | list[bool] | None, n: int) -> list[bool]:
+    """Which of ``n`` coordinates q are angles, from ``data.recording.angles`` (null/false, true, or n booleans)."""
     if angles is None or isinstance(angles, bool):
         return [bool(angles)] * n
     if not isinstance(angles, (list, tuple)) or len(angles) != n or not all(isinstance(a, bool) for a in angles):
@@ -94,13 +103,14 @@ def _angles(angles: bool | list[bool] | None, n: int) -> list[bool]:
     return list(angles)
 
 
-def describe(path: str | Path, columns: dict | None = None, delimiter: str | None = None) -> tuple[int, str | None, int]:
+def describe(path: str | Path, columns: dict | None = None, delimiter: str | None = None,
+             comment: str | None = "#") -> tuple[int, str | None, int]:
     """The coordinate count n, the chart (or None) and the input width m of a recording file."""
-    t, states, chart, u, _ = _read(Path(path), columns, delimiter)
+    t, states, chart, u, _ = _read(Path(path), columns, delimiter, comment)
     return states.shape[1] // 2, chart, 0 if u is None else u.shape[1]
 
 
-def _read(path: Path, columns: dict | None, delimiter: str | None
+def _read(path: Path, columns: dict | None, delimiter: str | None, comment: str | None = "#"
           ) -> tuple[np.ndarray, np.ndarray, str | None, np.ndarray | None, np.ndarray | None]:
     """Times, states, chart, inputs and trial labels (or None) of a recording, checked."""
     if not path.is_file():
@@ -113,7 +123,7 @@ def _read(path: Path, columns: dict | None, delimiter: str | None
         chart = str(arrays["chart"]) if "chart" in arrays else None
         trial = arrays.get("trial")
     else:
-        arrays, trial = _read_text(path, columns, delimiter)
+        arrays, trial = _read_text(path, columns, delimiter, comment)
         chart = None
     missing = [k for k in ("t", "states") if k not in arrays]
     if missing:
@@ -134,7 +144,8 @@ def _read(path: Path, columns: dict | None, delimiter: str | None
     return t, states, chart, u, trial
 
 
-def _read_text(path: Path, columns: dict | None, delimiter: str | None) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+def _read_text(path: Path, columns: dict | None, delimiter: str | None, comment: str | None
+               ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     """The arrays t, states (q then q̇) and u of a delimited text recording, and its trial column."""
     allowed = ("a mapping {t: COL, q: [COL, ...], qdot: [COL, ...], trial: COL, u: [COL, ...]} "
                "(trial and u optional), COL a header name or a 0-based column index")
@@ -152,17 +163,15 @@ def _read_text(path: Path, columns: dict | None, delimiter: str | None) -> tuple
     if not by_name and not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in cols):
         raise ConfigError(f"data.recording.columns={columns!r}: mixes names and indices; allowed: all header "
                           f"names, or all 0-based indices")
-    if delimiter is None:
-        delimiter = {".csv": ",", ".tsv": "\t"}.get(path.suffix)
-    try:
-        rows = np.loadtxt(path, dtype=str, delimiter=delimiter, comments="#", ndmin=2,
-                          **({"quotechar": '"'} if delimiter is not None else {}))
-    except ValueError as err:
-        raise DataError(f"recording {str(path)!r} is not a table ({str(err).splitlines()[0]}); allowed: rows "
-                        f"with the same number of delimited cells (data.recording.delimiter)") from None
-    rows = np.char.strip(rows)
+    header, rows = _table(path, delimiter, comment)
     if by_name:
-        header, rows = list(rows[0]), rows[1:]
+        if header is None or not any(_is_number(c) for c in rows[0]):   # the first row names the columns
+            header, rows = list(rows[0]), rows[1:]
+            if all(_is_number(c) for c in header):
+                raise DataError(f"recording {str(path)!r}: its first row ({' '.join(header)}) holds numbers, not "
+                                f"column names; allowed: a header row of names, a first comment line "
+                                f"'{comment} NAME NAME ...' with one name per column (data.recording.comment), or "
+                                f"0-based column indices in data.recording.columns")
         absent = [c for c in cols if c not in header]
         if absent:
             raise DataError(f"recording {str(path)!r} has no column {absent[0]!r}; allowed: its header, "
@@ -190,6 +199,55 @@ def _read_text(path: Path, columns: dict | None, delimiter: str | None) -> tuple
     return arrays, trial
 
 
+def _table(path: Path, delimiter: str | None, comment: str | None) -> tuple[list[str] | None, np.ndarray]:
+    """The header of a text recording — its first comment line, when that holds one name per column —
+    or None, and its rows of cells (stripped strings, (rows, columns)). Text after ``comment`` on a line
+    is left out; blank lines are skipped; cells are split at ``delimiter`` (quotes ``"`` allowed), else at
+    whitespace. A row whose cell count differs from the table's is refused, naming its line."""
+    if comment is not None and (not isinstance(comment, str) or not comment.strip() or comment != comment.strip()):
+        raise ConfigError(f"data.recording.comment={comment!r}; allowed: a character (or string) that starts a "
+                          f"comment, e.g. '#' or '%', without spaces; null for none")
+    if delimiter is None:
+        delimiter = {".csv": ",", ".tsv": "\t"}.get(path.suffix)
+
+    def cells(text: str) -> list[str]:
+        if delimiter is None:
+            return text.split()
+        return [c.strip() for c in next(csv.reader([text], delimiter=delimiter, quotechar='"'))]
+
+    try:
+        lines = path.read_text().splitlines()
+    except UnicodeDecodeError as err:
+        raise DataError(f"recording {str(path)!r} is not text ({err.reason} at byte {err.start}); allowed: a "
+                        f"UTF-8 delimited text file, or an .npz") from None
+    named, numbered = None, []                    # the first comment line's cells; (line number, cells) of rows
+    for number, line in enumerate(lines, 1):
+        body, hit, rest = line.partition(comment) if comment else (line, "", "")
+        if hit and named is None and not numbered and not body.strip():
+            named = cells(rest.strip())
+        if body.strip():
+            numbered.append((number, cells(body)))
+    if not numbered:
+        raise DataError(f"recording {str(path)!r} holds no rows; allowed: a delimited text table "
+                        f"(lines starting with data.recording.comment={comment!r} are skipped)")
+    widths = np.array([len(c) for _, c in numbered])
+    width = int(np.bincount(widths).argmax())     # the table's width: that of most rows
+    if (widths != width).any():
+        bad = int(np.flatnonzero(widths != width)[0])
+        number, row = numbered[bad]
+        text = lines[number - 1].strip()
+        lead = text[:1]
+        hint = (f"; is it a header? a comment line starting with {lead!r} needs data.recording.comment={lead!r}"
+                if bad == 0 and lead and not (lead.isalnum() or lead in "+-._\"'") else
+                "; a header row of names needs as many names as the table has columns" if bad == 0 else "")
+        raise DataError(f"recording {str(path)!r}: line {number} ({text[:60]!r}) has {len(row)} cell(s) where the "
+                        f"table's other rows have {width}{hint}; allowed: rows of {width} cells split at "
+                        f"{'whitespace' if delimiter is None else repr(delimiter)} (data.recording.delimiter), "
+                        f"comments after data.recording.comment={comment!r}")
+    header = named if named is not None and len(named) == width else None
+    return header, np.array([c for _, c in numbered], dtype=str).reshape(len(numbered), width)
+
+
 def _is_number(cell: str) -> bool:
     try:
         float(cell)
@@ -198,18 +256,15 @@ def _is_number(cell: str) -> bool:
         return False
 
 
-def load_recording(path: str | Path, n_steps: int, test_steps: int, options: dict | None = None,
-                   n_controls: int = 0) -> tuple[Tensor, dict[str, Tensor], str | None, dict[str, Tensor]]:
-    """Cut a recording as the module docstring says, with ``options`` (keys and defaults: ``OPTIONS``);
-    returns the times of a training trajectory (n_steps + 1,), the splits {train, val, test}
-    (N, L, 2n), the chart and the inputs per split (N, L, m) (empty when ``n_controls`` is 0)."""
-    path = Path(path)
+def checked_options(options: dict | None, test_steps: int = 1) -> dict:
+    """``options`` over the defaults (``OPTIONS``), each of its type (``TYPES``) and range, else one
+    ``ConfigError`` line naming the ``data.recording`` key."""
     unknown = sorted(set(options or {}) - set(OPTIONS))
     if unknown:
         raise ConfigError(f"data.recording.{unknown[0]} is not an option; allowed: {', '.join(OPTIONS)}")
     opts = {**OPTIONS, **(options or {})}
+    bounds.check({k: v for k, v in opts.items() if k != "columns"}, TYPES, "data.recording")
     test_fraction, val_fraction, gap, jitter = (opts[k] for k in ("test_fraction", "val_fraction", "gap", "jitter"))
-    stride = opts["test_stride"] if opts["test_stride"] is not None else test_steps
     if not (0 < test_fraction < 1 and 0 < val_fraction < 1 and test_fraction + val_fraction < 1):
         raise ConfigError(f"data.recording.test_fraction={test_fraction}, val_fraction={val_fraction}; allowed: "
                           f"both in (0, 1) with a sum < 1")
@@ -218,9 +273,22 @@ def load_recording(path: str | Path, n_steps: int, test_steps: int, options: dic
     if not 0 <= jitter < gap - 1:
         raise ConfigError(f"data.recording.jitter={jitter}; allowed: [0, gap - 1 = {gap - 1:g}) (a relative "
                           f"deviation of a step from dt)")
+    stride = opts["test_stride"] if opts["test_stride"] is not None else test_steps
     if not (isinstance(stride, int) and stride >= 1):
         raise ConfigError(f"data.recording.test_stride={stride}; allowed: null (= data.test_steps) or an integer >= 1")
-    t, states, chart, u, trial = _read(path, opts["columns"], opts["delimiter"])
+    return opts
+
+
+def load_recording(path: str | Path, n_steps: int, test_steps: int, options: dict | None = None,
+                   n_controls: int = 0) -> tuple[Tensor, dict[str, Tensor], str | None, dict[str, Tensor]]:
+    """Cut a recording as the module docstring says, with ``options`` (keys and defaults: ``OPTIONS``);
+    returns the times of a training trajectory (n_steps + 1,), the splits {train, val, test}
+    (N, L, 2n), the chart and the inputs per split (N, L, m) (empty when ``n_controls`` is 0)."""
+    path = Path(path)
+    opts = checked_options(options, test_steps)
+    test_fraction, val_fraction, gap, jitter = (opts[k] for k in ("test_fraction", "val_fraction", "gap", "jitter"))
+    stride = opts["test_stride"] if opts["test_stride"] is not None else test_steps
+    t, states, chart, u, trial = _read(path, opts["columns"], opts["delimiter"], opts["comment"])
     if n_controls and (u is None or u.shape[1] != n_controls):
         raise DataError(f"recording {str(path)!r} holds no inputs u of width {n_controls}; allowed: u ({len(t)}, {n_controls})")
     labels, first, code, sizes = np.unique(trial if trial is not None else np.zeros(len(t), int), return_index=True,
@@ -244,20 +312,21 @@ def load_recording(path: str | Path, n_steps: int, test_steps: int, options: dic
         raise DataError(f"recording {str(path)!r}: a step of {step:.6g} beside dt = {dt:.6g} is "
                         f"{worst:.2g} off; allowed: steps within data.recording.jitter={jitter:g} of dt, gaps longer "
                         f"than data.recording.gap={gap} × the median step, or data.recording.resample=true (interpolate onto dt)")
-    mask = _angles(opts["angles"], states.shape[1] // 2)
+    mask = recording_angles(opts["angles"], states.shape[1] // 2)
     pieces = {name: [] for name in SPLITS}             # per split: (states, inputs) of every trajectory
-    lines = []
+    lines, longest, gaps = [], dict.fromkeys(SPLITS, 0), 0   # longest: samples of a split's longest unbroken piece
     for label, rows, trial_steps in zip(labels, rows_of, steps_of):
         cuts = np.concatenate([[0], np.flatnonzero(trial_steps > gap * median) + 1, [len(rows)]])
         t0, span = t[rows[0]], t[rows[-1]] - t[rows[0]]
-        bounds = [t0 + (1 - test_fraction - val_fraction) * span, t0 + (1 - test_fraction) * span]
+        edges = [t0 + (1 - test_fraction - val_fraction) * span, t0 + (1 - test_fraction) * span]
         counts = dict.fromkeys(SPLITS, 0)
         for a, b in zip(cuts[:-1], cuts[1:]):
             times, s, inputs = _stretch(t[rows[a:b]], states[rows[a:b]], None if u is None else u[rows[a:b]],
                                         mask, dt, bool(opts["resample"]))
-            part = np.searchsorted(bounds, times, side="right")            # 0 train, 1 val, 2 test
+            part = np.searchsorted(edges, times, side="right")            # 0 train, 1 val, 2 test
             for k, name in enumerate(SPLITS):
                 inside = np.flatnonzero(part == k)
+                longest[name] = max(longest[name], len(inside))
                 length = (test_steps if name == "test" else n_steps) + 1
                 every = stride if name == "test" else length - 1
                 count = (len(inside) - length) // every + 1 if len(inside) >= length else 0
@@ -265,24 +334,36 @@ def load_recording(path: str | Path, n_steps: int, test_steps: int, options: dic
                     index = inside[0] + every * np.arange(count)[:, None] + np.arange(length)
                     pieces[name].append((s[index], None if inputs is None else inputs[index]))
                 counts[name] += count
-        lines.append(f"{'trial ' + str(label) + ': ' if trial is not None else ''}t {t0:.6g}..{t[rows[-1]]:.6g}, "
-                     f"{len(rows)} samples, {len(cuts) - 2} gap(s); train t < {bounds[0]:.6g}: {counts['train']}, "
-                     f"val t < {bounds[1]:.6g}: {counts['val']}, test: {counts['test']}")
+        gaps += len(cuts) - 2
+        end = t[rows[-1]]
+        lines.append(f"{'trial ' + str(label) + ': ' if trial is not None else ''}t {t0:.6g}..{end:.6g}, "
+                     f"{len(rows)} samples, {len(cuts) - 2} gap(s); train t {t0:.6g}..{edges[0]:.6g}: "
+                     f"{counts['train']}, val t {edges[0]:.6g}..{edges[1]:.6g}: {counts['val']}, test t "
+                     f"{edges[1]:.6g}..{end:.6g}: {counts['test']} trajectories")
     for name in SPLITS:
         if not pieces[name]:
-            raise DataError(f"recording {str(path)!r}: its {name} part holds no unbroken stretch of "
-                            f"{(test_steps if name == 'test' else n_steps) + 1} samples; allowed: a smaller "
-                            f"data.{'test_steps' if name == 'test' else 'n_steps'} or a larger share of it "
-                            f"(data.recording.test_fraction, val_fraction) or a longer recording")
+            key, need = ("test_steps", test_steps + 1) if name == "test" else ("n_steps", n_steps + 1)
+            share = "test_fraction" if name == "test" else "val_fraction" if name == "val" else "test_fraction, val_fraction"
+            raise DataError(
+                f"recording {str(path)!r}: its {name} part holds no unbroken stretch of {need} samples (its longest "
+                f"holds {longest[name]}; {gaps} gap(s) longer than data.recording.gap={gap:g} × the median step split "
+                f"the recording); allowed: data.{key} <= {max(longest[name] - 1, 0)}, a larger share (data.recording."
+                f"{share}), a larger data.recording.gap with data.recording.resample=true (interpolates over dropped "
+                f"samples), or a longer recording")
     splits = {name: torch.from_numpy(np.concatenate([p[0] for p in pieces[name]])) for name in SPLITS}
     inputs = ({name: torch.from_numpy(np.concatenate([p[1] for p in pieces[name]])) for name in SPLITS}
               if n_controls else {})
     log.info("recording %s: %d sample(s) in %d trial(s), dt %.6g (steps off dt by up to %.2g relative%s; "
              "data.recording.jitter=%g); split by time within each trial into trajectories of %d samples "
-             "(test: %d, starting every %d samples)%s", path.name, len(t), len(labels), dt, worst,
-             ", resampled" if worst > jitter else "", jitter, n_steps + 1, test_steps + 1, stride,
-             "".join("\n  " + line for line in lines[:10])
-             + (f"\n  ... and {len(lines) - 10} more trial(s)" if len(lines) > 10 else ""))
+             "(test: %d, starting every %d samples)", path.name, len(t), len(labels), dt, worst,
+             ", resampled" if worst > jitter else "", jitter, n_steps + 1, test_steps + 1, stride)
+    for k, line in enumerate(lines):     # where each split begins, per trial: the first 10 on the console, all in the log files
+        if k < 10:
+            log.info("recording %s, %s", path.name, line)
+        else:
+            to_log_files(f"recording {path.name}, {line}")
+    if len(lines) > 10:
+        log.info("recording %s: %d more trial(s) in the log files", path.name, len(lines) - 10)
     log.info("recording %s: trajectories train/val/test %d/%d/%d", path.name, *(len(splits[k]) for k in SPLITS))
     return torch.arange(n_steps + 1, dtype=torch.float64) * dt, splits, chart, inputs
 

@@ -65,7 +65,7 @@ class SantosMetrics(Evaluator, Declared):
         if u is not None:
             batch["u"] = one_step_windows(u, history).to(module.device, dtype)
         pred = module.predict(batch)[:, -1, :n]
-        return metrics.configuration_mse(pred.double().cpu(), windows[:, -1, :n].double()).item()
+        return metrics.configuration_mse(pred.double().cpu(), windows[:, -1, :n].double(), q_angles(module)).item()
 
     def integration(self, module: Learner, substeps: int) -> dict[str, float]:
         model, system = module.model, module.system
@@ -80,7 +80,7 @@ class SantosMetrics(Evaluator, Declared):
                        None if u is None else u.to(module.device, dtype)).double().cpu()
         n = model.n
         energy_pred, energy_true = system.energy(pred, model.chart), system.energy(true, model.chart)
-        out = {"mse_integration": metrics.configuration_mse(pred[..., :n], true[..., :n]).item(),
+        out = {"mse_integration": metrics.configuration_mse(pred[..., :n], true[..., :n], q_angles(module)).item(),
                "energy_mse_integration": metrics.energy_mse(energy_pred, energy_true[:, :1]).item(),
                **{f"{k}_integration": v for k, v in model.diagnostics().items()}}
         if isinstance(getattr(model, "mass", None), torch.nn.Module) and model.chart == system.base_chart:
@@ -95,6 +95,12 @@ class SantosMetrics(Evaluator, Declared):
         if self.drawn is None:
             return {}
         return plots.integration_figure(*self.drawn, chart=module.model.chart, title=module.run_title())
+
+
+def q_angles(module: TrainingModule) -> Tensor | None:
+    """Which coordinates q of the model's chart are angles (compared on the circle), or None."""
+    mask = module.system.angle_entries(module.model.chart)
+    return None if mask is None else mask[: module.model.n]
 
 
 def one_step_windows(values: Tensor, history: int) -> Tensor:

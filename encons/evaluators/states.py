@@ -19,8 +19,8 @@ log = logging.getLogger(__name__)
 
 
 class States(Evaluator):
-    """Test rollouts scored in the system's common chart (``encons.metrics.summarise``: trajectory and
-    final relative error, Finzi's geometric mean, valid prediction time, energy errors where the physics
+    """Test rollouts scored in the system's common chart (``encons.metrics.summarise``: trajectory relative
+    error over the ``horizon`` and, as ``traj_rel_err_window``, over the whole test window, final relative error, Finzi's geometric mean, valid prediction time, energy errors where the physics
     is known, the divergence fraction), the long-rollout MSE against time with the constant and linear-ODE
     baselines (``metrics.long_rollout_errors``), the model's solver counters, and, on a system of known
     physics, ``oracle/<metric>``: the true field rolled out by the same evaluation from the same starts in
@@ -53,11 +53,15 @@ class States(Evaluator):
             log.info("energy metrics skipped: system '%s' has no known energy", system.name)
         energies = [energy(s) for s in (pred, true)] if energy else None
         true_c, pred_c = module.to_common(true), module.to_common(pred)
-        score = dict(horizon=module.horizon, dt=module.dt, vpt_threshold=module.evaluation.vpt_threshold)
+        angles = module.compared_angles
+        score = dict(horizon=module.horizon, dt=module.dt, vpt_threshold=module.evaluation.vpt_threshold, angles=angles)
         scores = metrics.summarise(pred_c, true_c, *(energies or (None, None)), **score)
+        window = true.shape[1] - 1   # the whole test window, beside the scored horizon (module.horizon)
+        scores["traj_rel_err_window"] = metrics.trajectory_relative_error(pred_c, true_c, window, angles).mean().item()
         train = module.trainer.datamodule.states["train"].to(true)
         baselines = metrics.baseline_rollouts(true, train, module.dt)
-        scalars, curves = metrics.long_rollout_errors(true, pred, baselines, module.to_common, energy, module.horizon)
+        scalars, curves = metrics.long_rollout_errors(true, pred, baselines, module.to_common, energy, module.horizon,
+                                                      angles)
         scores.update(scalars)
         scores.update(self.diagnostics)  # e.g. SyMo's non-converged root-finds
         if oracle:  # the floor, scored by the same metrics
@@ -66,7 +70,7 @@ class States(Evaluator):
             scores.update({f"oracle/{k}": v for k, v in floor.items()})
         t = module.times(true.shape[1], true)
         log.info("%s", metrics.curves_table(t, curves))
-        kept = {"t": t.cpu().numpy(), "rel_err": metrics.relative_error(pred_c, true_c).cpu().numpy(),
+        kept = {"t": t.cpu().numpy(), "rel_err": metrics.relative_error(pred_c, true_c, angles).cpu().numpy(),
                 **{f"{k}_{name}": v.cpu().numpy() for name, c in curves.items() for k, v in c.items()}}
         if energies:
             kept["energy_err"] = metrics.energy_abs_error(*energies).cpu().numpy()
@@ -78,7 +82,9 @@ class States(Evaluator):
         ``relative_error`` and ``energy_error`` (``encons.plots``)."""
         t, pred_c, true_c, energies, curves, baseline = self.drawn  # the linear-ODE rollout compute scored
         units, title = module.system.units(module.system.common_chart), module.run_title()
+        time_label = plots.TIME if module.system.known_physics else plots.DATA_TIME
         return {**plots.mse_figure(t.cpu(), curves, title=title, units=units),
                 **plots.rollout_figures(t.cpu(), pred_c.cpu(), true_c.cpu(),
                                         [e.cpu() for e in energies] if energies else None, title=title,
-                                        units=units, baseline=baseline.cpu())}
+                                        units=units, baseline=baseline.cpu(), angles=module.compared_angles,
+                                        time_label=time_label)}

@@ -127,6 +127,13 @@ class System(Declared, abc.ABC):
         Default: rad in the angle chart (generalised coordinates of pendulums), m in the Cartesian one."""
         return ("rad" if chart == "angle" else "m",) * self.coord_dim(chart)
 
+    def angle_entries(self, chart: str) -> Tensor | None:
+        """Which of the 2n state entries in ``chart`` are angles (bool (2n,), for ``encons.metrics``): the
+        declared ``angles`` in the angle chart (their rates are not); None where there are none."""
+        if self.angles is None or not any(self.angles) or chart != "angle":
+            return None
+        return torch.tensor([*self.angles, *(False,) * len(self.angles)])
+
     def field(self, s: Tensor, chart: str, u: Tensor | None = None) -> Tensor:
         """``vector_field``, passing ``u`` only when there are inputs."""
         return self.vector_field(s, chart) if u is None else self.vector_field(s, chart, u)

@@ -82,6 +82,7 @@ class CompoundPendulum(DissipativeMechanical):
     """
 
     n = 2
+    angles = (True, True)
 
     def __init__(self, mass: Positive = 1.0, d: Positive = 1.0, inertia: NonNegative = 1.0 / 12,
                  g: NonNegative = 10.0, gamma1: NonNegative = 0.5, gamma2: NonNegative = 0.5,
