@@ -336,6 +336,11 @@ def score_control(run, starts: int = 100, seed: int = 0, duration: float | None 
     oracle = true_plant(system)
     plots.control_figures(outcome.t, outcome.learned, outcome.oracle, outcome.t_up, oracle.energy,
                           oracle.error, system, out, f"{system.name}: controller from {run.config.name}")
+    learned = learned_plant(run.model, system, run.config.model._target_)
+    free = torch.zeros(1, system.n_controls, dtype=torch.float64)
+    plots.phase_portrait_figure((lambda s: learned.field(s, free.expand(len(s), -1)),
+                                 lambda s: oracle.field(s, free.expand(len(s), -1))), system, out,
+                                f"{system.name}: {run.config.name}")
     table = Table(title=f"control: {run.config.name}, {starts} starts (seed {seed}), {float(outcome.t[-1]):g} s, "
                         f"control period {run.module.dt} s")
     for column in ("metric", "from the learned model", "from the true model (oracle)"):
@@ -345,7 +350,7 @@ def score_control(run, starts: int = 100, seed: int = 0, duration: float | None 
         table.add_row(key, *["" if v is None else f"{v:.4g}" for v in cells])
     console = Console()
     console.print(table)
-    console.print(f"outputs: {out}  (control_metrics.json, control_*.png)")
+    console.print(f"outputs: {out}  (control_metrics.json, control_*.png: closed loops, success, learned vs true portrait)")
     return outcome.metrics
 
 
