@@ -30,7 +30,8 @@ outside (memoryless). SyMo and E2E-SyMo learn M(q) and V(q) inside their discret
 (``forced_euler_lagrange``), whose midpoint discretisation the DEL is. A learned field need not vanish
 exactly at s* (a learned ∇V(0) ≠ 0): the LQR then holds a small offset, which the tolerance absorbs.
 
-Scoring: ``starts`` initial states from ``system.sample_initial`` (the training distribution) with
+Scoring: ``starts`` initial states uniform in the ``Settings``' ``start_range`` (the default training
+distribution of Santos et al. §7, also when the data were drawn elsewhere: ``system.init_center``) with
 ``seed``; the true system integrated in float64 by torchdiffeq RK4 with ``substeps`` steps per control
 period, u held, every start at once. A start succeeds when, from a time t_up ≤ duration − hold on,
 the state stays within ``tolerance`` of upright (|θ| ≤ 0.1 rad, |θ̇| ≤ 0.5 rad/s, and |x| ≤ 1 m for
@@ -61,7 +62,7 @@ from encons.io import write_json
 from encons.systems.base import System, split_state
 from encons.systems.controlled import CartPole, ControlledMechanical, ControlledPendulum
 
-CONTROL_MODELS = "lnode, symo, e2e_symo"  # the models with an energy (M, V) that take inputs
+CONTROL_MODELS = "lnode, symo, e2e_symo, hnn_structure, lnn_structure"  # the models with an energy (M, V) that take inputs
 
 
 @dataclass(frozen=True)
@@ -79,13 +80,21 @@ class Settings:
     duration: float
     hold: float
     cart_gains: tuple[float, float] = (0.0, 0.0)   # k_x, k_v of the cart-pole's pumping
+    start_range: tuple[float, ...] = ()             # half-widths of the uniform scored starts around upright at rest
+
+    def starts(self, n: int, seed: int) -> Tensor:
+        """``n`` scored starts (n, 2n_q), uniform in ±``start_range`` from ``seed`` (Santos et al. §7's
+        initial states: the system's default ``init_range``, whatever the training data drew)."""
+        unit = torch.rand(n, len(self.start_range), generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
+        return (2 * unit - 1) * torch.tensor(self.start_range, dtype=torch.float64)
 
 
 SETTINGS = {
     ControlledPendulum: Settings(gain_energy=2.0, q_weights=(10.0, 1.0), r_weight=1.0, switch=20.0,
-                                 tolerance=(0.1, 0.5), duration=10.0, hold=2.0),
+                                 tolerance=(0.1, 0.5), duration=10.0, hold=2.0, start_range=(math.pi, 2 * math.pi)),
     CartPole: Settings(gain_energy=300.0, q_weights=(1.0, 10.0, 1.0, 1.0), r_weight=1.0, switch=300.0,
-                       tolerance=(1.0, 0.1, math.inf, 0.5), duration=10.0, hold=2.0, cart_gains=(1.0, 2.0)),
+                       tolerance=(1.0, 0.1, math.inf, 0.5), duration=10.0, hold=2.0, cart_gains=(1.0, 2.0),
+                       start_range=(0.5, 3.14, 0.05, 3.0)),
 }
 
 
@@ -118,21 +127,25 @@ def true_plant(system: ControlledMechanical) -> Plant:
 
 
 def learned_plant(model: torch.nn.Module, system: System, name: str) -> Plant:
-    """The plant of a trained model: its learned M(q), V(q), B and the forced Euler–Lagrange field of
-    them (eq. (4); L-NODE's own field); refuses a model or system that cannot give them, in one line."""
+    """The plant of a trained model: its learned M(q), V(q), input matrix (the system's B, or its learned
+    g(q) at upright) and the forced Euler–Lagrange field of them (eq. (4); L-NODE's own field; for
+    HNN-/LNN-structure the same dynamics as their (q, p) or (q, q̇) field with the force g(q) u);
+    refuses a model or system that cannot give them, in one line."""
     from encons.models.lnode import LNode, forced_euler_lagrange
+    from encons.models.structured import MassPotentialModel
     from encons.models.symo import SyMo
 
     if not isinstance(system, ControlledMechanical) or type(system) not in SETTINGS:
         raise ConfigError(f"system={system.name} has no controller here (no control inputs, or no swing-up "
                           f"controller for it); allowed: a run on pendulum_control or cartpole")
-    if not isinstance(model, (LNode, SyMo)):
+    if not (isinstance(model, (LNode, SyMo, MassPotentialModel)) and model.supports_controls):
         missing = "energy (learned M(q) and V(q))" + ("" if model.supports_controls else " and takes no inputs")
         raise ConfigError(f"model._target_={name} gives no {missing}, which the energy-based controller "
                           f"needs; allowed: a run of {CONTROL_MODELS}")
     model = copy.deepcopy(model).double().eval().requires_grad_(False)
     b = model.input_matrix
-    return Plant(model.mass, model.potential, b,
+    upright = b(torch.zeros(len(system.angles), dtype=torch.float64)) if callable(b) else b
+    return Plant(model.mass, model.potential, upright,
                  lambda s, u: forced_euler_lagrange(model.mass, model.potential, b, s, u), tuple(system.angles))
 
 
@@ -280,7 +293,7 @@ def compare(run, starts: int = 100, seed: int = 0, duration: float | None = None
     if not duration >= settings.hold + h:
         raise ConfigError(f"duration={duration}; allowed: >= {settings.hold + h} (the hold time plus one step)")
     steps = round(duration / h)
-    init = system.sample_initial(starts, torch.Generator().manual_seed(seed))
+    init = settings.starts(starts, seed)
     oracle_plant = true_plant(system)
     controllers = SwingUp(plant, system, h), SwingUp(oracle_plant, system, h)
     learned = closed_loop(system, controllers[0], init, h, steps)
@@ -322,6 +335,11 @@ def score_control(run, starts: int = 100, seed: int = 0, duration: float | None 
     oracle = true_plant(system)
     plots.control_figures(outcome.t, outcome.learned, outcome.oracle, outcome.t_up, oracle.energy,
                           oracle.error, system, out, f"{system.name}: controller from {run.config.name}")
+    learned = learned_plant(run.model, system, run.config.model._target_)
+    free = torch.zeros(1, system.n_controls, dtype=torch.float64)
+    plots.phase_portrait_figure((lambda s: learned.field(s, free.expand(len(s), -1)),
+                                 lambda s: oracle.field(s, free.expand(len(s), -1))), system, out,
+                                f"{system.name}: {run.config.name}")
     table = Table(title=f"control: {run.config.name}, {starts} starts (seed {seed}), {float(outcome.t[-1]):g} s, "
                         f"control period {run.module.dt} s")
     for column in ("metric", "from the learned model", "from the true model (oracle)"):
@@ -331,7 +349,7 @@ def score_control(run, starts: int = 100, seed: int = 0, duration: float | None 
         table.add_row(key, *["" if v is None else f"{v:.4g}" for v in cells])
     console = Console()
     console.print(table)
-    console.print(f"outputs: {out}  (control_metrics.json, control_*.png)")
+    console.print(f"outputs: {out}  (control_metrics.json, control_*.png: closed loops, success, learned vs true portrait)")
     return outcome.metrics
 
 

@@ -558,3 +558,57 @@ def control_figures(t: Tensor, learned: tuple[Tensor, Tensor], oracle: tuple[Ten
     ax.set_title(f"{title}\nheld upright (tolerance kept to the end)", fontsize=9)
     paths.append(save_png(fig, out_dir / "control_success.png"))
     return paths
+
+
+def phase_portrait_figure(fields: tuple, system, out_dir: Path, title: str, points: int = 41) -> list[Path]:
+    """The free flow (u = 0) of the learned and of the true continuous field in the (pole) angle's phase
+    plane — (θ, θ̇) over [−π, π] × [−2π, 2π], the cart at rest at the origin — as streamlines coloured by
+    |θ̈|, side by side on one grid (``fields``: (learned, true) maps of states (N, 2n) to ds/dt)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    angle = system.n - 1
+    theta = torch.linspace(-torch.pi, torch.pi, points, dtype=torch.float64)
+    rate = torch.linspace(-2 * torch.pi, 2 * torch.pi, points, dtype=torch.float64)
+    grid_rate, grid_theta = torch.meshgrid(rate, theta, indexing="ij")
+    s = torch.zeros(points * points, 2 * system.n, dtype=torch.float64)
+    s[:, angle], s[:, system.n + angle] = grid_theta.flatten(), grid_rate.flatten()
+    accel = [field(s)[:, system.n + angle].detach().reshape(points, points) for field in fields]
+    top = max(float(a.abs().max()) for a in accel)
+    fig, axes = subplots(1, 2, figsize=(11, 4.5), sharex=True, sharey=True)
+    for ax, a, label in zip(axes, accel, ("learned model", "true system")):
+        lines = ax.streamplot(theta.numpy(), rate.numpy(), grid_rate.numpy(), a.numpy(), density=1.1,
+                              color=a.abs().numpy(), cmap="viridis", norm=matplotlib.colors.Normalize(0, top),
+                              linewidth=0.8)
+        ax.plot(0, 0, "k*", ms=10, label="upright")
+        ax.set_title(label, fontsize=9)
+        ax.set_xlabel("angle from upright θ [rad]")
+    axes[0].set_ylabel("angular velocity θ̇ [rad/s]")
+    fig.subplots_adjust(top=0.83, wspace=0.08)
+    fig.colorbar(lines.lines, ax=axes, label="|θ̈| [rad/s²]")
+    fig.suptitle(f"{title}\nfree flow (u = 0){', cart at rest at x = 0' if system.n > 1 else ''}: learned vs true")
+    return [save_png(fig, out_dir / "control_portrait.png", layout=False)]
+
+
+def control_n_train_figure(summary: list[dict], out_dir: Path) -> list[Path]:
+    """Swing-up success rate against the number of training trajectories per model (mean ± std over
+    seeds), the oracle's (the same controller from the true model) as a dashed line, one panel per system."""
+    entries = [e for e in summary if "test/control/success_rate" in e]
+    systems = list(dict.fromkeys(e["system"] for e in entries))
+    if not systems:
+        return []
+    fig, axes = subplots(1, len(systems), figsize=(5 * len(systems), 4), squeeze=False, sharey=True)
+    for ax, system in zip(axes[0], systems):
+        rows = [e for e in entries if e["system"] == system]
+        for k, model in enumerate(dict.fromkeys(e["model"] for e in rows)):
+            line = sorted((e for e in rows if e["model"] == model), key=lambda e: e["n_train"])
+            ax.errorbar([e["n_train"] for e in line], [e["test/control/success_rate"] for e in line],
+                        yerr=[e.get("test/control/success_rate_sd", 0.0) for e in line], marker="o", capsize=3,
+                        color=f"C{k}", label=model)
+        oracle = [e["test/oracle/success_rate"] for e in rows]
+        ax.axhline(sum(oracle) / len(oracle), color="k", ls="--", lw=1, label="oracle (true model)")
+        ax.set_xscale("log", base=2)
+        ax.set_ylim(-0.05, 1.1)
+        ax.set_title(system)
+        ax.set_xlabel("training trajectories N_train")
+        ax.legend(fontsize=7)
+    axes[0, 0].set_ylabel("success rate (held upright) [–]")
+    return [save_png(fig, out_dir / "control_success_n_train.png")]

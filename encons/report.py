@@ -235,6 +235,7 @@ def write_report(out: str | Path) -> list[Path]:
     if efficiency:
         files += plots.data_efficiency_figure(efficiency, out)
         files += plots.santos_figures(efficiency, out)
+        files += plots.control_n_train_figure(efficiency, out)
     Console(width=200).print(markdown(summary, paper, source, headline=True))
     return files
 

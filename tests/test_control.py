@@ -103,7 +103,7 @@ FAST = ["debug=fast", "logger=none", "trainer.enable_progress_bar=false", "~eval
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("model,system", [("lnode", "pendulum_control"), ("symo", "cartpole")])
+@pytest.mark.parametrize("model,system", [("lnode", "pendulum_control"), ("symo", "cartpole"), ("hnn_structure", "cartpole")])
 def test_control_command_scores_a_tiny_trained_run(model, system, tmp_path, capsys):
     """Train a debug-size model, then ``python -m encons.control RUN`` (``encons.cli.control``): metrics, figures."""
     from encons import api
@@ -119,7 +119,7 @@ def test_control_command_scores_a_tiny_trained_run(model, system, tmp_path, caps
     assert 0 <= saved["control/success_rate"] <= 1 and saved["control/max_abs_u"] <= 2.0 + 1e-12
     assert np.isfinite(saved["control/pred_rmse"]) and saved["control/pred_rmse"] > 0
     assert 0 < saved["control/a_rel_err"] < np.inf and 0 < saved["control/b_rel_err"] < np.inf
-    for name in ("control_phase", "control_energy_input", "control_success"):
+    for name in ("control_phase", "control_energy_input", "control_success", "control_portrait"):
         assert (out / f"{name}.png").stat().st_size > 10_000
     printed = capsys.readouterr().out
     assert "success_rate" in printed and "oracle" in printed

@@ -32,8 +32,7 @@ def sample_trajectories(system: System, n: int, t: Tensor, generator: torch.Gene
         need = n - count
         draw = need + need // 4 + 1
         s0 = system.sample_initial(draw, generator)
-        u = system.sample_controls(draw, generator)
-        u = u[:, None].expand(-1, len(t), -1) if u is not None else None
+        u = system.sample_inputs(draw, t, generator)
         traj = simulate(system, s0, t, substeps, u)
         ok = system.valid(traj) & torch.isfinite(traj).flatten(1).all(1)
         rejected += int((~ok).sum())

@@ -78,6 +78,14 @@ class HNNStructure(HamiltonianModel, MassPotentialModel):
     """
 
     family = "mass_matrix"  # learns M(q) and V(q) like LNNStructure, not an unstructured H
+    supports_controls = True  # ṗ = −∂H/∂q + g(q) u (Symplectic ODE-Net, ``encons.models.inputs``)
+
+    def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
+        field = super().forward(t, z)
+        if u is None:
+            return field
+        q = z[..., :self.n]
+        return field + torch.cat([torch.zeros_like(q), self.input_matrix.force(q, u)], -1)
 
     def hamiltonian(self, z: Tensor) -> Tensor:
         q, p = split_state(z)

@@ -189,6 +189,7 @@ class LNNStructure(MassPotentialModel):
     """
 
     objectives = SECOND_ORDER_OBJECTIVES
+    supports_controls = True  # M q̈ = g(q) u + …: the generalised force of ``encons.models.inputs``
 
     def euler_lagrange_terms(self, q: Tensor, qd: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """``euler_lagrange_terms`` of the model's network(s), in closed form."""
@@ -211,4 +212,5 @@ class LNNStructure(MassPotentialModel):
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         q, qd = split_state(s)
         factor, dl_dq, mass_dot_qd = self.euler_lagrange_terms(q, qd)
-        return torch.cat([qd, torch.cholesky_solve((dl_dq - mass_dot_qd).unsqueeze(-1), factor).squeeze(-1)], -1)
+        rhs = dl_dq - mass_dot_qd if u is None else dl_dq - mass_dot_qd + self.input_matrix.force(q, u)
+        return torch.cat([qd, torch.cholesky_solve(rhs.unsqueeze(-1), factor).squeeze(-1)], -1)

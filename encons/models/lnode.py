@@ -4,7 +4,8 @@
 
 a continuous field rolled out by the ``integrator`` group (the paper's RK4 and midpoint), inputs u
 held over each data step. M = L Lᵀ through a Cholesky factor, the system's angles embedded as
-(cos q, sin q) when ``angular``; B is the system's input matrix (constant, control-affine).
+(cos q, sin q) when ``angular``; the input force is g(q) u (``encons.models.inputs``): the system's
+constant B (``input_matrix=known``, the paper's control-affine form) or a learned g(q) (``learned``).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from torch import Tensor
 from torch.func import grad, jvp
 
 from encons.bounds import Count
+from encons.models import inputs
 from encons.models.base import DynamicsModel, angle_mask
 from encons.models.networks import CholeskyMass, Potential
 from encons.systems.base import System, split_state
@@ -28,21 +30,24 @@ class LNode(DynamicsModel):
     supports_controls = True
 
     def __init__(self, system: System, chart: str | None = None, hidden: Count = 128, depth: Count = 2,
-                 activation: str = "tanh", mass_eps: float = 1e-3, angular: bool = True):
+                 activation: str = "tanh", mass_eps: float = 1e-3, angular: bool = True,
+                 input_matrix: str = "known"):
         super().__init__(system, chart)
         angles = angle_mask(system, angular)
         self.mass = CholeskyMass(self.n, angles, hidden, depth, activation, mass_eps)
         self.potential = Potential(self.n, angles, hidden, depth, activation)
-        self.register_buffer("input_matrix", system.input_matrix().float(), persistent=False)
+        self.input_matrix = inputs.input_matrix(system, input_matrix, self.n, angles, hidden, depth, activation)
 
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         return forced_euler_lagrange(self.mass, self.potential, self.input_matrix, s, u)
 
 
 def forced_euler_lagrange(mass: Callable[[Tensor], Tensor], potential: Callable[[Tensor], Tensor],
-                          input_matrix: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
-    """ds/dt of eq. (4) for any M(q) (``mass``), V(q) (``potential``) and B (``input_matrix``): L-NODE's
-    field, and the continuous Euler–Lagrange equations of SyMo's learned M and V (``encons.control``)."""
+                          input_matrix: Tensor | Callable[[Tensor], Tensor] | None, s: Tensor,
+                          u: Tensor | None = None) -> Tensor:
+    """ds/dt of eq. (4) for any M(q) (``mass``), V(q) (``potential``) and input matrix (``input_matrix``:
+    a constant B (n, m) or a function q ↦ g(q) (..., n, m)): L-NODE's field, and the continuous
+    Euler–Lagrange equations of the learned M and V of SyMo and the structured models (``encons.control``)."""
     q, qd = split_state(s)
 
     def lagrangian(qi: Tensor) -> tuple[Tensor, tuple[Tensor, Tensor]]:
@@ -53,5 +58,6 @@ def forced_euler_lagrange(mass: Callable[[Tensor], Tensor], potential: Callable[
     dl_dq, (m, m_dot) = grad(lagrangian, has_aux=True)(q)
     rhs = dl_dq - (m_dot @ qd.unsqueeze(-1)).squeeze(-1)
     if u is not None:
-        rhs = rhs + u.to(s) @ input_matrix.T
+        g = input_matrix(q) if callable(input_matrix) else input_matrix.to(s)
+        rhs = rhs + (g @ u.to(s).unsqueeze(-1)).squeeze(-1)
     return torch.cat([qd, torch.linalg.solve_ex(m, rhs)[0]], -1)  # singular (diverged): nan, not an exception

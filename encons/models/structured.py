@@ -5,6 +5,8 @@ from __future__ import annotations
 from torch import Tensor
 
 from encons.bounds import Count
+from encons.errors import ConfigError
+from encons.models import inputs
 from encons.models.base import DynamicsModel
 from encons.models.networks import CholeskyMass, Potential
 from encons.systems.base import System
@@ -16,7 +18,8 @@ class MassPotentialModel(DynamicsModel):
     ``shared_trunk=True`` (default): one ``depth`` × ``hidden`` network with n(n+1)/2 + 1 outputs
     gives L(q) and V(q), so a field evaluation runs one network instead of two (about half the
     cost). ``False``: two separate networks as in Zhong et al. (SymODEN, DeLaN).
-    Fields get both through ``factor_potential``.
+    Fields get both through ``factor_potential``. On a system with inputs u, the generalised force
+    g(q) u enters as in Symplectic ODE-Net (``encons.models.inputs``; ``input_matrix=known|learned``).
     """
 
     default_chart = "angle"
@@ -24,12 +27,16 @@ class MassPotentialModel(DynamicsModel):
 
     def __init__(self, system: System, chart: str | None = None, hidden: Count = 256, depth: Count = 3,
                  activation: str = "softplus", mass_eps: float = 1e-3, angular: bool = False,
-                 shared_trunk: bool = True):
+                 shared_trunk: bool = True, input_matrix: str = "known"):
         super().__init__(system, chart)
+        if angular and system.angles is not None and not all(system.angles):
+            raise ConfigError(f"model.angular=true on system={system.name}, whose coordinates are not all angles "
+                              f"{tuple(system.angles)}; allowed: false (this model embeds every coordinate on S¹)")
         self.angular, self.shared_trunk = angular, shared_trunk
         self.mass = CholeskyMass(self.n, self.angular, hidden, depth, activation, mass_eps, extra=int(shared_trunk))
         if not shared_trunk:
             self.potential_net = Potential(self.n, self.angular, hidden, depth, activation)
+        self.input_matrix = inputs.input_matrix(system, input_matrix, self.n, self.angular, hidden, depth, activation)
 
     def factor_potential(self, q: Tensor) -> tuple[Tensor, Tensor]:
         """L(q) (..., n, n) and V(q) (...): one network forward with the shared trunk."""

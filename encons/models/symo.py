@@ -30,6 +30,7 @@ from torch import Tensor
 from torch.func import grad, vjp, vmap
 
 from encons.bounds import Count, Positive, Range
+from encons.errors import ConfigError
 from encons.models.base import DiscreteModel, DynamicsModel, angle_mask
 from encons.models.networks import CholeskyMass, Potential
 from encons.systems.base import System
@@ -74,8 +75,11 @@ class SyMo(DiscreteModel):
     def __init__(self, system: System, chart: str | None = None, hidden: Count = 128, depth: Count = 2,
                  activation: str = "tanh", mass_eps: float = 1e-3, angular: bool = True,
                  train_tol: Positive = 1e-5, train_iters: Count = 10, eval_tol: Positive = 1e-4,
-                 eval_iters: Count = 10, backtracks: Annotated[int, Range(ge=0)] = 8):
+                 eval_iters: Count = 10, backtracks: Annotated[int, Range(ge=0)] = 8, input_matrix: str = "known"):
         super().__init__(system, chart)
+        if input_matrix != "known":
+            raise ConfigError(f"model.input_matrix={input_matrix} for {type(self).__name__}; allowed: known (the "
+                              f"discrete forcing of eq. (14) here takes the system's constant B)")
         angles = angle_mask(system, angular)
         self.mass = CholeskyMass(self.n, angles, hidden, depth, activation, mass_eps)
         self.potential = Potential(self.n, angles, hidden, depth, activation)

@@ -122,6 +122,12 @@ class System(Declared, abc.ABC):
         """Inputs (n, m) held constant over each of ``n`` trajectories, float64; None without inputs."""
         return None
 
+    def sample_inputs(self, n: int, t: Tensor, generator: torch.Generator) -> Tensor | None:
+        """Inputs (n, T, m) of ``n`` trajectories on times ``t`` (T,), ``u[:, k]`` held over [t_k, t_{k+1}],
+        float64; None without inputs. Default: ``sample_controls``, constant over each trajectory."""
+        u = self.sample_controls(n, generator)
+        return None if u is None else u[:, None].expand(-1, len(t), -1)
+
     def units(self, chart: str) -> tuple[str, ...]:
         """The unit of each coordinate q in ``chart`` (its rate's: that per second), for figure axes.
         Default: rad in the angle chart (generalised coordinates of pendulums), m in the Cartesian one."""

@@ -19,27 +19,45 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from encons.bounds import NonNegative, Positive
+from encons.bounds import Count, NonNegative, Positive
 from encons.errors import ConfigError
 from encons.systems.mechanical import Mechanical
 
 
-class ControlledMechanical(Mechanical):
-    """Base of the controlled systems: M(q), V(q), b(q, q̇) and B in closed form, u ~ U(−u_max, u_max).
+INPUTS = ("constant", "steps", "multisine")
 
-    Initial states are uniform in ``[−init_range, init_range]`` per state entry; one constant control
-    is drawn per trajectory (Santos et al. §7).
+
+class ControlledMechanical(Mechanical):
+    """Base of the controlled systems: M(q), V(q), b(q, q̇) and B in closed form, |u| ≤ u_max.
+
+    Initial states are uniform in ``init_center ± init_range`` per state entry (default centre 0: the
+    upright rest state, so the default half-widths span the whole circle; small half-widths give starts
+    near a chosen state). ``inputs`` says how each trajectory's input is drawn, all held over each
+    data step (zero-order hold):
+
+    - ``constant``: one u ~ U(−u_max, u_max) per trajectory (Santos et al. §7);
+    - ``steps``: a fresh u_k ~ U(−u_max, u_max) every data step (a random piecewise-constant input);
+    - ``multisine``: u(t_k) = Σ_j a_j sin(2π j t_k / T + φ_j), j = 1..``tones``, T the trajectory's span,
+      a_j ~ U(0, u_max/tones), φ_j ~ U(0, 2π) per trajectory (so |u| ≤ u_max): a band-limited excitation.
     """
 
     n_controls = 1
     angles: tuple[bool, ...]
 
-    def __init__(self, init_range: Sequence[NonNegative], u_max: NonNegative):
-        if len(init_range) != 2 * len(self.angles):
-            raise ConfigError(f"system.init_range={list(init_range)}; allowed: {2 * len(self.angles)} "
+    def __init__(self, init_range: Sequence[NonNegative], u_max: NonNegative,
+                 init_center: Sequence[float] | None = None, inputs: str = "constant", tones: Count = 5):
+        width = 2 * len(self.angles)
+        if len(init_range) != width:
+            raise ConfigError(f"system.init_range={list(init_range)}; allowed: {width} "
                               f"non-negative half-widths (q then q̇)")
+        if init_center is not None and len(init_center) != width:
+            raise ConfigError(f"system.init_center={list(init_center)}; allowed: null (the origin) or {width} "
+                              f"numbers (q then q̇)")
+        if inputs not in INPUTS:
+            raise ConfigError(f"system.inputs={inputs}; allowed: {', '.join(INPUTS)}")
         self.init_range = torch.tensor([float(r) for r in init_range], dtype=torch.float64)
-        self.u_max = float(u_max)
+        self.init_center = torch.tensor([float(c) for c in init_center or [0.0] * width], dtype=torch.float64)
+        self.u_max, self.inputs, self.tones = float(u_max), inputs, int(tones)
 
     @property
     def n(self) -> int:
@@ -58,11 +76,25 @@ class ControlledMechanical(Mechanical):
 
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
         unit = torch.rand(n, self.init_range.numel(), generator=generator, dtype=torch.float64)
-        return (2 * unit - 1) * self.init_range
+        return self.init_center + (2 * unit - 1) * self.init_range
 
     def sample_controls(self, n: int, generator: torch.Generator) -> Tensor:
         unit = torch.rand(n, self.n_controls, generator=generator, dtype=torch.float64)
         return (2 * unit - 1) * self.u_max
+
+    def sample_inputs(self, n: int, t: Tensor, generator: torch.Generator) -> Tensor:
+        """Inputs (n, T, m) drawn as ``inputs`` says (class docstring)."""
+        if self.inputs == "constant":
+            return super().sample_inputs(n, t, generator)
+        if self.inputs == "steps":
+            unit = torch.rand(n, len(t), self.n_controls, generator=generator, dtype=torch.float64)
+            return (2 * unit - 1) * self.u_max
+        shape = (n, 1, self.n_controls, self.tones)
+        amplitude = torch.rand(shape, generator=generator, dtype=torch.float64) * self.u_max / self.tones
+        phase = torch.rand(shape, generator=generator, dtype=torch.float64) * 2 * math.pi
+        freq = torch.arange(1, self.tones + 1, dtype=torch.float64) / float(t[-1] - t[0])
+        angle = 2 * math.pi * freq * (t - t[0]).to(torch.float64)[:, None, None] + phase
+        return (amplitude * torch.sin(angle)).sum(-1)
 
 
 class ControlledPendulum(ControlledMechanical):
@@ -75,8 +107,9 @@ class ControlledPendulum(ControlledMechanical):
     angles = (True,)
 
     def __init__(self, mass: Positive = 1.0, length: Positive = 1.0, g: Positive = 9.81,
-                 init_range: Sequence[NonNegative] = (math.pi, 2 * math.pi), u_max: NonNegative = 2.0):
-        super().__init__(init_range, u_max)
+                 init_range: Sequence[NonNegative] = (math.pi, 2 * math.pi), u_max: NonNegative = 2.0,
+                 init_center: Sequence[float] | None = None, inputs: str = "constant", tones: Count = 5):
+        super().__init__(init_range, u_max, init_center, inputs, tones)
         self.name = "pendulum_control"
         self.m, self.l, self.g = float(mass), float(length), float(g)
 
@@ -105,8 +138,9 @@ class CartPole(ControlledMechanical):
 
     def __init__(self, cart_mass: Positive = 1.0, pole_mass: Positive = 0.1, half_length: Positive = 0.5,
                  g: Positive = 9.81, init_range: Sequence[NonNegative] = (0.5, 3.14, 0.05, 3.0),
-                 u_max: NonNegative = 2.0):
-        super().__init__(init_range, u_max)
+                 u_max: NonNegative = 2.0, init_center: Sequence[float] | None = None, inputs: str = "constant",
+                 tones: Count = 5):
+        super().__init__(init_range, u_max, init_center, inputs, tones)
         self.name = "cartpole"
         self.mc, self.mp, self.l, self.g = float(cart_mass), float(pole_mass), float(half_length), float(g)
 

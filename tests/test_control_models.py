@@ -1,0 +1,96 @@
+"""Inputs for the structured zoo models (Symplectic ODE-Net's generalised force g(q) u): their fields under
+u are the forced Euler–Lagrange equations of their own M, V and g, the controller built from a structured
+model holding the true M, V and B has the oracle's gains, and ``input_matrix`` is checked in one line."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from torch import nn
+from torch.func import jvp
+
+from encons import control
+from encons.errors import ConfigError
+from encons.models.hnn import HNNStructure
+from encons.models.lnn import LNNStructure
+from encons.models.lnode import LNode, forced_euler_lagrange
+from encons.models.symo import SyMo
+from encons.systems.controlled import CartPole, ControlledPendulum
+
+SYSTEMS = {"pendulum": ControlledPendulum, "cartpole": CartPole}
+
+
+def states_and_inputs(system, n=16):
+    s = system.sample_initial(n, torch.Generator().manual_seed(1))
+    u = system.sample_controls(n, torch.Generator().manual_seed(2))
+    return s, u
+
+
+@pytest.mark.parametrize("kind", ["known", "learned"])
+@pytest.mark.parametrize("name", SYSTEMS)
+def test_lnn_structure_field_under_inputs_is_the_forced_euler_lagrange_field_of_its_own_m_v_g(name, kind):
+    system = SYSTEMS[name]()
+    model = LNNStructure(system, hidden=16, depth=2, input_matrix=kind).double()
+    s, u = states_and_inputs(system)
+    expected = forced_euler_lagrange(model.mass, model.potential, model.input_matrix, s, u)
+    torch.testing.assert_close(model(torch.zeros(()), s, u), expected, rtol=1e-9, atol=1e-9)
+    free = forced_euler_lagrange(model.mass, model.potential, model.input_matrix, s)
+    assert (expected - free).abs().max() > 1e-3   # u moves it
+
+
+@pytest.mark.parametrize("kind", ["known", "learned"])
+@pytest.mark.parametrize("name", SYSTEMS)
+def test_hnn_structure_momentum_rate_under_inputs_is_the_forced_euler_lagrange_one(name, kind):
+    """ṗ of the (q, p) field equals d/dt (M(q) q̇) = Ṁ q̇ + M q̈ with q̈ of eq. (4) for the model's M, V, g."""
+    system = SYSTEMS[name]()
+    model = HNNStructure(system, hidden=16, depth=2, input_matrix=kind).double()
+    s, u = states_and_inputs(system)
+    q, qd = s.chunk(2, -1)
+    field = model(torch.zeros(()), model.to_internal(s), u)
+    qdd = forced_euler_lagrange(model.mass, model.potential, model.input_matrix, s, u)[..., system.n:]
+    m, m_dot = jvp(model.mass, (q,), (qd,))
+    p_dot = ((m_dot @ qd.unsqueeze(-1)) + m @ qdd.unsqueeze(-1)).squeeze(-1)
+    torch.testing.assert_close(field[..., :system.n], qd, rtol=1e-9, atol=1e-9)
+    torch.testing.assert_close(field[..., system.n:], p_dot, rtol=1e-8, atol=1e-8)
+
+
+class TrueMass(nn.Module):
+    def __init__(self, system):
+        super().__init__()
+        self.system = system
+
+    def forward(self, q):
+        return self.system.mass_matrix(q)
+
+
+@pytest.mark.parametrize("cls", [HNNStructure, LNNStructure])
+@pytest.mark.parametrize("name,h", [("pendulum", 0.1), ("cartpole", 0.05)])
+def test_a_structured_model_with_the_true_m_v_b_gives_the_oracle_controller_gains(cls, name, h):
+    system = SYSTEMS[name]()
+    model = cls(system, hidden=16, depth=2, input_matrix="known")
+    model.mass = TrueMass(system)
+    model.potential = system.potential
+    learned = control.SwingUp(control.learned_plant(model, system, cls.__name__), system, h)
+    oracle = control.SwingUp(control.true_plant(system), system, h)
+    torch.testing.assert_close(learned.gain, oracle.gain, rtol=0, atol=1e-6)
+    torch.testing.assert_close(learned.cost, oracle.cost, rtol=1e-6, atol=1e-9)
+    s = system.sample_initial(32, torch.Generator().manual_seed(5))
+    torch.testing.assert_close(learned(s), oracle(s), rtol=0, atol=1e-6)   # pumping too, not only the LQR
+
+
+def test_input_matrix_is_checked_in_one_line():
+    with pytest.raises(ConfigError, match=r"^model.input_matrix=true; allowed: known, learned$"):
+        LNode(CartPole(), hidden=8, input_matrix="true")
+    with pytest.raises(ConfigError, match=r"^model.input_matrix=learned for SyMo; allowed: known"):
+        SyMo(CartPole(), hidden=8, input_matrix="learned")
+    with pytest.raises(ConfigError, match=r"^model.angular=true on system=cartpole"):
+        HNNStructure(CartPole(), hidden=8, angular=True)
+
+
+def test_a_system_without_inputs_gets_no_input_network():
+    from encons.systems.pendulum import NPendulum
+
+    model = LNNStructure(NPendulum(1), hidden=8, depth=2, input_matrix="learned")
+    assert model.input_matrix is None
+    with_inputs = LNNStructure(ControlledPendulum(), hidden=8, depth=2, input_matrix="learned")
+    assert sum(p.numel() for p in with_inputs.parameters()) > sum(p.numel() for p in model.parameters())
