@@ -106,10 +106,40 @@ def _first_difference(a: Any, b: Any, key: str = "") -> tuple[str, Any, Any] | N
     return None if a == b else (key, a, b)
 
 
+def dropped_biases(module: Any, state_dict: dict[str, Any]) -> list[str]:
+    """The keys of ``state_dict`` that are biases ``module`` has set to None: an energy network's output bias,
+    which never reached the loss (``encons.models.networks.mlp(out_bias=False)``) and which checkpoints written
+    before 26 November 2026 still hold."""
+    own = module.state_dict()
+    return [k for k in state_dict if k not in own and k.endswith(".bias")
+            and getattr(_submodule(module, k.rpartition(".")[0]), "bias", False) is None]
+
+
+def _submodule(module: Any, name: str) -> Any:
+    try:
+        return module.get_submodule(name)
+    except AttributeError:
+        return None
+
+
+def load_weights(module: Any, state_dict: dict[str, Any]) -> None:
+    """``module.load_state_dict(state_dict)``, leaving out :func:`dropped_biases` (a constant with no effect on
+    the field), so an older checkpoint loads and scores as it did."""
+    dropped = dropped_biases(module, state_dict)
+    if dropped:
+        log.info("left out %s: biases this version drops (they never reached the loss)", ", ".join(dropped))
+    module.load_state_dict({k: v for k, v in state_dict.items() if k not in dropped})
+
+
 def check_fits(module: Any, path: str) -> None:
     """Refuse a checkpoint whose parameters do not fit ``module`` (another model or size), naming the first."""
     saved = read(path, "ckpt_path")["state_dict"]
     own = module.state_dict()
+    old = dropped_biases(module, saved)
+    if old:
+        raise ConfigError(f"ckpt_path={path!r} holds {old[0]}, an output bias this version of encons drops (it never "
+                          f"reached the loss), so its optimiser state cannot resume; allowed: evaluate it "
+                          f"(python -m encons.evaluate), or train from scratch (ckpt_path=null)")
     for name in sorted(set(saved) | set(own)):
         shapes = [tuple(d[name].shape) if name in d else None for d in (saved, own)]
         if shapes[0] != shapes[1]:

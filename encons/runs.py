@@ -266,7 +266,7 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
     checked = validate(cfg)
     data, module = build(checked, recorded=attempts.record(cfg, checked.model))
     try:
-        module.load_state_dict(state["state_dict"])
+        checkpoints.load_weights(module, state["state_dict"])
     except RuntimeError:
         raise ConfigError(f"overrides {list(overrides)} change the model, so the weights of {ckpt_file.name} no "
                           f"longer fit; allowed: overrides of data.*, horizon, integrator.*, evaluation.*") from None

@@ -53,7 +53,7 @@ class HNN(HamiltonianModel):
                  activation: str = "softplus", mass_eps: float = 1e-3, angular: bool = False):
         super().__init__(system, chart)
         n, self.angular = self.n, angular
-        self.hamiltonian_net = mlp(3 * n if self.angular else 2 * n, 1, hidden, depth, activation)
+        self.hamiltonian_net = mlp(3 * n if self.angular else 2 * n, 1, hidden, depth, activation, out_bias=False)
         self.mass = CholeskyMass(n, self.angular, hidden, depth, activation, mass_eps)
 
     def hamiltonian(self, z: Tensor) -> Tensor:

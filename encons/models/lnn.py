@@ -133,7 +133,7 @@ class LNN(DynamicsModel):
         self.guard, self.angular = guard, angular
         width = embedded_width(self.n, self.angular)
         rms = torch.cat([torch.ones(width), typical_speed(system, self.chart)])
-        self.lagrangian_net = cranmer_init_(mlp(width + self.n, 1, hidden, depth, activation), convex=True,
+        self.lagrangian_net = cranmer_init_(mlp(width + self.n, 1, hidden, depth, activation, out_bias=False), convex=True,
                                             potential_inputs=width, input_rms=rms)
 
     def lagrangian(self, s: Tensor) -> Tensor:

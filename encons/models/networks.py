@@ -13,8 +13,14 @@ from encons.systems.base import CartesianLayout
 ACTIVATIONS = {"softplus": nn.Softplus, "tanh": nn.Tanh, "relu": nn.ReLU, "silu": nn.SiLU}
 
 
-def mlp(in_dim: int, out_dim: int, hidden: int = 256, depth: int = 3, activation: str = "softplus") -> nn.Sequential:
-    """``depth`` hidden layers of width ``hidden`` (Zhong et al. §4.1: 3 × 256, Softplus)."""
+def mlp(in_dim: int, out_dim: int, hidden: int = 256, depth: int = 3, activation: str = "softplus",
+        out_bias: bool = True) -> nn.Sequential:
+    """``depth`` hidden layers of width ``hidden`` (Zhong et al. §4.1: 3 × 256, Softplus).
+
+    ``out_bias=False`` for a network that reaches the loss only through its derivatives (an energy H, L or
+    V; a one-form): a constant there has no effect, so its bias never gets a gradient, which DDP refuses
+    ("parameters that were not used in producing the loss"). The bias is still drawn, then dropped, so
+    every other initial weight equals that of the network with it (same seed, same weights)."""
     if activation not in ACTIVATIONS:
         raise ConfigError(f"model.activation={activation!r} is unknown; allowed: {', '.join(sorted(ACTIVATIONS))}")
     layers: list[nn.Module] = []
@@ -23,6 +29,8 @@ def mlp(in_dim: int, out_dim: int, hidden: int = 256, depth: int = 3, activation
         layers += [nn.Linear(width, hidden), ACTIVATIONS[activation]()]
         width = hidden
     layers.append(nn.Linear(width, out_dim))
+    if not out_bias:
+        layers[-1].bias = None
     return nn.Sequential(*layers)
 
 
@@ -58,7 +66,8 @@ def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None, 
             layer.weight.normal_(0.0, scale / width**0.5, generator=generator)
             if convex and i > 0:
                 layer.weight.abs_()
-            layer.bias.zero_()
+            if layer.bias is not None:
+                layer.bias.zero_()
             if i == 0 and input_rms is not None:
                 layer.weight.div_((scale / width**0.5 * input_rms.to(layer.weight) / 2).clamp(min=1))
             if potential_inputs:
@@ -361,7 +370,7 @@ class Potential(nn.Module):
     def __init__(self, n: int, angular: Angular, hidden: int, depth: int, activation: str):
         super().__init__()
         self.angular = angular
-        self.net = mlp(embedded_width(n, angular), 1, hidden, depth, activation)
+        self.net = mlp(embedded_width(n, angular), 1, hidden, depth, activation, out_bias=False)
 
     def forward(self, q: Tensor) -> Tensor:
         """V(q), shape ``q.shape[:-1]``."""

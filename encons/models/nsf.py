@@ -27,8 +27,8 @@ class NSF(DynamicsModel):
     def __init__(self, system: System, chart: str | None = None, hidden: Count = 200, depth: Count = 2,
                  activation: str = "softplus"):
         super().__init__(system, chart)
-        self.one_form = mlp(2 * self.n, 2 * self.n, hidden, depth, activation)
-        self.hamiltonian_net = mlp(2 * self.n, 1, hidden, depth, activation)
+        self.one_form = mlp(2 * self.n, 2 * self.n, hidden, depth, activation, out_bias=False)
+        self.hamiltonian_net = mlp(2 * self.n, 1, hidden, depth, activation, out_bias=False)
 
     def hamiltonian(self, z: Tensor) -> Tensor:
         """H(s) of states (..., 2n)."""
