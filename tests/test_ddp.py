@@ -107,6 +107,8 @@ def test_every_family_trains_under_ddp_with_the_gradient_of_the_whole_batch(tmp_
         for batch in batches:
             module.zero_grad()
             module.loss(batch).backward()
+            unused = [n for n, p in module.named_parameters() if p.grad is None]
+            assert not unused, f"{family} ({model}): {unused} never reach the loss, which DDP refuses"
             single[family].append({n: p.grad.clone() for n, p in module.named_parameters()})
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
