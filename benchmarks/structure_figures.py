@@ -1,13 +1,14 @@
-"""Issue 40's figures: target lookups of one ``debug=fast`` run from the Python API, the stops ``cfg``
-makes in build/config/trust, import cycles between encons modules, and the test metrics of three configs
-(the refactor's behaviour check: same digits before and after).
+"""Issue 40's figures: target lookups (``encons.trust.locate``) of one ``debug=fast`` run of
+``model=hnn system=pendulum1`` from the Python API (composing not counted), the calls into
+build/config/trust from other modules on that run, import cycles between encons modules (every import
+counted, by ``tests/test_structure.py``'s own graph), and the test metrics of three configs (the
+refactor's behaviour check: the same digits before and after).
 
-    python benchmarks/structure_figures.py OUT.json [--metrics]
+    PYTHONPATH=. python benchmarks/structure_figures.py OUT.json [--metrics]
 """
 
 from __future__ import annotations
 
-import ast
 import collections
 import json
 import sys
@@ -17,57 +18,6 @@ from pathlib import Path
 WATCHED = ("encons.build", "encons.config", "encons.trust")
 CONFIGS = [("model=hnn", "system=pendulum1"), ("model=chnn", "system=gyroscope"),
            ("model=glnn", "system=damped_oscillator")]
-
-
-def imports_graph(package: Path) -> dict[str, set[str]]:
-    """Every ``encons`` module → the encons modules it imports anywhere (TYPE_CHECKING, __main__, lazily)."""
-    modules = {".".join(p.relative_to(package.parent).with_suffix("").parts).removesuffix(".__init__"): p
-               for p in package.rglob("*.py")}
-    graph = {}
-    for name, path in modules.items():
-        found = set()
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0 and node.module.startswith("encons"):
-                for a in node.names:
-                    sub = f"{node.module}.{a.name}"
-                    found.add(sub if sub in modules else node.module)
-            elif isinstance(node, ast.Import):
-                found.update(a.name for a in node.names if a.name.startswith("encons"))
-        graph[name] = {m for m in found if m in modules and m != name}
-    return graph
-
-
-def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
-    """The strongly connected components with more than one module (Tarjan)."""
-    index, low, stack, on, out, counter = {}, {}, [], set(), [], [0]
-
-    def visit(v):
-        index[v] = low[v] = counter[0]
-        counter[0] += 1
-        stack.append(v)
-        on.add(v)
-        for w in graph.get(v, ()):
-            if w not in index:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on:
-                low[v] = min(low[v], index[w])
-        if low[v] == index[v]:
-            comp = []
-            while True:
-                w = stack.pop()
-                on.discard(w)
-                comp.append(w)
-                if w == v:
-                    break
-            if len(comp) > 1:
-                out.append(sorted(comp))
-
-    sys.setrecursionlimit(10000)
-    for v in sorted(graph):
-        if v not in index:
-            visit(v)
-    return out
 
 
 def run(overrides, tmp: Path, count: bool):
@@ -104,11 +54,9 @@ def run(overrides, tmp: Path, count: bool):
 
 
 def main() -> None:
-    import encons
+    from tests.test_structure import PACKAGE, cycles, import_graph
 
-    out = {}
-    graph = imports_graph(Path(encons.__file__).parent)
-    out["import_cycles"] = cycles(graph)
+    out = {"import_cycles": cycles(import_graph(PACKAGE))}
     with tempfile.TemporaryDirectory() as tmp:
         metrics, calls, stops = run(CONFIGS[0], Path(tmp) / "count", True)
         out["lookups"] = {"total": sum(calls.values()), "targets": len(calls), "per_target": dict(calls.most_common())}

@@ -114,15 +114,14 @@ def instantiate_node(cfg: DictConfig | Checked, key: str, request: Request = Req
     """
     from hydra.utils import instantiate
 
-    checked = isinstance(cfg, Checked)
+    trusted = cfg.trusted if isinstance(cfg, Checked) else trust.trusted_targets()
+    if not isinstance(cfg, Checked):
+        check_node(cfg, key)
     cfg, request = _plain(cfg, request)
     node = OmegaConf.select(cfg, key)
     values = OmegaConf.to_container(node, resolve=True)
-    if not checked:
-        check_node(cfg, key)
     try:
-        with trust.whitelist():
-            return instantiate(node, **kwargs)
+        return instantiate(node, _execution_whitelist_=list(trusted), **kwargs)  # Hydra refuses the rest
     except EnconsError:
         raise
     except Exception as err:  # noqa: BLE001 - a constructor's own error is the user's config's doing

@@ -49,12 +49,14 @@ class Request:
 @dataclass(frozen=True)
 class Checked:
     """A config that passed :func:`validate`: a read-only copy of it (``cfg``), its resolved run config
-    without Hydra's node (``resolved``: what a run is rebuilt from), the ``request``, every ``_target_``
+    without Hydra's node (``resolved``: what a run is rebuilt from), the ``request``, the trust list it
+    was checked against (``trusted``: Hydra's execution whitelist where it is built), every ``_target_``
     string's object (``targets``), the model's class and the run's objective."""
 
     cfg: DictConfig
     resolved: DictConfig
     request: Request
+    trusted: tuple[str, ...]
     targets: Mapping[str, Any]
     model: type
     objective: str
@@ -62,7 +64,8 @@ class Checked:
     def derived(self, cfg: DictConfig) -> Checked:
         """The same checked run with ``cfg``, a copy of this one's config that a policy changed within its
         checked bounds (``encons.attempts``: ``model.guard=0``, ``ckpt_path=null``); not checked again."""
-        return Checked(_frozen(cfg), run_config(cfg), self.request, self.targets, self.model, self.objective)
+        return Checked(_frozen(cfg), run_config(cfg), self.request, self.trusted, self.targets, self.model,
+                       self.objective)
 
 
 def run_config(cfg: DictConfig) -> DictConfig:
@@ -97,7 +100,8 @@ def validate(cfg: DictConfig, request: Request | None = None) -> Checked:
     if missing:
         raise ConfigError(f"{missing[0]} has no value; allowed: give it one ({missing[0]}=...)")
     resolved = run_config(cfg)
-    targets = trust.check_targets(OmegaConf.to_container(resolved))
+    trusted = trust.trusted_targets()
+    targets = trust.check_targets(OmegaConf.to_container(resolved), trusted)
     check_node(cfg, "")
     check_node(cfg, "data", TrajectoryDataModule)
     keys = [k for k in NODES if cfg.get(k)]
@@ -113,7 +117,7 @@ def validate(cfg: DictConfig, request: Request | None = None) -> Checked:
     if isinstance(observation, DictConfig) and "_target_" in observation:
         check_observation(targets[observation._target_], objective)
     check_model(cfg, model, objective, request)
-    return Checked(_frozen(cfg), resolved, request, targets, model, objective)
+    return Checked(_frozen(cfg), resolved, request, trusted, targets, model, objective)
 
 
 def _is_unset(cfg: DictConfig, key: str) -> bool:

@@ -13,7 +13,6 @@ import importlib
 import os
 import types
 from collections.abc import Mapping
-from contextlib import contextmanager
 from typing import Any, Iterator
 
 from encons.errors import ConfigError
@@ -104,12 +103,3 @@ def check_targets(cfg: Mapping, trusted: tuple[str, ...] | None = None) -> dict[
             raise ConfigError(f"{key}._target_={target!r} cannot be imported; allowed: an importable "
                               f"module.Class (your own package on PYTHONPATH)".removeprefix("."))
     return located
-
-
-@contextmanager
-def whitelist() -> Iterator[None]:
-    """Hydra 1.4's execution whitelist set to :func:`trusted_targets` (instantiate refuses the rest)."""
-    from hydra.utils import execution_whitelist
-
-    with execution_whitelist(trusted_targets()):
-        yield
