@@ -55,7 +55,7 @@ def test_kinds_are_in_the_catalogue():
 def test_every_model_trains(train_run, tmp_path, model, system):
     reason = builds(model, system, tmp_path)
     if reason:
-        pytest.skip(reason)
+        pytest.skip(f"declared incompatibility: {reason}")
     trains(train_run, model, system)
 
 
