@@ -116,8 +116,8 @@ def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor
                 if baseline is not None:
                     ax.plot(t, baseline[k, :, idx], ":", color=palette[d], lw=1.0)
             ax.set_ylabel(f"{'velocity q̇' if rate else 'position q'} {unit_label(units, rate)}")
-        turns = [f"{names[d]} − {round(float(shift[k, 0, d]) / (2 * torch.pi)):d}·2π" for d in range(n)
-                 if float(shift[k, 0, d]) != 0]
+        turns = [f"{names[d]} {'−' if turn > 0 else '+'} {abs(turn)}·2π" for d in range(n)
+                 if (turn := round(float(shift[k, 0, d]) / (2 * torch.pi)))]
         axes[0, col].set_title(f"test trajectory {k} ({tags[k]} of {len(order)} by relative error)"
                                + (f"\ndrawn as {', '.join(turns)}" if turns else ""), fontsize=9)
         axes[1, col].set_xlabel(time_label)

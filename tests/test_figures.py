@@ -136,3 +136,15 @@ def test_mse_per_unit_family_and_named_multi_body_coordinates():
     assert curves["state_mse"].tolist() == [0.25] * 3               # Xiao's mean over every entry, units mixed
     names = plots.coordinate_names(24, CartesianLayout(4, 3, ((0, 1, 2, 3),)))
     assert names[:4] == ["x₁ (body 1)", "y₁ (body 1)", "z₁ (body 1)", "x₂ (body 1)"] and names[12] == "x\u0307₁ (body 1)"
+
+
+def test_rollout_figures_draw_an_unwrapped_angle_at_its_window_start_on_the_circle():
+    t = torch.arange(11) * 0.1
+    true = torch.stack([torch.linspace(0.5, 1.5, 11) - 4 * torch.pi, torch.ones(11)], -1).expand(3, 11, 2).clone()
+    pred = true + 0.01 * torch.arange(3)[:, None, None]
+    figure = plots.rollout_figures(t, pred, true, None, "node on from_file", units=("rad",),
+                                   angles=torch.tensor([True, False]))["rollout"]
+    position = figure.axes[0]
+    assert "drawn as q₁ + 2·2π" in position.get_title()
+    drawn = torch.cat([torch.as_tensor(line.get_ydata()) for line in position.get_lines()])
+    assert 0.4 < drawn.min() and drawn.max() < 1.6                      # at 0.5..1.5 rad, not at −12 rad
