@@ -160,11 +160,24 @@ def acceleration_mse(pred_rates: Tensor, true_rates: Tensor, reduce: Callable[[T
 
 
 # Long-rollout errors against time (Xiao, Zhang & Tang, Figs. 3 and 5) and two trivial baselines.
+def unit_families(units: tuple[str, ...]) -> dict[str, Tensor]:
+    """The state entries (q then q̇, bool (2n,)) of each unit family, by name (``rad``, ``rad_per_s``, ``m``,
+    ...), from the units of the coordinates q (a rate's unit is that per second)."""
+    per_entry = [*units, *(f"{u}/s" for u in units)]
+    return {u.replace("/", "_per_").replace(" ", "_"): torch.tensor([e == u for e in per_entry])
+            for u in dict.fromkeys(per_entry)}
+
+
 def mse_curves(pred: Tensor, true: Tensor, pred_energy: Tensor | None = None,
-               true_energy: Tensor | None = None, angles: Tensor | None = None) -> dict[str, Tensor]:
-    """State MSE (over trajectories and coordinates, angles on the circle) and, given energies, energy MSE
-    (over trajectories) at each time; each of shape (T,)."""
-    curves = {"state_mse": (difference(pred, true, angles) ** 2).mean((0, -1))}
+               true_energy: Tensor | None = None, angles: Tensor | None = None,
+               families: dict[str, Tensor] | None = None) -> dict[str, Tensor]:
+    """State MSE (over trajectories and coordinates, angles on the circle; Xiao et al.'s, whose units mix),
+    per unit family ``state_mse_<family>`` (over the entries of each mask of ``families``, one unit each)
+    and, given energies, energy MSE (over trajectories) at each time; each of shape (T,)."""
+    squared = difference(pred, true, angles) ** 2
+    curves = {"state_mse": squared.mean((0, -1))}
+    for name, mask in (families or {}).items():
+        curves[f"state_mse_{name}"] = squared[..., mask.to(squared.device)].mean((0, -1))
     if pred_energy is not None and true_energy is not None:
         curves["energy_mse"] = ((pred_energy - true_energy) ** 2).mean(0)
     return curves
@@ -209,12 +222,14 @@ def baseline_rollouts(true: Tensor, train: Tensor, dt: float) -> dict[str, Tenso
 def long_rollout_errors(true: Tensor, pred: Tensor, baselines: dict[str, Tensor],
                         to_common: Callable[[Tensor], Tensor] = lambda s: s,
                         energy: Callable[[Tensor], Tensor] | None = None, horizon: int = 4,
-                        angles: Tensor | None = None) -> tuple[dict[str, float], dict[str, dict[str, Tensor]]]:
+                        angles: Tensor | None = None, families: dict[str, Tensor] | None = None
+                        ) -> tuple[dict[str, float], dict[str, dict[str, Tensor]]]:
     """State and energy MSE against time (Xiao et al. Figs. 3 and 5) of the model's rollouts ``pred`` and
     of the ``baselines`` (``baseline_rollouts``) on the same test windows ``true`` (N, T, 2n).
 
     States are compared after ``to_common`` (the common chart, whose ``angles`` are compared on the circle); energies (``energy``, None when the
-    physics is unknown) in the data chart. Returns scalars — ``state_mse`` (over all times) and
+    physics is unknown) in the data chart; ``families`` (``unit_families``) add one state MSE per unit. Returns
+    scalars — ``state_mse`` (over all times) and
     ``state_mse_final`` (last step), the same for ``energy_mse``, and for the baselines also
     ``traj_rel_err``, under ``<baseline name>/`` — and the curves {predictor: {"state_mse"[, "energy_mse"]: (T,)}}.
     """
@@ -224,10 +239,12 @@ def long_rollout_errors(true: Tensor, pred: Tensor, baselines: dict[str, Tensor]
     scalars, curves = {}, {}
     for name, p in predictions.items():
         p_c, prefix = to_common(p), "" if name == "model" else f"{name}/"
-        curves[name] = mse_curves(p_c, true_c, None if energy is None else energy(p), true_e, angles)
+        curves[name] = mse_curves(p_c, true_c, None if energy is None else energy(p), true_e, angles, families)
         if name != "model":
             scalars[f"{prefix}traj_rel_err"] = trajectory_relative_error(p_c, true_c, horizon, angles).mean().item()
         for key, curve in curves[name].items():
+            if name != "model" and key.startswith("state_mse_"):
+                continue                    # per-family scalars of the model only; every curve is kept
             scalars.update({f"{prefix}{key}": curve.mean().item(), f"{prefix}{key}_final": curve[-1].item()})
     return scalars, curves
 

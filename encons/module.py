@@ -116,7 +116,7 @@ class TrainingModule(pl.LightningModule):
             loss = loss + penalty
         if not torch.isfinite(loss):
             raise DivergenceError(
-                f"training diverged: loss is {loss.item()} at epoch {self.current_epoch}, step "
+                f"training diverged: loss is {loss.item()} at epoch {self.current_epoch + 1}, step "
                 f"{self.global_step}; {self._kept_checkpoint()}; allowed: a lower optimizer.lr (or a larger model.mass_eps / model.guard where the model has one)")
         return loss
 
@@ -130,7 +130,7 @@ class TrainingModule(pl.LightningModule):
         if not kept:
             return "no checkpoint was written before it (none to resume from)"
         epoch = checkpoints.read(kept[0]).get("epoch")
-        return f"{kept[0]} holds the last good weights (epoch {epoch}); resume with ckpt_path=last"
+        return f"{kept[0]} holds the last good weights (epoch {epoch + 1}); resume with ckpt_path=last"
 
     def compared(self, x: Tensor, pred: Tensor) -> tuple[Tensor, Tensor]:
         """Prediction and truth where metrics compare them: states in the system's common chart, or

@@ -21,17 +21,25 @@ def subplots(*grid: int, figsize: tuple[float, float], **kwargs):
 
 
 TIME = "time t [s]"
-REL_ERR = "relative error ‖ŝ_t − s_t‖ / ‖s_t‖ [–]"
-ENERGY_ERR = "energy error |E(ŝ_t) − E(s_t)| [J]"
-STATE_MSE = "state MSE of ŝ_t against s_t [(rad, rad/s)²]"
-ENERGY_MSE = "energy MSE of E(ŝ_t) against E(s_t) [J²]"
+REL_ERR = "relative error ‖ŝₜ − sₜ‖ / ‖sₜ‖ [–]"
+ENERGY_ERR = "energy error |E(ŝₜ) − E(sₜ)| [J]"
+STATE_MSE = "state MSE of ŝₜ against sₜ [mixed: rad², (rad/s)²]"
+ENERGY_MSE = "energy MSE of E(ŝₜ) against E(sₜ) [J²]"
 
 
-def coordinate_names(width: int) -> list[str]:
-    """Names of the 2n state entries (q₁…qₙ, q̇₁…q̇ₙ) of a (common-chart) state of ``width`` entries."""
+def coordinate_names(width: int, layout=None) -> list[str]:
+    """Names of the 2n state entries of a (common-chart) state of ``width`` entries: q₁…qₙ, q̇₁…q̇ₙ; with a
+    Cartesian ``layout`` (``CartesianLayout``), each point's axes, x₁ y₁ z₁ x₂ … and ẋ₁ …, point k of body b
+    named ``b<b>.<k>`` (a multi-body figure groups its lines by body)."""
     sub = str.maketrans("0123456789", "₀₁₂₃₄₅₆₇₈₉")
     n = width // 2
-    return [f"q{str(i + 1).translate(sub)}" for i in range(n)] + [f"q̇{str(i + 1).translate(sub)}" for i in range(n)]
+    if layout is None or layout.size != n:
+        return [f"q{str(i + 1).translate(sub)}" for i in range(n)] + [f"q̇{str(i + 1).translate(sub)}" for i in range(n)]
+    body = {p: (b, k) for b, points in enumerate(layout.bodies) for k, p in enumerate(points)}
+    several = len(layout.bodies) > 1 or any(len(points) > 1 for points in layout.bodies)
+    names = [f"{'xyz'[a]}{str(p + 1).translate(sub)}" + (f" (body {body[p][0] + 1})" if several and p in body else "")
+             for p in range(layout.n_points) for a in range(layout.dim)]
+    return names + [name[0] + "\u0307" + name[1:] for name in names]
 
 
 def colours(k: int) -> list:
@@ -108,8 +116,8 @@ def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor
                 if baseline is not None:
                     ax.plot(t, baseline[k, :, idx], ":", color=palette[d], lw=1.0)
             ax.set_ylabel(f"{'velocity q̇' if rate else 'position q'} {unit_label(units, rate)}")
-        turns = [f"{names[d]} − {round(float(shift[k, 0, d]) / (2 * torch.pi)):d}·2π" for d in range(n)
-                 if float(shift[k, 0, d]) != 0]
+        turns = [f"{names[d]} {'−' if turn > 0 else '+'} {abs(turn)}·2π" for d in range(n)
+                 if (turn := round(float(shift[k, 0, d]) / (2 * torch.pi)))]
         axes[0, col].set_title(f"test trajectory {k} ({tags[k]} of {len(order)} by relative error)"
                                + (f"\ndrawn as {', '.join(turns)}" if turns else ""), fontsize=9)
         axes[1, col].set_xlabel(time_label)
@@ -398,7 +406,7 @@ CEILING = 1e200  # top of a log MSE axis: matplotlib's log ticks overflow (Overf
 
 
 def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], title: str,
-               units: tuple[str, ...] | None = None) -> dict[str, Figure]:
+               units: tuple[str, ...] | None = None, time_label: str = TIME) -> dict[str, Figure]:
     """State MSE and (if known) energy MSE against time of the model and the baselines on the test
     windows (Xiao et al. Figs. 3 and 5; curves from ``metrics.long_rollout_errors``), from the first step
     (at t = 0 every rollout starts on the truth): ``mse_vs_time``. The axis spans the curves within
@@ -406,10 +414,16 @@ def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], title: str,
     no motion keeps the energy of s₀) is named in the legend with its largest value instead. Values past
     ``CEILING`` (a runaway rollout, the linear baseline's blow-up) are drawn at it."""
     keys = list(curves["model"])
-    state_unit = "–" if units is None else "/".join(sorted(set(units)))
-    labels = {"state_mse": f"state MSE, mean over q [{state_unit}]² and q̇ [{state_unit}/s]²",
-              "energy_mse": "energy MSE [J²]"}
-    fig, axes = subplots(1, len(keys), figsize=(6 * len(keys), 4), squeeze=False)
+    mixed = ", ".join(f"({u})²" if "/" in u else f"{u}²" for u in dict.fromkeys(
+        [*(units or ("–",)), *(f"{u}/s" for u in (units or ("–",)))]))
+    labels = {"state_mse": f"state MSE, mean over every q and q̇ [mixed: {mixed}]", "energy_mse": "energy MSE [J²]"}
+    for key in keys:   # one unit family each (metrics.unit_families)
+        if key.startswith("state_mse_"):
+            unit = key.removeprefix("state_mse_").replace("_per_", "/").replace("_", " ")
+            labels[key] = f"MSE of the {'rates' if '/' in unit else 'coordinates'} in {unit} [{unit}]²"
+    if any(k.startswith("state_mse_") for k in keys) and sum(k.startswith("state_mse_") for k in keys) == 2:
+        keys.remove("state_mse")     # one unit for q and one for q̇: the two families say it in their units
+    fig, axes = subplots(1, len(keys), figsize=(5 * len(keys), 4), squeeze=False)
     for ax, key in zip(axes[0], keys):
         model = curves["model"][key][1:]
         finite = model[torch.isfinite(model) & (model > 0)]
@@ -426,7 +440,7 @@ def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], title: str,
         every = every[torch.isfinite(every) & (every >= floor)].clamp_max(CEILING)
         if every.numel():
             ax.set_ylim(float(every.min()) / 2, float(every.max()) * 2)
-        ax.set_xlabel(TIME)
+        ax.set_xlabel(time_label)
         ax.set_ylabel(labels[key])
         ax.legend(title="mean over test windows", fontsize=8)
     fig.suptitle(f"{title}\nlong-rollout error against time, model vs trivial baselines", fontsize=9)

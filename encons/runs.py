@@ -110,7 +110,16 @@ def train(cfg: DictConfig | str | list[str], summary: bool = True, request: Requ
             return _train(cfg, summary, request)
     except EnconsError as err:
         to_log_files(f"encons: error: {err}", logging.ERROR)  # the CLI prints the same line on stderr
+        _prune(Path(cfg.paths.output_dir))
         raise
+
+
+def _prune(run_dir: Path) -> None:
+    """After a failed run: the empty folders made for it (checkpoints/, figures/, the run folder) removed;
+    a folder that keeps a file (train.log, ending in the error line) says why it is there."""
+    for folder in (run_dir / "checkpoints", run_dir / "figures", run_dir):
+        if folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()
 
 
 def _composed(overrides: object) -> DictConfig:
@@ -219,9 +228,9 @@ def _resume_line(cfg: DictConfig, request: Request, epoch: int) -> str:
     given = list(request.overrides)
     kept = [o for o in given if not o.lstrip("+~").startswith(("ckpt_path=", "hydra.run.dir="))]
     if not last.is_file():
-        return f"SIGTERM during fit, epoch {epoch}, before the first checkpoint; start again: " + \
+        return f"SIGTERM during fit, epoch {epoch + 1}, before the first checkpoint; start again: " + \
             shlex.join(["python", "-m", "encons.train", *given])
-    return (f"SIGTERM during fit, epoch {epoch} (checkpoints/last.ckpt holds the last whole epoch); resume: "
+    return (f"SIGTERM during fit, epoch {epoch + 1} (checkpoints/last.ckpt holds the last whole epoch); resume: "
             + shlex.join(["python", "-m", "encons.train", *kept, f"ckpt_path={last}", f"hydra.run.dir={run_dir}"]))
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from encons import plots
+from encons import metrics, plots
 from encons.build import run_config
 from encons.systems.controlled import CartPole
 from encons.systems.mass_spring import MassSpring
@@ -76,7 +76,7 @@ def test_mse_axis_is_not_stretched_by_a_constant_baseline_energy_error():
               "baseline_linear_ode": {"state_mse": rising * 2, "energy_mse": rising * 5}}
     figure = plots.mse_figure(t, curves, "node on pendulum", units=("rad",))["mse_vs_time"]
     (state_label, _, _, state_lim, *_), (_, _, _, energy_lim, _, _, energy_lines) = described(figure)["axes"]
-    assert state_label == "state MSE, mean over q [rad]² and q̇ [rad/s]²"
+    assert state_label == "state MSE, mean over every q and q̇ [mixed: rad², (rad/s)²]"
     assert energy_lim[0] > 1e-5 and energy_lim[1] / energy_lim[0] < 1e5          # not 14 decades
     assert "constant (below the axis: ≤ 1e-14)" in energy_lines
 
@@ -120,3 +120,31 @@ def test_the_rollout_figure_draws_the_linear_ode_baseline_that_was_scored(train_
     monkeypatch.setattr(plots, "rollout_figures", lambda *a, **k: drawn.append(k["baseline"]) or figures(*a, **k))
     train_run(["model=node", "system=pendulum1"])
     assert len(fits) == 1 and len(drawn) == 1 and torch.isfinite(drawn[0]).all()
+
+
+def test_mse_per_unit_family_and_named_multi_body_coordinates():
+    from encons.systems.base import CartesianLayout
+
+    families = metrics.unit_families(("m", "rad"))
+    assert {k: v.tolist() for k, v in families.items()} == {
+        "m": [True, False, False, False], "rad": [False, True, False, False],
+        "m_per_s": [False, False, True, False], "rad_per_s": [False, False, False, True]}
+    pred, true = torch.zeros(2, 3, 4), torch.zeros(2, 3, 4)
+    pred[..., 2] = 1.0                                              # only the m/s entry is off
+    curves = metrics.mse_curves(pred, true, families=families)
+    assert curves["state_mse_m_per_s"].tolist() == [1.0] * 3 and curves["state_mse_m"].tolist() == [0.0] * 3
+    assert curves["state_mse"].tolist() == [0.25] * 3               # Xiao's mean over every entry, units mixed
+    names = plots.coordinate_names(24, CartesianLayout(4, 3, ((0, 1, 2, 3),)))
+    assert names[:4] == ["x₁ (body 1)", "y₁ (body 1)", "z₁ (body 1)", "x₂ (body 1)"] and names[12] == "x\u0307₁ (body 1)"
+
+
+def test_rollout_figures_draw_an_unwrapped_angle_at_its_window_start_on_the_circle():
+    t = torch.arange(11) * 0.1
+    true = torch.stack([torch.linspace(0.5, 1.5, 11) - 4 * torch.pi, torch.ones(11)], -1).expand(3, 11, 2).clone()
+    pred = true + 0.01 * torch.arange(3)[:, None, None]
+    figure = plots.rollout_figures(t, pred, true, None, "node on from_file", units=("rad",),
+                                   angles=torch.tensor([True, False]))["rollout"]
+    position = figure.axes[0]
+    assert "drawn as q₁ + 2·2π" in position.get_title()
+    drawn = torch.cat([torch.as_tensor(line.get_ydata()) for line in position.get_lines()])
+    assert 0.4 < drawn.min() and drawn.max() < 1.6                      # at 0.5..1.5 rad, not at −12 rad

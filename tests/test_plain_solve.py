@@ -70,7 +70,7 @@ def test_a_singular_hessian_at_guard_0_stops_training_as_a_divergence(tmp_path):
             p.zero_()  # L constant: ∇²_q̇L = 0 everywhere
     trainer = pl.Trainer(max_steps=3, logger=False, enable_checkpointing=False, enable_progress_bar=False,
                          enable_model_summary=False)
-    with pytest.raises(DivergenceError, match=r"loss is nan at epoch 0, step 0"):
+    with pytest.raises(DivergenceError, match=r"loss is nan at epoch 1, step 0"):
         trainer.fit(module, datamodule=data)
 
 

@@ -44,4 +44,5 @@ class FileSystem(DataOnlySystem):
         return None if self.angles is None else torch.tensor([*self.angles, *(False,) * self.n])
 
     def units(self, chart: str) -> tuple[str, ...]:
-        return ("file unit",) * self.n
+        """rad for the coordinates marked as angles, else the file's own unit (a rate's: per time unit)."""
+        return tuple("rad" if a else "file unit" for a in (self.angles or (False,) * self.n))

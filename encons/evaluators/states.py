@@ -60,8 +60,9 @@ class States(Evaluator):
         scores["traj_rel_err_window"] = metrics.trajectory_relative_error(pred_c, true_c, window, angles).mean().item()
         train = module.trainer.datamodule.states["train"].to(true)
         baselines = metrics.baseline_rollouts(true, train, module.dt)
+        families = metrics.unit_families(system.units(system.common_chart))
         scalars, curves = metrics.long_rollout_errors(true, pred, baselines, module.to_common, energy, module.horizon,
-                                                      angles)
+                                                      angles, families)
         scores.update(scalars)
         scores.update(self.diagnostics)  # e.g. SyMo's non-converged root-finds
         if oracle:  # the floor, scored by the same metrics
@@ -83,8 +84,10 @@ class States(Evaluator):
         t, pred_c, true_c, energies, curves, baseline = self.drawn  # the linear-ODE rollout compute scored
         units, title = module.system.units(module.system.common_chart), module.run_title()
         time_label = plots.TIME if module.system.known_physics else plots.DATA_TIME
-        return {**plots.mse_figure(t.cpu(), curves, title=title, units=units),
+        names = plots.coordinate_names(true_c.shape[-1], module.system.layout if module.system.common_chart == "cartesian"
+                                       else None)
+        return {**plots.mse_figure(t.cpu(), curves, title=title, units=units, time_label=time_label),
                 **plots.rollout_figures(t.cpu(), pred_c.cpu(), true_c.cpu(),
                                         [e.cpu() for e in energies] if energies else None, title=title,
                                         units=units, baseline=baseline.cpu(), angles=module.compared_angles,
-                                        time_label=time_label)}
+                                        names=names, time_label=time_label)}
