@@ -8,7 +8,8 @@ training loss (``TrainingModule.loss``) is minimised for STEPS optimiser steps o
 (epochs drawn by the data module's sampler, no validation or checkpoints: the last weights). At steps
 0, 100, 300, 1000, 3000, ... ≤ STEPS it appends one JSON line per setting with a_rel_err, b_rel_err (the
 linearisation at upright that the LQR is built from, ``encons.control.linearise``) and ∂θ̈/∂u at upright,
-and the learned M(q) at upright beside the true one.
+and the learned M(q) at upright beside the true one; after the last step one more line (``"final": true``)
+with the swing-up controller's success rate on 40 seeded starts (``swing_up``).
 """
 
 from __future__ import annotations
@@ -33,6 +34,16 @@ def errors(model, system) -> dict[str, float]:
             "b_rel_err": float(torch.linalg.norm(b - tb) / torch.linalg.norm(tb)),
             "dthetadd_du": float(b[-1, 0]), "dthetadd_du_true": float(tb[-1, 0]),
             "mass_upright": plant.mass(q0)[0].tolist(), "mass_upright_true": truth.mass(q0)[0].tolist()}
+
+
+def swing_up(model, system, h: float, starts: int = 40) -> dict[str, float]:
+    """The swing-up controller built from ``model`` on the true system: ``encons.control.score`` of its closed
+    loop from ``starts`` seeded (0) starts of the system's ``Settings``, as ``encons.control.compare`` runs it."""
+    settings = control.SETTINGS[type(system)]
+    plant = control.learned_plant(model, system, "model")
+    states, inputs = control.closed_loop(system, control.SwingUp(plant, system, h), settings.starts(starts, 0), h,
+                                         round(settings.duration / h))
+    return control.score(control.true_plant(system), states, inputs, settings, h)[0]
 
 
 def main() -> None:
@@ -64,6 +75,10 @@ def main() -> None:
                     with out.open("a") as f:
                         f.write(json.dumps(row) + "\n")
                 if step == total:
+                    row["control"] = swing_up(module.model, module.system, data.dt)
+                    print(json.dumps({"name": name, "step": step, "control": row["control"]}), flush=True)
+                    with out.open("a") as f:
+                        f.write(json.dumps({"name": name, "overrides": extra, "step": step, "final": True, **row}) + "\n")
                     break
                 epoch, batch = next(stream)
                 optimizer.zero_grad()

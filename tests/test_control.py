@@ -147,15 +147,20 @@ def test_control_command_refuses_a_node_run_and_a_bad_option_in_one_line(tmp_pat
         assert err.startswith(expected) and "\n" not in err and "Traceback" not in err
 
 
-def test_control_profile_lists_the_energy_models_with_inputs_on_both_systems():
+def test_control_profile_lists_the_energy_models_with_inputs_on_both_systems_per_n_train():
     from encons.benchmark import expand
     from encons.build import compose
 
     cfg = compose(["profile=control"], config_name="benchmark")
     runs = expand(cfg)
-    assert cfg.control is True and len(runs) == 18
-    assert {(r.system, r.label) for r in runs} == {(s, m) for s in ("pendulum_control", "cartpole")
-                                                  for m in ("lnode", "symo", "e2e_symo")}
+    models = ("lnode", "lnode-learned_g", "symo", "e2e_symo", "hnn_structure", "hnn_structure-learned_g",
+              "lnn_structure", "lnn_structure-learned_g")
+    assert cfg.control is True and len(runs) == 8 * 2 * 3 * 3
+    assert {(r.system, r.label, r.n_train) for r in runs} == {(s, m, n) for s in ("pendulum_control", "cartpole")
+                                                             for m in models for n in (8, 32, 128)}
+    for r in runs:  # per-step inputs on the cart-pole (benchmarks/reports/control-b), Santos et al.'s on the pendulum
+        assert ("system.inputs=steps" in r.overrides) == (r.system == "cartpole")
+        assert ("model.input_matrix=learned" in r.overrides) == r.label.endswith("learned_g")
 
 
 @pytest.mark.slow
@@ -163,12 +168,13 @@ def test_control_profile_reports_the_controller_beside_the_oracle(tmp_path):
     from encons.cli import benchmark as main
 
     out = tmp_path / "bench"
-    main(["profile=control", "seeds=[0]", "models=[lnode]", "systems=[pendulum_control]", f"out={out}",
-          f"cache_dir={tmp_path / 'cache'}", 'train=["debug=fast"]'])
+    main(["profile=control", "seeds=[0]", "n_train=[8]", "n_train_models=[lnode]", "n_train_system=[pendulum_control]",
+          f"out={out}", f"cache_dir={tmp_path / 'cache'}", 'train=["debug=fast"]'])
     row = json.loads(next((out / "runs").glob("*/result.json")).read_text())
     assert not row["error"] and row["test/oracle/success_rate"] >= 0.95
-    assert 0 <= row["test/control/success_rate"] <= 1 and (out / "runs" / "pendulum_control-lnode-seed0" /
-                                                           "control" / "control_phase.png").is_file()
+    assert 0 <= row["test/control/success_rate"] <= 1
+    control_dir = out / "runs" / "pendulum_control-lnode-n8-seed0" / "control"
+    assert (control_dir / "control_phase.png").is_file() and (control_dir / "control_portrait.png").is_file()
     headline = (out / "summary.md").read_text().split("## Every metric")[0]
     assert "control/success_rate" in headline and "oracle/success_rate" in headline
-    assert (out / "control_success_rate.png").stat().st_size > 10_000
+    assert (out / "control_success_n_train.png").stat().st_size > 10_000

@@ -94,3 +94,35 @@ def test_a_system_without_inputs_gets_no_input_network():
     assert model.input_matrix is None
     with_inputs = LNNStructure(ControlledPendulum(), hidden=8, depth=2, input_matrix="learned")
     assert sum(p.numel() for p in with_inputs.parameters()) > sum(p.numel() for p in model.parameters())
+
+
+def linear_b_error(model, system) -> float:
+    """b_rel_err: ‖B − B_true‖_F / ‖B_true‖_F of the linearisation at upright the LQR is built from."""
+    (_, b), (_, truth) = (control.linearise(plant, 1) for plant in
+                          (control.learned_plant(model, system, "model"), control.true_plant(system)))
+    return float(torch.linalg.norm(b - truth) / torch.linalg.norm(truth))
+
+
+@pytest.mark.slow
+def test_a_debug_sized_cartpole_lnode_with_per_step_inputs_and_learned_g_cuts_b_error_threefold(tmp_path):
+    """``debug=fast`` (16 trajectories of 10 steps, 2 × 16 networks), per-step random inputs and a learned
+    input matrix g(q), the run's own loss and optimiser (lr 3e-3) for 60 epochs (120 steps): b_rel_err falls to a
+    third of its initial value or less (measured 1.02 → 0.26; 0.04 after 120 epochs, the decrease is not
+    monotone at this lr; benchmarks/reports/control-b: with the known B it stays near 0.7 at 300 steps)."""
+    from encons import api
+    from encons.build import build
+
+    cfg = api.compose("debug=fast", "logger=none", "model=lnode", "system=cartpole", "system.inputs=steps",
+                      "model.input_matrix=learned", "optimizer.lr=3e-3", output_dir=tmp_path / "run",
+                      cache_dir=tmp_path / "cache")
+    data, module = build(cfg)
+    before = linear_b_error(module.model, module.system)
+    optimizer, loader, step = module.optimizer(module.parameters()), data.train_dataloader(), 0
+    for epoch in range(60):
+        loader.sampler.set_epoch(epoch)
+        for batch in loader:
+            optimizer.zero_grad()
+            module.loss(batch).backward()
+            optimizer.step()
+    after = linear_b_error(module.model, module.system)
+    assert before > 0.5 and after <= before / 3, (before, after)
