@@ -61,7 +61,7 @@ def main() -> None:
         metrics, calls, stops = run(CONFIGS[0], Path(tmp) / "count", True)
         out["lookups"] = {"total": sum(calls.values()), "targets": len(calls), "per_target": dict(calls.most_common())}
         # the stops of cfg's route: calls into build/config/trust from another module (not from one of the
-        # three, not this script's counting wrapper, not contextlib running build's ``with trust.whitelist()``)
+        # three, not this script's counting wrapper, not contextlib running a ``with`` of one of them)
         out["entries_from_outside"] = dict(collections.Counter(
             s.split(" -> ")[1].split(".")[1] for s in stops if not s.startswith((*WATCHED, "__main__", "contextlib"))))
         out["entries_from_encons_modules"] = dict(collections.Counter(s.split(" -> ")[1].rsplit(".", 1)[0] for s in stops))
