@@ -140,7 +140,7 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
     started = time.perf_counter()
     try:
         trained = runs.train(cfg, summary=False)
-        results, error, wall = dict(trained.metrics), "", time.perf_counter() - started  # training time only
+        results, error, wall = dict(trained.metrics), "", time.perf_counter() - started  # training and the test of this process (a resumed run: from the resume on)
         steps = trained.module.trainer.global_step
         if control:
             from encons.control import score_control
