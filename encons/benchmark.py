@@ -224,6 +224,7 @@ def run_profile(cfg: DictConfig) -> Path:
             print(f"{run.id}: {result_line(row)}", flush=True)
     progress.done()
     write_report(out)
+    print(f"report: {out / 'summary.md'} (tables, figures and results.csv in {out})", flush=True)
     errors = [row.get("error") for row in load_rows(out)]
     if all(errors):
         raise ConfigError(f"{errors[0]}; every one of the {len(errors)} benchmark runs failed (errors: {out / 'results.csv'})")

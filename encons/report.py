@@ -52,7 +52,8 @@ def print_summary(title: str, results: dict[str, float], output_dir: Path, note:
     out.print(table)
     if note:
         out.print(note)
-    out.print(f"outputs: {output_dir}  (checkpoints/, figures/, test_metrics.json)")
+    kept = "checkpoints/, " if (Path(output_dir) / "checkpoints").is_dir() else ""   # an evaluation keeps none
+    out.print(f"outputs: {output_dir}  ({kept}figures/, test_metrics.json)")
     to_log_files(out.export_text())
 
 
