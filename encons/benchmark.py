@@ -146,7 +146,7 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
     started = time.perf_counter()
     try:
         trained = runs.train(cfg, summary=False)
-        results, error, wall = dict(trained.metrics), "", time.perf_counter() - started  # training time only
+        results, error, wall = dict(trained.metrics), "", time.perf_counter() - started  # training and the test of this process (a resumed run: from the resume on)
         steps = trained.module.trainer.global_step
         if control:
             from encons.control import score_control
@@ -285,6 +285,7 @@ def run_profile(cfg: DictConfig) -> Path:
                 print(f"{run.id}: {result_line(row)}", flush=True)
     progress.done()
     write_report(out)
+    print(f"report: {out / 'summary.md'} (tables, figures and results.csv in {out})", flush=True)
     errors = [row.get("error") for row in load_rows(out)]
     if all(errors):
         raise ConfigError(f"{errors[0]}; every one of the {len(errors)} benchmark runs failed (errors: {out / 'results.csv'})")

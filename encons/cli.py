@@ -79,6 +79,11 @@ def train() -> None:
     import hydra
 
     register_resolvers()
+    empty = next((a for a in sys.argv[1:] if "=" in a and not a.startswith("-") and a.endswith("=")), None)
+    if empty:  # e.g. hydra.sweeper.sampler.seed=$K with K unset: Hydra's own error has no "allowed:" part
+        with one_line_errors():
+            raise ConfigError(f"{empty} has no value (an unset shell variable?); allowed: {empty}VALUE, or "
+                              f"{empty}null for none")
     os.environ.setdefault("WANDB_SILENT", "true")
     quiet_upstream()
     # Hydra then lets its own errors through to us (else it prints them with its search path and

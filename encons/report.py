@@ -193,9 +193,9 @@ def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", head
     for e in summary:
         cells = [e["system"], e["model"], str(e["n_train"]), f"{e['runs'] - e['failed']}/{e['runs']}"]
         values = paper.get(f"{e['system']}/{e['model']}", {}) if not e["data_efficiency"] else {}
-        cells += [(f"{e[m]:.3g} ± {e[m + '_sd']:.2g}" if m in e else "failed" if e["failed"] == e["runs"] else "–")
+        cells += [(f"{e[m]:.3g} ± {e[m + '_sd']:.2g}" if m in e else "failed" if e["failed"] == e["runs"] else "—")
                   if m else f"{values[k]:.3g}" if k in values else ""
-                  for m, k in columns]  # –: a metric this model does not report (plain_inverse, newton_unconverged)
+                  for m, k in columns]  # —: a metric this model does not report (plain_inverse, newton_unconverged)
         cells.append(e.get("optimiser", ""))
         lines.append("| " + " | ".join(cells) + " |")
     note = f"\nPublished values: {source}\n" if source and paper_keys else ""
@@ -286,7 +286,7 @@ def sweep_markdown(keys: list[str], rows: list[dict]) -> str:
         text += f"\n{metric.removeprefix('test/')}: {keys[0]} (rows) × {keys[1]} (columns)\n\n"
         text += "| " + " | ".join([f"{keys[0]} \\ {keys[1]}", *second]) + " |\n" + "|" + "---|" * (len(second) + 1) + "\n"
         for a in first:
-            cells = [f"{by[a, b][metric]:.3g}" if metric in by.get((a, b), {}) else "–" for b in second]
+            cells = [f"{by[a, b][metric]:.3g}" if metric in by.get((a, b), {}) else "—" for b in second]
             text += "| " + " | ".join([a, *cells]) + " |\n"
     return text
 

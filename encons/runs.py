@@ -9,6 +9,7 @@ here and its facts passed down to ``build``.
 from __future__ import annotations
 
 import logging
+import os
 import shlex
 import time
 import warnings
@@ -101,6 +102,7 @@ def train(cfg: DictConfig | str | list[str], summary: bool = True, request: Requ
     if not isinstance(cfg, DictConfig):
         cfg = _composed(cfg)
     request = Request.of(cfg) if request is None else request
+    os.environ.setdefault("WANDB_SILENT", "true")  # as the CLI: no wandb banner lines from Python either
     try:
         with log_file(Path(cfg.paths.output_dir) / "train.log"):
             if cfg.get("seeds") is not None:  # one member per seed, in this process (encons.ensemble)
@@ -297,12 +299,23 @@ def _key_overrides(cfg: DictConfig, overrides: Iterable[str]) -> DictConfig:
     return OmegaConf.from_dotlist(overrides)
 
 
+def _new_evaluation_folder(run_dir: Path) -> Path:
+    """``<run>/evaluation``, or ``evaluation-2``, ``-3``, ... when an earlier evaluation holds metrics: a second
+    evaluate (other overrides, another checkpoint) never overwrites the first one's."""
+    out, k = run_dir / "evaluation", 1
+    while (out / "test_metrics.json").exists():
+        k += 1
+        out = run_dir / f"evaluation-{k}"
+    return out
+
+
 def evaluate(run: Run | str | Path, overrides: Iterable[str] = (), ckpt: str = "best") -> dict[str, float]:
     """Test a run (a :class:`Run`, a run folder or a ``.ckpt``) on its test set; return ``test/...`` metrics.
 
     Overrides change the evaluation, e.g. ``data.test_steps=1000``: a longer test horizon. Metrics
     such as ``traj_rel_err`` sum over the first ``horizon`` steps; add ``horizon=1000`` to score
-    the whole trajectory. Figures and ``test_metrics.json`` go to ``<run>/evaluation``.
+    the whole trajectory. Figures and ``test_metrics.json`` go to ``<run>/evaluation`` (``evaluation-2``, ...
+    when an earlier evaluation is there).
     """
     from encons.report import print_summary
 
@@ -310,7 +323,7 @@ def evaluate(run: Run | str | Path, overrides: Iterable[str] = (), ckpt: str = "
         run = load(run.checkpoint if isinstance(run, Run) else run, overrides, ckpt)
     config = run.config.copy()
     config.logger, config.callbacks = None, None
-    out = run.run_dir / "evaluation"
+    out = _new_evaluation_folder(run.run_dir)
     config.paths.output_dir = str(out)
     with log_file(out / "evaluate.log"):
         trainer, _ = build_trainer(config)

@@ -52,3 +52,12 @@ def test_cli_trains_quietly_and_writes_outputs(tmp_path):
     assert "Warning" not in proc.stderr and "💡" not in proc.stdout + proc.stderr, proc.stderr  # quiet run
     log = (run_dir / "train.log").read_text()
     assert "tested: best checkpoint by validation" in log and "test/traj_rel_err" in log  # the summary
+
+
+def test_an_empty_override_value_is_one_line_naming_it(cli):
+    """``hydra.sweeper.sampler.seed=$K`` with K unset reaches encons as ``...seed=``."""
+    result = cli("-m", "sweeps=hamiltonian_weight", "hydra.sweeper.sampler.seed=")
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines()[-1] == ("encons: error: hydra.sweeper.sampler.seed= has no value (an unset shell "
+                                            "variable?); allowed: hydra.sweeper.sampler.seed=VALUE, or "
+                                            "hydra.sweeper.sampler.seed=null for none")

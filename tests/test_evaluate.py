@@ -35,6 +35,11 @@ def test_longer_test_horizon_and_whole_trajectory_score(train_run, tmp_path):
     whole = api.evaluate(tmp_path / "run", ["data.test_steps=40", "horizon=40"])
     assert whole["test/traj_rel_err"] > longer["test/traj_rel_err"]
     assert (tmp_path / "run" / "evaluation" / "figures" / "rollout.png").is_file()
+    # each evaluation keeps its own folder: the second and third did not overwrite the first one's metrics
+    first = json.loads((tmp_path / "run" / "evaluation" / "test_metrics.json").read_text())
+    assert first["traj_rel_err"] == pytest.approx(short["test/traj_rel_err"])
+    saved = json.loads((tmp_path / "run" / "evaluation-3" / "test_metrics.json").read_text())
+    assert saved["traj_rel_err"] == pytest.approx(whole["test/traj_rel_err"])
 
 
 def test_evaluate_refuses_overrides_that_change_the_model(train_run, tmp_path):

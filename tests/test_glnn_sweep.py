@@ -28,5 +28,5 @@ def test_glnn_size_grid_runs_every_width_and_depth(tmp_path):
     assert f"| 8 | 2 | " in md and "| 16 | 3 | not finished |" in md
     table = md.split("state_mse_final: model.hidden (rows) × model.depth (columns)")[1]
     assert "| model.hidden \\ model.depth | 2 | 3 |" in table
-    assert f"| 8 | {mse['h8-d2']} | {mse['h8-d3']} |" in table and f"| 16 | {mse['h16-d2']} | – |" in table
+    assert f"| 8 | {mse['h8-d2']} | {mse['h8-d3']} |" in table and f"| 16 | {mse['h16-d2']} | — |" in table
     assert (folder / "sweep.csv").read_text().count("\n") == 5
