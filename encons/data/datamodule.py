@@ -202,9 +202,9 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
             self.arrays[name]["u"] = u.float()
         for name, obs in frames.items():
             self.arrays[name]["obs"] = obs
-        if self.objective in ("derivative", "acceleration"):
-            self.arrays["train"]["rates"] = self._rates(splits["train"], chart, served["train"],
-                                                        inputs.get("train")).float()
+        if self.objective in ("derivative", "acceleration"):  # validation too: validation.criterion=objective
+            for name in ("train", "val"):
+                self.arrays[name]["rates"] = self._rates(splits[name], chart, served[name], inputs.get(name)).float()
         if self.chunk_len > len(t):
             raise DataError(f"data.chunk_len={self.chunk_len} exceeds the {len(t)} states per trajectory; "
                             f"allowed: 2..{len(t)}")
