@@ -252,7 +252,7 @@ def _instantiate(checked: Checked, recorded: Mapping[str, float] | None):
                             horizon=cfg.horizon, model_name=cfg.get("model_name"),
                             evaluation=build_evaluation(checked),
                             evaluators=build_evaluators(checked, observation.identity),
-                            recorded=recorded)
+                            recorded=recorded, validation=cfg.validation.criterion)
     return data, module
 
 
@@ -326,8 +326,9 @@ def build_trainer(cfg: DictConfig | Checked, request: Request = Request()):
     callbacks = [instantiate_node(checked, f"callbacks.{name}") for name in (cfg.get("callbacks") or {})]
     callbacks += [RunConfigInCheckpoints(checked.resolved), TestResults(cfg.paths.output_dir)]
     callbacks += [ProgressBar()] if cfg.trainer.get("enable_progress_bar", True) else []   # epochs from 1
+    none = {"limit_val_batches": 0} if cfg.validation.criterion == "none" else {}  # validation.criterion=none
     trainer = instantiate_node(checked, "trainer", logger=loggers or False, callbacks=callbacks,
-                               plugins=[AtomicCheckpointIO()])
+                               plugins=[AtomicCheckpointIO()], **none)
     return trainer, loggers
 
 

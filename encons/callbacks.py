@@ -94,6 +94,59 @@ class EpochLine(pl.Callback):
             to_log_files(line)          # the log files only: the progress bar shows it live, or not yet due
 
 
+class CostLine(pl.Callback):
+    """What an epoch costs, split: ``validation`` (the validation loop), ``checkpoint`` (writing checkpoint
+    files, ``encons.lightning_io.AtomicCheckpointIO.seconds``) and ``train`` (the rest of the epoch: its
+    optimiser steps, logging, callbacks), in seconds. One line per epoch in the log files, one line of
+    means on the console at the end of fit, and ``costs.json`` in ``output_dir`` (per-epoch rows)."""
+
+    def __init__(self, output_dir: str | Path):
+        self.output_dir = Path(output_dir)
+
+    def on_fit_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        self.rows: list[dict[str, float]] = []
+        self.open: dict[str, float] | None = None
+
+    def _written(self, trainer: pl.Trainer) -> float:
+        return getattr(trainer.strategy.checkpoint_io, "seconds", 0.0)
+
+    def _close(self, trainer: pl.Trainer) -> None:
+        if self.open is None:
+            return
+        row, self.open = self.open, None
+        row["total"] = time.perf_counter() - row.pop("start")
+        row["checkpoint"] = self._written(trainer) - row.pop("written")
+        row["train"] = row["total"] - row["validation"] - row["checkpoint"]
+        self.rows.append(row)
+        if trainer.is_global_zero:
+            to_log_files(f"epoch {int(row['epoch'])} cost: train {row['train']:.3g} s, validation "
+                         f"{row['validation']:.3g} s, checkpoint {row['checkpoint']:.3g} s")
+
+    def on_train_epoch_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        self._close(trainer)
+        self.open = {"epoch": trainer.current_epoch + 1, "start": time.perf_counter(),
+                     "written": self._written(trainer), "validation": 0.0, "validated": 0}
+
+    def on_validation_epoch_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        self.val_start = time.perf_counter()
+
+    def on_validation_epoch_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        if self.open is not None and not trainer.sanity_checking:
+            self.open["validation"] += time.perf_counter() - self.val_start
+            self.open["validated"] = 1
+
+    def on_train_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        self._close(trainer)
+        if not trainer.is_global_zero or not self.rows:
+            return
+        n = len(self.rows)
+        mean = {k: sum(r[k] for r in self.rows) / n for k in ("train", "validation", "checkpoint", "total")}
+        log.info("cost per epoch (mean of %d): train %.3g s, validation %.3g s (%d validations), checkpoint %.3g s",
+                 n, mean["train"], mean["validation"], sum(int(r["validated"]) for r in self.rows), mean["checkpoint"])
+        self.output_dir.mkdir(parents=True, exist_ok=True)
+        write_json(self.output_dir / "costs.json", {"mean": mean, "epochs": self.rows})
+
+
 def monitored(trainer: pl.Trainer) -> str:
     """The validation metric the best checkpoint follows (``optimized_metric``), else ``val/traj_rel_err``."""
     return next((cb.monitor for cb in trainer.checkpoint_callbacks if cb.monitor), None) or "val/traj_rel_err"

@@ -111,6 +111,7 @@ def validate(cfg: DictConfig, request: Request | None = None) -> Checked:
     if cfg.data.get("n_val") == 0 and str(cfg.optimized_metric).startswith("val/"):
         raise ConfigError(f"data.n_val=0 leaves no validation set for optimized_metric={cfg.optimized_metric}; "
                           f"allowed: data.n_val >= 1, or optimized_metric=train/loss")
+    check_validation(cfg)
     model = targets[cfg.model._target_]
     objective = cfg.objective or model.objectives[0]
     observation = cfg.get("observation")
@@ -118,6 +119,31 @@ def validate(cfg: DictConfig, request: Request | None = None) -> Checked:
         check_observation(targets[observation._target_], objective)
     check_model(cfg, model, objective, request)
     return Checked(_frozen(cfg), resolved, request, trusted, targets, model, objective)
+
+
+#: validation.criterion values (encons.module.TrainingModule.validation_step; none: no validation loop).
+CRITERIA = ("rollout", "objective", "none")
+
+
+def check_validation(cfg: DictConfig) -> None:
+    """``validation.every`` an integer >= 1 and ``validation.criterion`` one of ``CRITERIA``, and every
+    metric the run monitors (the best checkpoint's ``optimized_metric``, a plateau schedule's val/loss)
+    one that the criterion logs."""
+    every, criterion = cfg.validation.every, cfg.validation.criterion
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ConfigError(f"validation.every={every}; allowed: an integer >= 1 (epochs between validations)")
+    if criterion not in CRITERIA:
+        raise ConfigError(f"validation.criterion={criterion}; allowed: {', '.join(CRITERIA)}")
+    monitors = [cb.monitor for cb in (cfg.get("callbacks") or {}).values()
+                if isinstance(cb, DictConfig) and str(cb.get("monitor") or "").startswith("val/")]
+    if "plateau" in str((cfg.get("scheduler") or {}).get("_target_", "")).lower():
+        monitors.append("val/loss")
+    logged = {"rollout": ("val/loss", "val/traj_rel_err"), "objective": ("val/loss",), "none": ()}[criterion]
+    if missed := [m for m in monitors if m not in logged]:
+        raise ConfigError(f"validation.criterion={criterion} logs no {missed[0]}, which this run monitors "
+                          f"(optimized_metric or scheduler=plateau); allowed: "
+                          + (f"optimized_metric={' or '.join(logged)}" if logged else
+                             "validation.criterion=rollout or objective, or no monitor (~callbacks.best, scheduler=none)"))
 
 
 def _is_unset(cfg: DictConfig, key: str) -> bool:

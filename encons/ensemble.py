@@ -250,15 +250,17 @@ class EnsembleModule(pl.LightningModule):
                 torch.nn.utils.clip_grad_norm_(params, value)
 
     def on_train_epoch_end(self) -> None:
-        """Epoch schedulers, after validation (as Lightning orders them); a plateau on the member's own metric."""
+        """Epoch schedulers, after validation (as Lightning orders them); a plateau on the member's own metric,
+        in the epochs that validate (``validation.every``)."""
         metrics = self.trainer.callback_metrics
+        validated = (self.current_epoch + 1) % (self.trainer.check_val_every_n_epoch or 1) == 0
         for i in self.active:
             s = self.schedules[i]
             if s is None or s.interval != "epoch":
                 continue
             if s.monitor is None:
                 s.scheduler.step()
-            elif (key := f"seed{self.seeds[i]}/{s.monitor}") in metrics:
+            elif validated and (key := f"seed{self.seeds[i]}/{s.monitor}") in metrics:
                 s.scheduler.step(metrics[key])
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:

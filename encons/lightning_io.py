@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import os
+import time
 from typing import Any
 
 from lightning.fabric.plugins.io.torch_io import TorchCheckpointIO
@@ -20,12 +21,17 @@ class AtomicCheckpointIO(TorchCheckpointIO):
     checkpoint's own folder, fsync, rename. Lightning's own writer stages the file in the system's
     temporary folder and moves it (a copy across disks, which a full disk cuts short under the final
     name); here a full or read-only disk is one ``WriteError`` and the earlier checkpoint stays.
-    Reading and removing are Lightning's."""
+    Reading and removing are Lightning's. ``seconds``: the time spent writing so far
+    (``encons.callbacks.CostLine`` reads it)."""
+
+    seconds = 0.0
 
     def save_checkpoint(self, checkpoint: dict[str, Any], path: _PATH, storage_options: Any | None = None) -> None:
         if storage_options is not None:
             raise TypeError(f"{type(self).__name__}.save_checkpoint takes no storage_options")
+        start = time.perf_counter()
         save_checkpoint(checkpoint, path)
+        self.seconds += time.perf_counter() - start
 
 
 class CSVLogger(_CSVLogger):

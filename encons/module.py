@@ -53,7 +53,7 @@ class TrainingModule(pl.LightningModule):
                  objective: str | None = None, regulariser: Regulariser | None = None,
                  horizon: int = 4, observation: Observation | None = None, model_name: str | None = None,
                  evaluation: Evaluation | None = None, evaluators: Mapping[str, Evaluator] | None = None,
-                 recorded: Mapping[str, float] | None = None):
+                 recorded: Mapping[str, float] | None = None, validation: str = "rollout"):
         super().__init__()
         self.model_name = model_name  # the model's config name (hnn_angle, not the class HNN) for titles
         objective = objective or model.objectives[0]  # checked against model and observation by encons.config
@@ -67,6 +67,7 @@ class TrainingModule(pl.LightningModule):
         for evaluator in self.evaluators.values():
             evaluator.check(self)
         self.recorded = dict(recorded or {})
+        self.validation = validation  # validation.criterion: rollout | objective (none: Lightning runs no validation)
         self.test_metrics: dict[str, float] = {}
         self.test_curves: dict[str, np.ndarray] = {}  # per-step curves of the last test, saved beside the metrics
 
@@ -145,6 +146,12 @@ class TrainingModule(pl.LightningModule):
         return self.system.angle_entries(self.system.common_chart) if self.observation.identity else None
 
     def validation_step(self, batch: Batch, batch_idx: int) -> None:
+        """``validation.criterion``: rollout (val/loss, the rollout's L1, and val/traj_rel_err) or objective
+        (val/loss, the run's objective on the validation windows: a paper's own criterion, e.g. Santos et
+        al.'s one-step MSE, Lim & Kasim's derivative loss)."""
+        if self.validation == "objective":
+            self.log("val/loss", self.loss(batch), prog_bar=True, batch_size=len(batch["states"]), sync_dist=True)
+            return
         x, states = self.observe(batch)
         pred = self.predict(batch, states)
         tre = metrics.trajectory_relative_error(*self.compared(x, pred), self.horizon, self.compared_angles)
@@ -193,7 +200,7 @@ class TrainingModule(pl.LightningModule):
 
         A scheduler that takes ``total_steps`` gets Lightning's estimate for ``max_epochs`` and steps per
         optimiser step (a run stopped by ``max_time`` or ``max_steps`` ends before its decay does);
-        ``ReduceLROnPlateau`` steps each epoch on ``val/loss``; any other scheduler each epoch.
+        ``ReduceLROnPlateau`` steps after each validation (``validation.every``) on ``val/loss``; any other scheduler each epoch.
         """
         opt = self.optimizer(self.parameters())
         if self.scheduler is None:
@@ -203,7 +210,8 @@ class TrainingModule(pl.LightningModule):
             return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
         sched = self.scheduler(opt)
         if isinstance(sched, torch.optim.lr_scheduler.ReduceLROnPlateau):
-            return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "monitor": "val/loss"}}
+            return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "monitor": "val/loss",   # after each validation
+                                                        "frequency": self.trainer.check_val_every_n_epoch}}
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched}}
 
 

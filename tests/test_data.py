@@ -163,10 +163,10 @@ def test_user_file_trains_end_to_end(tmp_path, train_run):
 
 
 def test_val_batch_size_batches_the_same_validation_windows(tmp_path):
-    """``val_batch_size`` regroups the validation windows (null keeps ``batch_size``); training batches
+    """``val_batch_size`` regroups the validation windows (null: all in one batch); training batches
     and the windows themselves do not change."""
-    default, whole = make(tmp_path, chunk_len=21, batch_size=1), make(tmp_path, chunk_len=21, batch_size=1,
-                                                                         val_batch_size=128)
+    default, whole = make(tmp_path, chunk_len=21, batch_size=1, val_batch_size=1), make(tmp_path, chunk_len=21,
+                                                                                          batch_size=1)
     for dm in (default, whole):
         dm.prepare_data()
         dm.setup()

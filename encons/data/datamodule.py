@@ -4,7 +4,7 @@ Training yields windows of ``chunk_len`` states, drawn from ``(seed, epoch)`` so
 same windows as an uninterrupted one: ``windows="random"``, one per trajectory per epoch at a random
 start; ``"all"``, every window of every trajectory once per epoch, shuffled (a pass over all states, as a
 dataset of samples would make it; n_steps + 2 − chunk_len times the steps per epoch).
-Validation yields fixed windows, ``val_batch_size`` per batch (null: ``batch_size``; the validation loss is
+Validation yields fixed windows, ``val_batch_size`` per batch (null: all of them in one batch; the validation loss is
 their mean either way, so it only sets how many rollouts run side by side); test yields whole trajectories. Noise (σ = ``noise``) is
 added to training states only: validation and test compare rollouts with the clean simulated
 trajectories (for a loaded file, with what the file holds), so the validation error that sweeps,
@@ -121,7 +121,7 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
         self.n_steps, self.dt, self.noise, self.substeps = n_steps, dt, noise, substeps
         self.test_steps = test_steps or n_steps
         self.chunk_len, self.batch_size, self.seed = chunk_len, batch_size, seed
-        self.val_batch_size = val_batch_size or batch_size
+        self.val_batch_size = val_batch_size  # None: every validation window in one batch
         self.windows = windows
         self.objective, self.recording = objective, dict(recording or {})
         if path is not None:
@@ -202,9 +202,9 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
             self.arrays[name]["u"] = u.float()
         for name, obs in frames.items():
             self.arrays[name]["obs"] = obs
-        if self.objective in ("derivative", "acceleration"):
-            self.arrays["train"]["rates"] = self._rates(splits["train"], chart, served["train"],
-                                                        inputs.get("train")).float()
+        if self.objective in ("derivative", "acceleration"):  # validation too: validation.criterion=objective
+            for name in ("train", "val"):
+                self.arrays[name]["rates"] = self._rates(splits[name], chart, served[name], inputs.get(name)).float()
         if self.chunk_len > len(t):
             raise DataError(f"data.chunk_len={self.chunk_len} exceeds the {len(t)} states per trajectory; "
                             f"allowed: 2..{len(t)}")
@@ -248,7 +248,7 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
         return self._windows("train", True, self.batch_size)
 
     def val_dataloader(self) -> DataLoader:
-        return self._windows("val", False, self.val_batch_size)
+        return self._windows("val", False, self.val_batch_size or len(self._sampler("val", False)))
 
     def test_dataloader(self) -> DataLoader:
         arrays = self.arrays["test"]
