@@ -27,7 +27,7 @@ from pathlib import Path
 
 import torch
 
-from encons import api, ensemble, threads
+from encons import api, ensemble, stacked, threads
 from encons.build import build
 
 SMALL_DATA = ["data.n_val=2", "data.n_test=2", "logger=none"]
@@ -87,7 +87,7 @@ def measure(name: str, cell: list[str], ks: list[int], steps: int, repeats: int,
         module = ensemble._module(api.compose(*cell, *SMALL_DATA, output_dir=tempfile.mkdtemp(), cache_dir=cache),
                                   mods, list(range(k)), _Data(batch), None)
         if isinstance(module, ensemble.StackedEnsemble):
-            opt = mods[0].optimizer(module.stacked.parameters())
+            opt = stacked.optimizer(mods[0].optimizer, list(module.stacked.parameters()))
         else:
             opt = mods[0].optimizer([p for m in mods for p in m.parameters()])
         opts = [m.optimizer(m.parameters()) for m in mods]

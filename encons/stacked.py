@@ -22,6 +22,7 @@ be computed under ``vmap`` (data-dependent branches: LNN/GLNN's ``guarded_solve`
 from __future__ import annotations
 
 import copy
+import inspect
 from collections.abc import Sequence
 from typing import Any
 
@@ -91,6 +92,8 @@ class StackedModel(nn.Module):
         try:
             return super().__getattr__(name)
         except AttributeError:
+            if "template" not in self.__dict__:  # still being built
+                raise
             return getattr(self.__dict__["template"], name)
 
     def member_weights(self) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
@@ -144,6 +147,18 @@ class StackedTraining(TrainingModule):
         return self.loss(folded)
 
 
+def optimizer(partial: Any, params: list[Tensor]) -> torch.optim.Optimizer:
+    """The members' optimiser over the stacked weights, by its fused kernel where it has one (one pass over each
+    stacked tensor instead of one per operation; the same update up to rounding), else as configured."""
+    cls = partial.func if hasattr(partial, "func") else partial
+    if "fused" in inspect.signature(cls).parameters and "fused" not in getattr(partial, "keywords", {}):
+        try:
+            return partial(params, fused=True)
+        except (RuntimeError, ValueError):  # a device or dtype the kernel does not take
+            pass
+    return partial(params)
+
+
 def why_not(cfg: Any, members: Sequence[TrainingModule]) -> str | None:
     """Why the members cannot train stacked (None: they can), from the model, objective and settings alone."""
     member = members[0]
@@ -171,7 +186,7 @@ def probe(stacked: StackedTraining, members: Sequence[TrainingModule], batch: di
     try:
         got = stacked.member_losses(batch).detach()
     except Exception as err:  # noqa: BLE001 - any failure of the stacked forward sends the run down the loop path
-        return f"the stacked field failed under vmap ({type(err).__name__}: {str(err).splitlines()[0][:120]})"
+        return f"the stacked field failed ({type(err).__name__}: {str(err).splitlines()[0][:120]})"
     want = torch.stack([m.loss(batch).detach() for m in members])
     diff = ((got - want).abs() / want.abs().clamp_min(1e-12)).max()
     if not bool(diff <= rtol):
