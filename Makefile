@@ -21,10 +21,11 @@ test-fast:  ## unit and physics tests only, on all cores
 train:  ## e.g. make train ARGS="model=chnn system=gyroscope"
 	$(BIN)/python -m encons.train $(ARGS)
 
-bench:  ## speed per model (steps/s, peak memory, × floor, × naive), dataset generation, regulariser Jacobians, SyMo, pixels (frames/s), time to accuracy; tables in benchmarks/results/
+bench:  ## speed per model (steps/s, peak memory, × floor, × naive), dataset generation, regulariser Jacobians, SyMo, seed ensembles (× separate runs), pixels (frames/s), time to accuracy; tables in benchmarks/results/
 	$(BIN)/python benchmarks/speed.py --threads 1 $(ARGS)
 	$(BIN)/python benchmarks/jacobian_speed.py --threads 1
 	$(BIN)/python benchmarks/symo_speed.py --threads 1
+	$(BIN)/python benchmarks/ensemble_speed.py --threads 1
 	$(BIN)/python benchmarks/pixel_speed.py --threads 1
 	$(BIN)/python benchmarks/time_to_accuracy.py
 

@@ -6,14 +6,16 @@ backward, one optimiser step. "separate": each member alone (its own loss, backw
 them in turn: K separate runs in one process, without their K-fold Lightning overhead (which an ensemble
 saves too, so the ratio is a lower bound of a whole run's). "ensemble": the path ``encons.ensemble`` takes for
 the cell (``stacked``: one vmapped forward/backward and one AdamW over stacked weights; ``loop``: the members'
-losses in turn, one backward). Reported: member-steps per second and the ratio ensemble / separate at K
-members, fastest of ``--repeats`` interleaved rounds of ``--steps`` steps, one thread.
+losses in turn, one backward). Reported: member-steps per CPU second and the ratio ensemble / separate at K
+members, fastest of ``--repeats`` interleaved rounds of ``--steps`` steps, one thread (process CPU time, so
+that other processes on shared cores do not count).
 
 Cells (conf/profile): ``lim_kasim`` mass-spring NODE (2 × 200 softplus, derivative objective, one 30-state
 trajectory per batch), ``santos`` cart-pole NODE-RK4 at N_train = 8 (2 × 256 tanh, one-step objective, batch
 of one trajectory of 33 states), ``finzi`` gyroscope CHNN (3 × 200, batch 200 windows of 5; report only).
-Usage: ``python benchmarks/ensemble_speed.py [--cells lim_kasim santos finzi] [--members 1 2 4 8 16]
-[--steps 20] [--repeats 3] [--threads 1] [--out FILE.md]``.
+``--layers`` also times the network alone: ``vmap`` of ``functional_call`` against an ensemble dimension written
+into the layers (``baddbmm``). Usage: ``python benchmarks/ensemble_speed.py [--cells lim_kasim santos finzi]
+[--members 1 2 4 8 16] [--steps 20] [--repeats 3] [--threads 1] [--layers] [--out FILE.md]``.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from pathlib import Path
 
 import torch
 
-from encons import api, ensemble, threads
+from encons import api, ensemble, stacked, threads
 from encons.build import build
 
 SMALL_DATA = ["data.n_val=2", "data.n_test=2", "logger=none"]
@@ -69,11 +71,12 @@ def ensemble_step(module, opt, batch: dict) -> None:
 
 
 def timed(step, steps: int) -> float:
+    """Process CPU time per step (one thread: the step's own compute, steadier than wall time on shared cores)."""
     step()  # warm-up
-    start = time.perf_counter()
+    start = time.process_time()
     for _ in range(steps):
         step()
-    return (time.perf_counter() - start) / steps
+    return (time.process_time() - start) / steps
 
 
 def measure(name: str, cell: list[str], ks: list[int], steps: int, repeats: int, cache: str) -> list[dict]:
@@ -84,7 +87,7 @@ def measure(name: str, cell: list[str], ks: list[int], steps: int, repeats: int,
         module = ensemble._module(api.compose(*cell, *SMALL_DATA, output_dir=tempfile.mkdtemp(), cache_dir=cache),
                                   mods, list(range(k)), _Data(batch), None)
         if isinstance(module, ensemble.StackedEnsemble):
-            opt = mods[0].optimizer(module.stacked.parameters())
+            opt = stacked.optimizer(mods[0].optimizer, list(module.stacked.parameters()))
         else:
             opt = mods[0].optimizer([p for m in mods for p in m.parameters()])
         opts = [m.optimizer(m.parameters()) for m in mods]
@@ -99,6 +102,49 @@ def measure(name: str, cell: list[str], ks: list[int], steps: int, repeats: int,
         if module.path.startswith("loop"):
             print(f"  ({name}: {module.path})", flush=True)
     return rows
+
+
+def mlp_rows(ks: list[int], steps: int, repeats: int, width: int = 200, rows: int = 30, dim: int = 2) -> list[dict]:
+    """Forward + backward of the lim_kasim network (2 × ``width`` softplus MLP on ``rows`` states of ``dim``) for K
+    members three ways: K separate nets in turn; ``vmap`` of ``functional_call`` over stacked weights (what
+    ``encons.stacked`` does); an ensemble dimension written into the layers (``baddbmm`` on (K, in, out) weights)."""
+    from torch.func import functional_call, stack_module_state, vmap
+
+    from encons.models.networks import mlp
+
+    out = []
+    for k in ks:
+        nets = [mlp(dim, dim, width, 2) for _ in range(k)]
+        params, _ = stack_module_state(nets)
+        weights = [params[f"{i}.weight"].detach().transpose(1, 2).contiguous().requires_grad_() for i in (0, 2, 4)]
+        biases = [params[f"{i}.bias"].detach().unsqueeze(1).contiguous().requires_grad_() for i in (0, 2, 4)]
+        x = torch.randn(rows, dim)
+        xs = x.expand(k, rows, dim)
+
+        def separate():
+            for net in nets:
+                net(x).sum().backward()
+
+        def vmapped():
+            vmap(lambda p, x: functional_call(nets[0], p, (x,)), in_dims=(0, None))(params, x).sum().backward()
+
+        def dimension():
+            h = xs
+            for i, (w, b) in enumerate(zip(weights, biases)):
+                h = torch.baddbmm(b, h, w)
+                h = torch.nn.functional.softplus(h) if i < 2 else h
+            h.sum().backward()
+
+        best = {"separate": float("inf"), "vmap": float("inf"), "dimension": float("inf")}
+        for _ in range(repeats):
+            for name, fn in (("separate", separate), ("vmap", vmapped), ("dimension", dimension)):
+                best[name] = min(best[name], timed(fn, steps))
+        row = {"K": k, "separate ms": 1e3 * best["separate"], "vmap ms": 1e3 * best["vmap"],
+               "ensemble dimension ms": 1e3 * best["dimension"], "separate / vmap": best["separate"] / best["vmap"],
+               "separate / dimension": best["separate"] / best["dimension"]}
+        out.append(row)
+        print(" | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in row.values()), flush=True)
+    return out
 
 
 class _Data:
@@ -119,6 +165,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--layers", action="store_true", help="also time the network alone: vmap vs an ensemble dimension")
     args = parser.parse_args()
     threads.apply(args.threads)
     cache = tempfile.mkdtemp()
@@ -127,10 +174,17 @@ def main() -> None:
     rows = [r for name in args.cells
             for r in measure(name, CELLS[name], args.members, max(1, args.steps // (10 if name == "finzi" else 1)),
                              args.repeats, cache)]
+    tables = [(header, rows)]
+    if args.layers:
+        print("network alone (lim_kasim 2 × 200 softplus, 30 states), forward + backward:", flush=True)
+        layer_rows = mlp_rows(args.members, args.steps, args.repeats)
+        tables.append((list(layer_rows[0]), layer_rows))
     if args.out:
-        lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-        lines += ["| " + " | ".join(f"{r[h]:.3g}" if isinstance(r[h], float) else str(r[h]) for h in header) + " |"
-                  for r in rows]
+        lines = []
+        for head, body in tables:
+            lines += ["", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+            lines += ["| " + " | ".join(f"{r[h]:.3g}" if isinstance(r[h], float) else str(r[h]) for h in head) + " |"
+                      for r in body]
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text("\n".join(lines) + f"\n\n{torch.get_num_threads()} thread(s); command: python "
                             f"benchmarks/ensemble_speed.py {' '.join(__import__('sys').argv[1:])}\n")

@@ -326,7 +326,7 @@ class StackedEnsemble(EnsembleModule):
 
     def configure_optimizers(self):
         member = self.members[0]
-        opt = member.optimizer(self.stacked.parameters())
+        opt = stacking.optimizer(member.optimizer, list(self.stacked.parameters()))
         self.base_lr = [g["lr"] for g in opt.param_groups]
         self.schedules = [None] * len(self.members)
         if member.scheduler is None:

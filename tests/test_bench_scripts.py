@@ -14,13 +14,14 @@ BENCHMARKS = Path(__file__).parents[1] / "benchmarks"
 SMOKE = {
     "jacobian_speed.py": ["--dims", "2", "--batch", "8", "--hidden", "8", "--repeats", "1"],
     "symo_speed.py": ["--steps", "1", "--batch", "4"],
+    "ensemble_speed.py": ["--cells", "lim_kasim", "--members", "1", "2", "--steps", "1", "--repeats", "1"],
     "evaluation_floor.py": ["pendulum1", "2"],
     "pixel_speed.py": ["--steps", "1", "--videos", "2"],
     "time_to_accuracy.py": ["--runs", "node/pendulum2", "--max-epochs", "1", "debug=fast"],
     "speed.py": ["--systems", "pendulum2", "--models", "chnn", "--steps", "1", "--repeats", "1", "--naive-steps", "0",
                  "--compile", "--batch", "4", "--chunk", "3", "--hidden", "8", "--depth", "1"],
 }
-PRINTS = {"evaluation_floor.py": "geom_rel_err", "jacobian_speed.py": "vmap(jacrev)", "symo_speed.py": "E2ESyMo", "pixel_speed.py": "rollout frames/s",
+PRINTS = {"evaluation_floor.py": "geom_rel_err", "jacobian_speed.py": "vmap(jacrev)", "symo_speed.py": "E2ESyMo", "ensemble_speed.py": "lim_kasim | 2 | stacked", "pixel_speed.py": "rollout frames/s",
           "speed.py": "chnn", "time_to_accuracy.py": "node/pendulum2"}
 
 
