@@ -26,7 +26,7 @@ import copy
 import logging
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -93,10 +93,18 @@ def member_config(cfg: DictConfig, seed: int, output_dir: Path) -> DictConfig:
     return member
 
 
-def _monitor(cfg: DictConfig) -> tuple[str, str] | None:
+def _checkpointers(cfg: DictConfig, targets: Mapping[str, Any]) -> dict[str, DictConfig]:
+    """The callbacks of ``cfg`` that are Lightning ``ModelCheckpoint``s, by class (encons' ``BestCheckpoint`` is one)."""
+    from lightning.pytorch.callbacks import ModelCheckpoint
+
+    return {name: node for name, node in (cfg.get("callbacks") or {}).items() if isinstance(node, DictConfig)
+            and isinstance(cls := targets.get(str(node.get("_target_"))), type) and issubclass(cls, ModelCheckpoint)}
+
+
+def _monitor(cfg: DictConfig, targets: Mapping[str, Any]) -> tuple[str, str] | None:
     """The monitored metric and mode of the run's best-checkpoint callback (None: no monitored checkpoint)."""
-    for node in (cfg.get("callbacks") or {}).values():
-        if isinstance(node, DictConfig) and str(node.get("_target_", "")).endswith("ModelCheckpoint") and node.get("monitor"):
+    for node in _checkpointers(cfg, targets).values():
+        if node.get("monitor"):
             return str(node.monitor), str(node.get("mode", "min"))
     return None
 
@@ -294,7 +302,7 @@ class MemberCheckpoints(pl.Callback):
                 continue
             if old is None and math.isnan(value):
                 continue
-            path = self.dirs[i] / "checkpoints" / f"best-epoch{trainer.current_epoch:04d}.ckpt"
+            path = self.dirs[i] / "checkpoints" / f"best-epoch{trainer.current_epoch + 1:04d}.ckpt"  # from 1, as the log
             save_checkpoint({"epoch": trainer.current_epoch, "global_step": trainer.global_step,
                              "pytorch-lightning_version": pl.__version__,
                              "state_dict": module.members[i].state_dict(),
@@ -472,8 +480,8 @@ def train(cfg: DictConfig, summary: bool, request: Request, run_type: type,
     checked = [validate(c, request) for c in configs]  # the one validation pass per member
     ens_cfg = copy.deepcopy(cfg)
     with open_dict(ens_cfg):
-        ens_cfg.callbacks = {k: v for k, v in (cfg.get("callbacks") or {}).items()
-                             if not str(v.get("_target_", "")).endswith("ModelCheckpoint")}
+        kept = _checkpointers(cfg, checked[0].targets)
+        ens_cfg.callbacks = {k: v for k, v in (cfg.get("callbacks") or {}).items() if k not in kept}
         ens_cfg.trainer.gradient_clip_val = None
         ens_cfg.trainer.pop("gradient_clip_algorithm", None)
     trainer, loggers = build_trainer(ens_cfg, request)
@@ -489,7 +497,7 @@ def train(cfg: DictConfig, summary: bool, request: Request, run_type: type,
     for lg in loggers:
         lg.log_hyperparams(OmegaConf.to_container(run_config(cfg)))
     module = _module(cfg, members, seeds, data, stacked)
-    monitor = _monitor(cfg)
+    monitor = _monitor(cfg, checked[0].targets)
     if monitor is not None:
         trainer.callbacks.append(MemberCheckpoints(dirs, [OmegaConf.to_container(c) for c in saved], *monitor))
         keeper = trainer.callbacks[-1]
@@ -547,7 +555,7 @@ def _test_members(cfg, request, module, data, configs, saved, dirs, keeper, trai
             state = checkpoints.read(tested)
             member.load_state_dict(state["state_dict"])
             results[f"best/{keeper.monitor}"] = keeper.best[i][0]
-            results["best_epoch"] = float(state["epoch"])
+            results["best_epoch"] = float(state["epoch"] + 1)  # from 1, as the log counts
         if cfg.test:
             test_cfg = copy.deepcopy(c)
             with open_dict(test_cfg):
