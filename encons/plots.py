@@ -290,16 +290,25 @@ def energy_rmse_figure(summary: list[dict], paper: dict[str, dict], out_dir: Pat
     return [save_png(fig, out_dir / "energy_rmse.png")]
 
 
+def _control_panels(summary: list[dict], width: float):
+    """The rows of ``summary`` scored by ``encons.control`` by system, and a figure of one panel per system
+    (None: no such row)."""
+    entries = [e for e in summary if "test/control/success_rate" in e]
+    by_system = {system: [e for e in entries if e["system"] == system] for system in dict.fromkeys(e["system"] for e in entries)}
+    if not by_system:
+        return None
+    fig, axes = subplots(1, len(by_system), figsize=(width * len(by_system), 4), squeeze=False, sharey=True)
+    return fig, axes, by_system
+
+
 def control_success_figure(summary: list[dict], out_dir: Path) -> list[Path]:
     """Swing-up success rate per model (``encons.control``, mean ± std over seeds) beside the same
     controller built from the true model (oracle), one panel per system."""
-    entries = [e for e in summary if "test/control/success_rate" in e]
-    systems = list(dict.fromkeys(e["system"] for e in entries))
-    if not systems:
+    panels = _control_panels(summary, 4.5)
+    if panels is None:
         return []
-    fig, axes = subplots(1, len(systems), figsize=(4.5 * len(systems), 4), squeeze=False, sharey=True)
-    for ax, system in zip(axes[0], systems):
-        rows = [e for e in entries if e["system"] == system]
+    fig, axes, by_system = panels
+    for ax, (system, rows) in zip(axes[0], by_system.items()):
         x = torch.arange(len(rows), dtype=torch.float64)
         for offset, side, label in ((-0.2, "control", "controller from the learned model"),
                                     (0.2, "oracle", "same controller from the true model")):
@@ -605,13 +614,11 @@ def phase_portrait_figure(fields: tuple, system, out_dir: Path, title: str, poin
 def control_n_train_figure(summary: list[dict], out_dir: Path) -> list[Path]:
     """Swing-up success rate against the number of training trajectories per model (mean ± std over
     seeds), the oracle's (the same controller from the true model) as a dashed line, one panel per system."""
-    entries = [e for e in summary if "test/control/success_rate" in e]
-    systems = list(dict.fromkeys(e["system"] for e in entries))
-    if not systems:
+    panels = _control_panels(summary, 5)
+    if panels is None:
         return []
-    fig, axes = subplots(1, len(systems), figsize=(5 * len(systems), 4), squeeze=False, sharey=True)
-    for ax, system in zip(axes[0], systems):
-        rows = [e for e in entries if e["system"] == system]
+    fig, axes, by_system = panels
+    for ax, (system, rows) in zip(axes[0], by_system.items()):
         for k, model in enumerate(dict.fromkeys(e["model"] for e in rows)):
             line = sorted((e for e in rows if e["model"] == model), key=lambda e: e["n_train"])
             ax.errorbar([e["n_train"] for e in line], [e["test/control/success_rate"] for e in line],
