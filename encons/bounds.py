@@ -156,7 +156,7 @@ def _type_name(hint: Any) -> str:
     if hint is type(None):
         return "null"
     if hint is bool:
-        return "true or false"
+        return "true or false (a bool)"
     if typing.get_origin(hint) in (typing.Union, types.UnionType):
         return " or ".join(_type_name(h) for h in typing.get_args(hint))
     if typing.get_origin(hint) in (list, tuple, Sequence):

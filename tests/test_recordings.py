@@ -176,7 +176,7 @@ def test_a_boolean_option_refuses_a_word(tmp_path, monkeypatch):
     done = in_process("encons.train", ["system=from_file", f"system.path={path}", *MATLAB,
                                        "data.recording.resample=maybe", f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch)
     assert done.returncode != 0
-    assert done.stderr.strip() == "encons: error: data.recording.resample='maybe' has type str; allowed: true or false"
+    assert done.stderr.strip() == "encons: error: data.recording.resample='maybe' has type str; allowed: true or false (a bool)"
 
 
 def test_an_angle_shifted_by_2pi_gives_the_same_constant_baseline_metrics(tmp_path):
