@@ -110,9 +110,9 @@ def test_every_fenced_command_runs_in_a_test_or_is_documentation_only():
 
 @pytest.mark.slow
 def test_the_readme_small_sweep_runs_both_models(tmp_path, cli):
-    code, out, err = cli("-m", "model=node,hnn_angle", "system=pendulum1", "debug=fast",
-                         f"hydra.sweep.dir={tmp_path}/multirun", f"paths.cache_dir={tmp_path}/cache", cwd=tmp_path)
-    assert code == 0, err
+    done = cli("-m", "model=node,hnn_angle", "system=pendulum1", "debug=fast",
+               f"hydra.sweep.dir={tmp_path}/multirun", f"paths.cache_dir={tmp_path}/cache", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
     assert len(list((tmp_path / "multirun").glob("*/test_metrics.json"))) == 2
 
 

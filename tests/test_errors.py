@@ -260,8 +260,8 @@ def test_folders_of_loggers_and_callbacks_are_checked(tmp_path, overrides, key):
 
 
 def test_an_unlogged_optimized_metric_names_the_logged_ones(train_run):
-    with pytest.raises(ConfigError, match=r"optimized_metric='val/nope' is not a metric this run logs; "
-                                          r"allowed: .*val/traj_rel_err"):
+    with pytest.raises(ConfigError, match=r"validation.criterion=rollout logs no val/nope, which this run monitors "
+                                          r".*; allowed: .*val/traj_rel_err"):
         train_run(["model=node", "system=pendulum1", "trainer.max_epochs=1", "optimized_metric=val/nope"])
 
 

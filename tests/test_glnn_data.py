@@ -57,7 +57,7 @@ def test_recording_errors_are_one_line(tmp_path):
     path = index_recording(tmp_path / "rec.npz")
     with pytest.raises(ConfigError, match=r"data.recording.test_fractoin is not an option; allowed: test_fraction"):
         load_recording(path, 4, 5, {"test_fractoin": 0.3})
-    with pytest.raises(DataError, match=r"test part holds no unbroken stretch of 31 samples; allowed: a smaller data.test_steps"):
+    with pytest.raises(DataError, match=r"test part holds no unbroken stretch of 31 samples \(its longest holds 12; .*\); allowed: .*data.test_steps"):
         load_recording(path, 4, 30, {})
     np.savez(tmp_path / "odd.npz", t=np.array([0.0, 0.1, 0.2, 0.32, 0.42]), states=np.zeros((5, 2)))
     with pytest.raises(DataError, match=r"a step of 0.12 beside dt = 0.1"):
