@@ -46,7 +46,6 @@ def _assert_member_is(ens, seed, separate, folder):
 
 
 @pytest.mark.parametrize("model, system, path, extra", [
-    pytest.param("node", "pendulum1", "stacked", [], marks=pytest.mark.slow),
     pytest.param("node", "pendulum_control", "stacked", ["scheduler=plateau", "scheduler.patience=0"],
                  marks=pytest.mark.slow),  # controls; ReduceLROnPlateau on each member's own val/loss
     pytest.param("chnn", "gyroscope", "loop", [], marks=pytest.mark.slow),
