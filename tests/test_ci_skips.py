@@ -44,3 +44,19 @@ def test_the_summary_lists_each_reason_with_its_count_and_marks_the_disallowed(m
     conftest.pytest_terminal_summary(Reporter())
     assert lines == ["skip reasons", "   2 × no CUDA device on this machine",
                      "   1 × psycopg2 missing   <- not an allowed skip"]
+
+
+def test_an_expected_failure_is_not_counted_as_a_skip(monkeypatch):
+    """pytest reports an xfail as 'skipped' with ``wasxfail`` set: a strict xfail is an assertion, not a skip."""
+    monkeypatch.setattr(conftest, "_skips", Counter())
+
+    class Report:
+        skipped = True
+        longrepr = ("tests/test_x.py", 1, "Skipped: no CUDA device on this machine")
+
+    xfailed = Report()
+    xfailed.wasxfail = "chaotic: the floor is ~2e-2"
+    xfailed.longrepr = "AssertionError: 0.02 < 1e-6"
+    conftest.pytest_runtest_logreport(xfailed)
+    conftest.pytest_runtest_logreport(Report())
+    assert conftest._skips == Counter({"no CUDA device on this machine": 1})
