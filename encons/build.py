@@ -306,12 +306,13 @@ def _route_lightning_logs() -> None:
             lightning.removeHandler(handler)
 
 
+@declare("", figures=bool)
 @declare("trainer", max_epochs=Annotated[int, Range(ge=1, says="an integer >= 1")] | None, gradient_clip_val=NonNegative | None)
 def build_trainer(cfg: DictConfig | Checked, request: Request = Request()):
     """The Lightning Trainer of ``cfg.trainer`` with the configured loggers and callbacks (a plain config is
     validated first, and the folders made); every checkpoint it writes carries the resolved run config
     (``encons.checkpoints``) and is written atomically (``encons.lightning_io``); a test's results go to
-    ``cfg.paths.output_dir`` (``encons.callbacks.TestResults``)."""
+    ``cfg.paths.output_dir`` (``encons.callbacks.TestResults``; its figures unless ``figures=false``)."""
     from encons.callbacks import ProgressBar, RunConfigInCheckpoints, TestResults
     from encons.compat import drop_wandb_anonymous
     from encons.lightning_io import AtomicCheckpointIO
@@ -324,7 +325,7 @@ def build_trainer(cfg: DictConfig | Checked, request: Request = Request()):
     for lg in loggers:
         drop_wandb_anonymous(lg)
     callbacks = [instantiate_node(checked, f"callbacks.{name}") for name in (cfg.get("callbacks") or {})]
-    callbacks += [RunConfigInCheckpoints(checked.resolved), TestResults(cfg.paths.output_dir)]
+    callbacks += [RunConfigInCheckpoints(checked.resolved), TestResults(cfg.paths.output_dir, cfg.get("figures", True))]
     callbacks += [ProgressBar()] if cfg.trainer.get("enable_progress_bar", True) else []   # epochs from 1
     none = {"limit_val_batches": 0} if cfg.validation.criterion == "none" else {}  # validation.criterion=none
     trainer = instantiate_node(checked, "trainer", logger=loggers or False, callbacks=callbacks,

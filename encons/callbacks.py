@@ -211,16 +211,19 @@ class TestResults(pl.Callback):
     """The one writer of a test's results, after every evaluator (``encons.evaluators``) has scored:
     ``test_metrics.json`` and ``test_curves.npz`` (the module's merged ``test_metrics`` and ``test_curves``)
     and each evaluator's figures as ``figures/<stem>.png``, in ``output_dir``, each file atomically, once
-    per test, by the global-zero process; figures also go to loggers that take images (wandb)."""
+    per test, by the global-zero process; figures also go to loggers that take images (wandb). ``figures``
+    false (the run's ``figures=false``): metrics and curves only, no figure drawn."""
 
-    def __init__(self, output_dir: str | Path):
+    def __init__(self, output_dir: str | Path, figures: bool = True):
         self.output_dir = Path(output_dir)
+        self.figures = figures
 
     def on_test_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         if not trainer.is_global_zero:
             return
         paths = [plots.save_png(fig, self.output_dir / "figures" / f"{stem}.png", layout=False)
-                 for evaluator in module.evaluators.values() for stem, fig in evaluator.figures(module).items()]
+                 for evaluator in module.evaluators.values() for stem, fig in evaluator.figures(module).items()
+                 ] if self.figures else []
         for logger in trainer.loggers:
             plots.log_figures(logger, paths)
         write_json(self.output_dir / "test_metrics.json", module.test_metrics)

@@ -57,12 +57,13 @@ def cli(monkeypatch):
 
 @pytest.fixture
 def train_run(tmp_path):
-    """Run ``encons.api.train`` on a tiny config: ``train_run(["model=hnn", ...])`` -> metrics."""
+    """Run ``encons.api.train`` on a tiny config: ``train_run(["model=hnn", ...])`` -> metrics. Without figures
+    unless ``figures`` (drawing them costs ~3 s a run, most of a tiny run; the tests of figures ask for them)."""
     from encons import api
 
-    def run(overrides: list[str], name: str = "run", fast: bool = True) -> dict[str, float]:
-        cfg = api.compose(*(["debug=fast"] if fast else []), *overrides, output_dir=tmp_path / name,
-                          cache_dir=tmp_path / "cache")
+    def run(overrides: list[str], name: str = "run", fast: bool = True, figures: bool = False) -> dict[str, float]:
+        cfg = api.compose(*(["debug=fast"] if fast else []), f"figures={str(figures).lower()}", *overrides,
+                          output_dir=tmp_path / name, cache_dir=tmp_path / "cache")
         return api.train(cfg).metrics
 
     return run

@@ -28,7 +28,7 @@ def test_train_and_evaluate_report_identical_metrics_of_the_best_checkpoint(trai
 
 def test_longer_test_horizon_and_whole_trajectory_score(train_run, tmp_path):
     train_run(RUN, name="run")
-    short = api.evaluate(tmp_path / "run")
+    short = api.evaluate(tmp_path / "run", ["figures=true"])  # the run drew none (train_run); evaluate may
     longer = api.evaluate(tmp_path / "run", ["data.test_steps=40"])
     assert longer["test/traj_rel_err"] == pytest.approx(short["test/traj_rel_err"], rel=1e-5)  # first 4 steps
     assert longer["test/rel_err_final"] != short["test/rel_err_final"]

@@ -3,7 +3,8 @@
 - every model on every system of ``KINDS`` it can serve (one system per kind of physics: an angle
   chain, a rigid body, a plain oscillator, dissipation, friction, controls), the rest skipped with
   their reason;
-- every simulated system with the first catalogue model that can serve it.
+- every simulated system with the first catalogue model that can serve it, its figures drawn (the
+  model × system runs leave them out: drawing costs most of a tiny run).
 
 The full model × system product (~300 runs) costs more CI time than it catches beyond these two.
 """
@@ -36,11 +37,11 @@ def builds(model: str, system: str, tmp_path) -> str | None:
     return None
 
 
-def trains(train_run, model: str, system: str) -> None:
+def trains(train_run, model: str, system: str, figures: bool = False) -> None:
     overrides = [f"model={model}", f"system={system}"]
     if api.compose(f"system={system}", output_dir=".").get("evaluators", {}).get("santos"):
         overrides += ["evaluators.santos.steps=20", "evaluators.santos.n_trajectories=4"]  # §7's 500 × 16: minutes
-    results = train_run(overrides)  # a DivergenceError fails the test
+    results = train_run(overrides, figures=figures)  # a DivergenceError fails the test
     assert math.isfinite(results["test/traj_rel_err"])
     assert math.isfinite(results["best/val/traj_rel_err"])
 
@@ -64,4 +65,5 @@ def test_every_model_trains(train_run, tmp_path, model, system):
 def test_every_system_trains(train_run, tmp_path, system):
     model = next((m for m in api.catalogue("model") if builds(m, system, tmp_path) is None), None)
     assert model is not None, f"no catalogue model serves {system}"
-    trains(train_run, model, system)
+    trains(train_run, model, system, figures=True)  # each system's evaluators draw their figures once here
+    assert list((tmp_path / "run" / "figures").glob("*.png"))
