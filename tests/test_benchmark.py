@@ -141,7 +141,7 @@ def test_help_lists_the_profiles_and_trains_nothing(tmp_path, capsys):
     assert not any(tmp_path.iterdir())
 
 
-TINY_SANTOS = ['train=["data.n_val=2","data.n_test=2","model.hidden=8","trainer.max_epochs=1",'
+TINY_SANTOS = ['train=["figures=false","evaluation.rtol=1e-6","evaluation.atol=1e-8","data.test_steps=8","data.n_val=2","data.n_test=2","model.hidden=8","trainer.max_epochs=1",'
                '"evaluators.santos.steps=4","evaluators.santos.n_trajectories=2"]', "n_train=[2,4]",
                "per_n_train={}"]
 
@@ -175,7 +175,7 @@ def test_xiao_profile_at_smoke_size_writes_tables_3_4_and_mse_curves_and_resumes
     baseline on both systems, the paper's cell values beside accel_mse, state and energy MSE against time."""
     out, cache = tmp_path / "xiao", tmp_path / "cache"
     args = ["profile=xiao", f"out={out}", f"cache_dir={cache}",
-            'train=["data.n_train=2","data.n_val=1","data.n_test=2","data.n_steps=20","data.test_steps=30",'
+            'train=["figures=false","evaluation.rtol=1e-6","evaluation.atol=1e-8","data.n_train=2","data.n_val=1","data.n_test=2","data.n_steps=20","data.test_steps=30",'
             '"data.chunk_len=20","trainer.max_epochs=1"]']
     main(args)
     with (out / "results.csv").open() as f:
