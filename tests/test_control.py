@@ -99,7 +99,7 @@ def test_a_run_on_a_system_without_inputs_is_refused_in_one_line():
         control.learned_plant(HNNStructure(system), system, "encons.models.hnn.HNNStructure")
 
 
-FAST = ["debug=fast", "logger=none", "trainer.enable_progress_bar=false", "~evaluators/santos"]
+FAST = ["debug=fast", "figures=false", "logger=none", "trainer.enable_progress_bar=false", "~evaluators/santos"]
 
 
 @pytest.mark.slow

@@ -12,7 +12,7 @@ from tests.helpers import run_cli
 
 @pytest.mark.slow
 def test_glnn_size_grid_runs_every_width_and_depth(tmp_path):
-    proc = run_cli("-m", "sweeps=glnn_size", "debug=fast", "trainer.max_epochs=1",
+    proc = run_cli("-m", "sweeps=glnn_size", "debug=fast", "figures=false", "trainer.max_epochs=1",
                    "model.hidden=8,16", "model.depth=2,3",
                    cwd=tmp_path, env={"ENCONS_ROOT": str(tmp_path)})
     assert proc.returncode == 0, proc.stderr[-3000:]

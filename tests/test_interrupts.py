@@ -38,7 +38,7 @@ def _wait_for(path, text, proc, timeout=300):
 @pytest.mark.slow
 def test_sigterm_during_fit_exits_non_zero_prints_the_resume_command_and_resuming_continues(tmp_path):
     run = tmp_path / "run"
-    args = ["model=node", "system=pendulum1", "debug=fast", "trainer.max_epochs=30", f"hydra.run.dir={run}",
+    args = ["model=node", "system=pendulum1", "debug=fast", "figures=false", "trainer.max_epochs=30", f"hydra.run.dir={run}",
             f"paths.cache_dir={tmp_path / 'cache'}"]
     env = {**os.environ, "ENCONS_ROOT": str(tmp_path)}
     proc = subprocess.Popen([sys.executable, "-m", "encons.train", *args], cwd=tmp_path, env=env,

@@ -9,8 +9,9 @@ from encons import api
 
 
 def test_lnode_mse_train_and_mse_test_come_from_disjoint_splits(tmp_path):
-    cfg = api.compose("debug=fast", "model=lnode", "system=pendulum_control", output_dir=tmp_path / "run",
-                      cache_dir=tmp_path / "cache")
+    cfg = api.compose("debug=fast", "model=lnode", "system=pendulum_control", "figures=false",
+                      "evaluators.santos.steps=20", "evaluators.santos.n_trajectories=4",  # §7's 500 × 16: minutes
+                      output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
     run = api.train(cfg, summary=False)
     train, test = (run.data.arrays[k]["states"] for k in ("train", "test"))
     starts = torch.cdist(train[:, 0].double(), test[:, 0])  # test states are served in float64

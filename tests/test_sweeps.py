@@ -112,7 +112,7 @@ def test_model_grid_runs_every_model_and_seed(tmp_path):
 
 @pytest.mark.slow
 def test_shared_schedule_trains_every_model_under_the_swept_optimiser(tmp_path):
-    sweep(tmp_path, "sweeps=shared_schedule", "debug=fast", "trainer.max_epochs=1",
+    sweep(tmp_path, "sweeps=shared_schedule", "debug=fast", "figures=false", "trainer.max_epochs=1",
           "hydra.sweeper.params.model='node,chnn'", "optimizer.lr=3e-3")
     folder = next((tmp_path / "multirun" / "shared_schedule").iterdir())
     runs = {p.name: yaml.safe_load((p / ".hydra" / "config.yaml").read_text()) for p in folder.iterdir() if p.is_dir()}
