@@ -141,7 +141,7 @@ def test_help_lists_the_profiles_and_trains_nothing(tmp_path, capsys):
     assert not any(tmp_path.iterdir())
 
 
-TINY_SANTOS = ['train=["figures=false","evaluation.rtol=1e-6","evaluation.atol=1e-8","data.test_steps=8","data.n_val=2","data.n_test=2","model.hidden=8","trainer.max_epochs=1",'
+TINY_SANTOS = ['train=["figures=false","evaluation.rtol=1e-6","evaluation.atol=1e-8","data.n_val=2","data.n_test=2","model.hidden=8","trainer.max_epochs=1",'
                '"evaluators.santos.steps=4","evaluators.santos.n_trajectories=2"]', "n_train=[2,4]",
                "per_n_train={}"]
 

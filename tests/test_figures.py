@@ -118,7 +118,7 @@ def test_the_rollout_figure_draws_the_linear_ode_baseline_that_was_scored(train_
     fit, figures = metrics.fit_linear_ode, plots.rollout_figures
     monkeypatch.setattr(metrics, "fit_linear_ode", lambda *a, **k: fits.append(1) or fit(*a, **k))
     monkeypatch.setattr(plots, "rollout_figures", lambda *a, **k: drawn.append(k["baseline"]) or figures(*a, **k))
-    train_run(["model=node", "system=pendulum1"])
+    train_run(["model=node", "system=pendulum1"], figures=True)
     assert len(fits) == 1 and len(drawn) == 1 and torch.isfinite(drawn[0]).all()
 
 
