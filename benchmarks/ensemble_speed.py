@@ -14,8 +14,11 @@ Cells (conf/profile): ``lim_kasim`` mass-spring NODE (2 × 200 softplus, derivat
 trajectory per batch), ``santos`` cart-pole NODE-RK4 at N_train = 8 (2 × 256 tanh, one-step objective, batch
 of one trajectory of 33 states), ``finzi`` gyroscope CHNN (3 × 200, batch 200 windows of 5; report only).
 ``--layers`` also times the network alone: ``vmap`` of ``functional_call`` against an ensemble dimension written
-into the layers (``baddbmm``). Usage: ``python benchmarks/ensemble_speed.py [--cells lim_kasim santos finzi]
-[--members 1 2 4 8 16] [--steps 20] [--repeats 3] [--threads 1] [--layers] [--out FILE.md]``.
+into the layers (``baddbmm``). ``--split`` also splits one step at the largest K by ``torch.profiler`` into
+matrix products (``mm``/``addmm``/``bmm``/``baddbmm``: the arithmetic an ensemble cannot share), the optimiser
+step and the rest (per-call overhead), both ways: where the ensemble stands against its ceiling. Usage:
+``python benchmarks/ensemble_speed.py [--cells lim_kasim santos finzi] [--members 1 2 4 8 16] [--steps 20]
+[--repeats 3] [--threads 1] [--layers] [--split] [--out FILE.md]``.
 """
 
 from __future__ import annotations
@@ -79,7 +82,27 @@ def timed(step, steps: int) -> float:
     return (time.process_time() - start) / steps
 
 
-def measure(name: str, cell: list[str], ks: list[int], steps: int, repeats: int, cache: str) -> list[dict]:
+MATMUL = ("aten::mm", "aten::addmm", "aten::bmm", "aten::baddbmm")
+
+
+def split(step, steps: int) -> dict[str, float]:
+    """Self CPU time per step (ms) of ``step`` in matrix products, the optimiser step (its own ops) and the rest."""
+    from torch.profiler import ProfilerActivity, profile
+
+    step()
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for _ in range(steps):
+            step()
+    events = prof.key_averages()
+    total = sum(e.self_cpu_time_total for e in events)
+    matmul = sum(e.self_cpu_time_total for e in events if e.key in MATMUL)
+    optim = sum(e.cpu_time_total for e in events if e.key.startswith("Optimizer.step"))
+    return {"matmul": matmul / steps / 1e3, "optimiser": optim / steps / 1e3,
+            "rest": (total - matmul - optim) / steps / 1e3}
+
+
+def measure(name: str, cell: list[str], ks: list[int], steps: int, repeats: int, cache: str,
+            splits: list[dict] | None = None) -> list[dict]:
     rows = []
     pool, batch = members(cell, max(ks), cache)
     for k in ks:
@@ -101,6 +124,15 @@ def measure(name: str, cell: list[str], ks: list[int], steps: int, repeats: int,
         print(" | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in row.values()), flush=True)
         if module.path.startswith("loop"):
             print(f"  ({name}: {module.path})", flush=True)
+        if splits is not None and k == max(ks):
+            for way, fn in (("separate", lambda: separate_step(mods, opts, batch)),
+                            ("ensemble", lambda: ensemble_step(module, opt, batch))):
+                part = split(fn, steps)
+                total = sum(part.values())
+                splits.append({"cell": name, "K": k, "way": way, "ms per member-step": total / k,
+                               **{f"{p} share": v / total for p, v in part.items()}})
+                print(" | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in splits[-1].values()),
+                      flush=True)
     return rows
 
 
@@ -166,15 +198,19 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--layers", action="store_true", help="also time the network alone: vmap vs an ensemble dimension")
+    parser.add_argument("--split", action="store_true", help="also split one step at the largest K (torch.profiler)")
     args = parser.parse_args()
     threads.apply(args.threads)
     cache = tempfile.mkdtemp()
     header = ["cell", "K", "path", "separate member-steps/s", "ensemble member-steps/s", "ensemble / separate"]
     print(" | ".join(header), flush=True)
+    splits: list[dict] | None = [] if args.split else None
     rows = [r for name in args.cells
             for r in measure(name, CELLS[name], args.members, max(1, args.steps // (10 if name == "finzi" else 1)),
-                             args.repeats, cache)]
+                             args.repeats, cache, splits)]
     tables = [(header, rows)]
+    if splits:
+        tables.append((list(splits[0]), splits))
     if args.layers:
         print("network alone (lim_kasim 2 × 200 softplus, 30 states), forward + backward:", flush=True)
         layer_rows = mlp_rows(args.members, args.steps, args.repeats)
