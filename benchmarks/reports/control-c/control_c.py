@@ -1,6 +1,6 @@
 """Cart-pole / pendulum swing-up success per seed of a seed ensemble, per training setting (issue 38).
 
-    python benchmarks/control_c.py OUT.jsonl RUNS_DIR [name=o1;o2;... ...]
+    python benchmarks/reports/control-c/control_c.py OUT.jsonl RUNS_DIR [name=o1;o2;... ...]
 
 Each argument ``name=o1;o2;...`` trains ``python -m encons.train seeds=[0,1,2] <overrides>`` (``model=lnode
 system=cartpole`` unless the overrides name a model / system; overrides separated by ";") as one seed
