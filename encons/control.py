@@ -144,9 +144,17 @@ def learned_plant(model: torch.nn.Module, system: System, name: str) -> Plant:
                           f"needs; allowed: a run of {CONTROL_MODELS}")
     model = copy.deepcopy(model).double().eval().requires_grad_(False)
     b = model.input_matrix
-    upright = b(torch.zeros(len(system.angles), dtype=torch.float64)) if callable(b) else b
-    return Plant(model.mass, model.potential, upright,
-                 lambda s, u: forced_euler_lagrange(model.mass, model.potential, b, s, u), tuple(system.angles))
+    if not callable(b):
+        return Plant(model.mass, model.potential, b,
+                     lambda s, u: forced_euler_lagrange(model.mass, model.potential, b, s, u), tuple(system.angles))
+    # a learned g(q): (M, V, g) and (M, V, g)/c move alike, so the energy's scale is free; c = ⟨g(0), B⟩/⟨B, B⟩
+    # puts it in the system's units where the physics gives B (the energy pumping's gain assumes them)
+    upright, known = b(torch.zeros(len(system.angles), dtype=torch.float64)), system.input_matrix()
+    c = float((upright * known).sum() / known.square().sum())
+    mass, potential = (lambda q: model.mass(q) / c), (lambda q: model.potential(q) / c)
+    g = lambda q: b(q) / c
+    return Plant(mass, potential, upright / c,
+                 lambda s, u: forced_euler_lagrange(mass, potential, g, s, u), tuple(system.angles))
 
 
 def linearise(plant: Plant, m: int) -> tuple[Tensor, Tensor]:

@@ -126,3 +126,37 @@ def test_a_debug_sized_cartpole_lnode_with_per_step_inputs_and_learned_g_cuts_b_
             optimizer.step()
     after = linear_b_error(module.model, module.system)
     assert before > 0.5 and after <= before / 3, (before, after)
+
+
+@pytest.mark.parametrize("name,h", [("pendulum", 0.1), ("cartpole", 0.05)])
+def test_a_learned_input_matrix_model_scaled_by_c_gives_the_oracle_controller(name, h):
+    """(c M, c V, c B) moves like (M, V, B): the plant of a learned-g model is rescaled by ⟨g(0), B⟩/⟨B, B⟩, so
+    its energy pumping equals the oracle's, not c² times as aggressive."""
+    system, c = SYSTEMS[name](), 3.7
+    model = LNNStructure(system, hidden=16, depth=2, input_matrix="learned")
+    model.mass = ScaledMass(system, c)
+    model.potential = lambda q: c * system.potential(q)
+    model.input_matrix = ScaledInput(system, c)
+    learned = control.SwingUp(control.learned_plant(model, system, "LNNStructure"), system, h)
+    oracle = control.SwingUp(control.true_plant(system), system, h)
+    s = system.sample_initial(32, torch.Generator().manual_seed(5))
+    torch.testing.assert_close(learned.gain, oracle.gain, rtol=0, atol=1e-6)
+    torch.testing.assert_close(learned(s), oracle(s), rtol=0, atol=1e-6)
+
+
+class ScaledMass(TrueMass):
+    def __init__(self, system, c):
+        super().__init__(system)
+        self.c = c
+
+    def forward(self, q):
+        return self.c * self.system.mass_matrix(q)
+
+
+class ScaledInput(nn.Module):
+    def __init__(self, system, c):
+        super().__init__()
+        self.system, self.c = system, c
+
+    def forward(self, q):
+        return self.c * self.system.input_matrix().to(q).expand(*q.shape[:-1], -1, -1)
