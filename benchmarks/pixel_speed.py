@@ -10,8 +10,9 @@ per frame. Reported per latent model:
 - ``rollout frames/s``: the test pass (20 videos × 100 frames: encode, roll the latent out to
   t = 100, decode every frame, no gradient where the model allows), frames per second;
 and, once per system, the time to simulate and render the paper-size dataset (196 videos × 100 frames).
-Usage: ``python benchmarks/pixel_speed.py [--steps 5] [--threads 1] [--videos N]`` (``--videos``: N training,
-validation and test videos each instead of the paper's 160/16/20, for a smoke run).
+Usage: ``python benchmarks/pixel_speed.py [--steps 5] [--threads 1] [--videos N] [--frames F]`` (``--videos``: N
+training, validation and test videos each instead of the paper's 160/16/20; ``--frames``: F steps per video instead
+of 100; both for a smoke run).
 """
 
 from __future__ import annotations
@@ -46,8 +47,10 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=5)
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.threads' policy)")
     parser.add_argument("--videos", type=int, default=None)
+    parser.add_argument("--frames", type=int, default=None)
     args = parser.parse_args()
     sizes = [] if args.videos is None else [f"data.{k}={args.videos}" for k in ("n_train", "n_val", "n_test")]
+    sizes += [] if args.frames is None else [f"data.n_steps={args.frames}"]
     print(f"{'system':<24}{'model':<26}{'train frames/s':>15}{'rollout frames/s':>18}")
     with tempfile.TemporaryDirectory() as tmp:
         generated = set()

@@ -16,7 +16,7 @@ SMOKE = {
     "symo_speed.py": ["--steps", "1", "--batch", "4"],
     "ensemble_speed.py": ["--cells", "lim_kasim", "--members", "1", "2", "--steps", "1", "--repeats", "1"],
     "evaluation_floor.py": ["pendulum1", "2"],
-    "pixel_speed.py": ["--steps", "1", "--videos", "2"],
+    "pixel_speed.py": ["--steps", "1", "--videos", "2", "--frames", "10"],
     "time_to_accuracy.py": ["--runs", "node/pendulum2", "--max-epochs", "1", "debug=fast"],
     "control_b.py": None, "control_b_curve.py": None, "profile_costs.py": None, "structure_figures.py": None,  # report makers (not smoke-run)
     "speed.py": ["--systems", "pendulum2", "--models", "chnn", "--steps", "1", "--repeats", "1", "--naive-steps", "0",
