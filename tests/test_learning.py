@@ -34,7 +34,8 @@ def test_hnn_drifts_less_in_energy_than_node(train_run):
     """Lim & Kasim Task 1 protocol at a tiny budget: 462-step test rollouts of the mass-spring."""
     budget = ["system=mass_spring", "logger=none", "data.n_train=64", "data.n_val=8", "data.n_test=16",
               "data.batch_size=16", "model.hidden=32", "model.depth=2", "trainer.max_epochs=15",
-              "objective=derivative", "optimizer.lr=1e-2", "trainer.enable_progress_bar=false"]
+              "objective=derivative", "optimizer.lr=1e-2", "trainer.enable_progress_bar=false",
+              "evaluation.rtol=1e-7", "evaluation.atol=1e-9"]  # a floor far below both models' errors, at 1/3 the cost
     hnn = train_run(["model=hnn", *budget], name="hnn", fast=False)
     node = train_run(["model=node", *budget], name="node", fast=False)
     assert hnn["test/energy_rmse_median"] * 3 < node["test/energy_rmse_median"], (hnn, node)
