@@ -13,10 +13,10 @@ install:  ## fresh virtual environment: CPU torch first (pinned), then encons wi
 	$(BIN)/pip install -q -e ".[dev]"
 
 test:  ## every test, fast tier and the end-to-end, DDP, PostgreSQL and wheel tests (marked slow), on all cores; what CI runs
-	$(BIN)/python -m pytest -n auto
+	$(BIN)/python -m pytest -n auto --dist worksteal
 
 test-fast:  ## unit and physics tests only, on all cores
-	$(BIN)/python -m pytest -n auto -m "not slow"
+	$(BIN)/python -m pytest -n auto --dist worksteal -m "not slow"
 
 train:  ## e.g. make train ARGS="model=chnn system=gyroscope"
 	$(BIN)/python -m encons.train $(ARGS)

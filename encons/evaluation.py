@@ -7,10 +7,10 @@ in the model's chart (``TrueField``), rolled out by the same ``rollout`` from th
 scored by the same metrics: the error the evaluation itself contributes, beside every model.
 
 Default: Dormand–Prince 5(4) (torchdiffeq ``dopri5``) at rtol 1e-10, atol 1e-12 in float64, chosen
-by measurement (docs/metrics.md): the true field then scores geom_rel_err ≤ 3e-7 against the
+by measurement (docs/metrics.md): the true field then scores geom_rel_err ≤ 3.1e-7 against the
 simulated test trajectories of every non-chaotic system of ``conf/system`` over its test horizon (the
 data's own RK4 error is most of it; Lim & Kasim's double pendulum is chaotic over its 100 s horizon, so
-its floor is that error amplified, ~2e-2: the strict xfail in tests/test_evaluation.py), where RK4 at the data dt (the training integrator) scored up to 1.1e-4
+its floor is that error amplified, 5e-3: benchmarks/reports/evaluation-floor), where RK4 at the data dt (the training integrator) scored up to 1.1e-4
 (gyroscope, Cartesian) — above the published errors it was compared with — and even 16 RK4 steps per
 dt scored 3.7e-5 (Lim & Kasim's pendulum, Cartesian, 462 steps). An adaptive method also adapts to the
 learned field it integrates; the true fields took 2–20 dopri5 steps per data dt (46–121 evaluations).
