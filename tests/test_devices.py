@@ -1,6 +1,6 @@
 """Every tensor a model, system, metric or integrator creates follows its inputs' device and dtype:
-one training step (loss and backward) of every catalogue model on four simulated systems (one per
-code path: rigid body, angle chart with dissipation, controls, pixels) where it can serve them, on the ``meta`` device (devices, dtypes and shapes only: a tensor created on the
+one training step (loss and backward) of every catalogue model on three simulated systems (one per
+code path: a rigid body in both charts, controls, pixels) where it can serve them, on the ``meta`` device (devices, dtypes and shapes only: a tensor created on the
 CPU beside meta ones fails the step) and, where present, on every simulated system on CUDA (``gpu``
 mark), its loss compared with the CPU's.
 
@@ -25,10 +25,10 @@ from tests.helpers import simulated_systems
 
 FLAGSHIP = "gyroscope"
 SYSTEMS = [s if s == FLAGSHIP else pytest.param(s, marks=pytest.mark.slow) for s in simulated_systems()]
-#: On meta: a rigid body in Cartesian coordinates, an angle chart with dissipation, controls and pixels; the
-#: other systems repeat the code paths of these (the models are the same classes), at ~25 s each.
+#: On meta: a rigid body in both charts, controls and pixels; the other systems repeat the code paths of these
+#: (the models are the same classes), at ~25 s each.
 META_SYSTEMS = [s for s in SYSTEMS if (s if isinstance(s, str) else s.values[0]) in
-                {"gyroscope", "damped_pendulum", "pendulum_control", "pixel_pendulum"}]
+                {"gyroscope", "pendulum_control", "pixel_pendulum"}]
 
 
 def meta_odeint(func, y0, t, method="rk4", options=None, **_):

@@ -20,7 +20,7 @@ STATE_SYSTEMS = [s for s in simulated_systems()
 #: minutes of ground-truth simulation and dopri5 each; the whole horizons are measured by
 #: ``benchmarks/evaluation_floor.py --long`` (benchmarks/reports/evaluation-floor/), where Lim & Kasim's chaotic
 #: double pendulum parts from the data (~2e-2 over 100 s).
-STEPS = 60
+STEPS = 30
 
 
 def simulated_test_set(name: str, n: int = 8, steps: int | None = STEPS):
