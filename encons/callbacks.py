@@ -221,9 +221,9 @@ class TestResults(pl.Callback):
     def on_test_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         if not trainer.is_global_zero:
             return
+        drawing = module.evaluators.values() if self.figures else ()
         paths = [plots.save_png(fig, self.output_dir / "figures" / f"{stem}.png", layout=False)
-                 for evaluator in module.evaluators.values() for stem, fig in evaluator.figures(module).items()
-                 ] if self.figures else []
+                 for evaluator in drawing for stem, fig in evaluator.figures(module).items()]
         for logger in trainer.loggers:
             plots.log_figures(logger, paths)
         write_json(self.output_dir / "test_metrics.json", module.test_metrics)

@@ -58,7 +58,8 @@ def cli(monkeypatch):
 @pytest.fixture
 def train_run(tmp_path):
     """Run ``encons.api.train`` on a tiny config: ``train_run(["model=hnn", ...])`` -> metrics. Without figures
-    unless ``figures`` (drawing them costs ~3 s a run, most of a tiny run; the tests of figures ask for them)."""
+    unless ``figures`` (drawing them is ~2.6 s of a 3.4 s tiny run, benchmarks/reports/figures; the tests of
+    figures ask for them)."""
     from encons import api
 
     def run(overrides: list[str], name: str = "run", fast: bool = True, figures: bool = False) -> dict[str, float]:

@@ -18,6 +18,10 @@ from omegaconf import OmegaConf
 from encons import api
 
 
+#: Santos et al. §7's integration (500 steps × 16 starts: minutes) at a size a tiny run can afford.
+SANTOS_TINY = ["evaluators.santos.steps=20", "evaluators.santos.n_trajectories=4"]
+
+
 def run_cli(*args: str, cwd: Path | None = None, env: dict | None = None) -> subprocess.CompletedProcess:
     """``python -m encons.train ARGS`` in a subprocess; returns the completed process."""
     return subprocess.run([sys.executable, "-m", "encons.train", *args], capture_output=True, text=True,

@@ -11,11 +11,10 @@ import torch
 
 from encons import api, ensemble
 from encons.errors import ConfigError
+from tests.helpers import SANTOS_TINY
 
 TINY = ["debug=fast", "logger=csv", "trainer.enable_progress_bar=false", "trainer.enable_model_summary=false",
         "evaluation.method=rk4", "data.n_test=2", "figures=false"]
-#: Santos et al. §7's integration (500 steps × 16 starts) at a size the comparison needs, not minutes.
-SANTOS = ["evaluators.santos.steps=20", "evaluators.santos.n_trajectories=4"]
 
 
 @pytest.fixture(scope="module")
@@ -48,11 +47,11 @@ def _assert_member_is(ens, seed, separate, folder):
 
 
 @pytest.mark.parametrize("model, system, path, extra", [
-    pytest.param("node", "pendulum_control", "stacked", ["scheduler=plateau", "scheduler.patience=0", *SANTOS],
+    pytest.param("node", "pendulum_control", "stacked", ["scheduler=plateau", "scheduler.patience=0", *SANTOS_TINY],
                  marks=pytest.mark.slow),  # controls; ReduceLROnPlateau on each member's own val/loss
     pytest.param("chnn", "gyroscope", "loop", [], marks=pytest.mark.slow),
     pytest.param("lnn", "pendulum2", "loop", [], marks=pytest.mark.slow),
-    pytest.param("e2e_symo", "pendulum_control", "loop", SANTOS, marks=pytest.mark.slow),
+    pytest.param("e2e_symo", "pendulum_control", "loop", SANTOS_TINY, marks=pytest.mark.slow),
     pytest.param("glnn", "damped_oscillator", "loop", [], marks=pytest.mark.slow),
 ])
 def test_members_equal_their_separate_runs(tmp_path, run, model, system, path, extra):

@@ -6,11 +6,12 @@ from __future__ import annotations
 import torch
 
 from encons import api
+from tests.helpers import SANTOS_TINY
 
 
 def test_lnode_mse_train_and_mse_test_come_from_disjoint_splits(tmp_path):
     cfg = api.compose("debug=fast", "model=lnode", "system=pendulum_control", "figures=false",
-                      "evaluators.santos.steps=20", "evaluators.santos.n_trajectories=4",  # §7's 500 × 16: minutes
+                      *SANTOS_TINY,
                       output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
     run = api.train(cfg, summary=False)
     train, test = (run.data.arrays[k]["states"] for k in ("train", "test"))

@@ -9,9 +9,10 @@ import pytest
 import torch
 
 from encons.errors import ConfigError
+from tests.helpers import SANTOS_TINY
 
 SANTOS_KEYS = ("mse_train", "mse_test", "mse_integration", "energy_mse_integration")
-TINY = ["evaluators.santos.steps=20", "evaluators.santos.n_trajectories=4", "data.chunk_len=3"]
+TINY = [*SANTOS_TINY, "data.chunk_len=3"]
 
 
 @pytest.mark.slow

@@ -19,7 +19,7 @@ import math
 import pytest
 from encons import api
 from encons.errors import ConfigError
-from tests.helpers import simulated_systems
+from tests.helpers import SANTOS_TINY, simulated_systems
 
 KINDS = ["gyroscope", "damped_pendulum", "pendulum_control"]
 
@@ -31,7 +31,7 @@ def _santos(system: str) -> bool:
 
 def composed(model: str, system: str, tmp_path, figures: bool = False):
     """The tiny run of ``model`` on ``system``, composed once for the build check and the training."""
-    extra = ["evaluators.santos.steps=20", "evaluators.santos.n_trajectories=4"] if _santos(system) else []  # §7: minutes
+    extra = SANTOS_TINY if _santos(system) else []
     return api.compose("debug=fast", f"figures={str(figures).lower()}", f"model={model}", f"system={system}", *extra,
                        output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
 
