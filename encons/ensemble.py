@@ -367,7 +367,7 @@ class StackedEnsemble(EnsembleModule):
         active = self.active
         if not active:
             return
-        mask = torch.zeros(len(self.members), dtype=torch.bool)
+        mask = torch.zeros(len(self.members), dtype=torch.bool, device=losses.device)
         mask[active] = True
         self.log("train/loss", losses.detach()[mask].mean(), prog_bar=True, batch_size=size)
         opt.zero_grad()

@@ -86,7 +86,7 @@ def energy_deviation_rmse(pred_energy: Tensor, true_energy: Tensor) -> Tensor:
 
 def percentiles(values: Tensor, qs: tuple[float, ...] = (0.025, 0.5, 0.975)) -> list[float]:
     """Quantiles of a 1-D tensor (the median with 2.5/97.5 percentiles by default)."""
-    return torch.quantile(values.double(), torch.tensor(qs, dtype=torch.float64)).tolist()
+    return torch.quantile(values.double(), torch.tensor(qs, dtype=torch.float64, device=values.device)).tolist()
 
 
 DIVERGED_ENERGY_ERROR = 1e10  # |E(ŝ_t) − E(s_t)| at which a rollout counts as diverged (in the system's units)
@@ -198,7 +198,9 @@ def fit_linear_ode(states: Tensor, dt: float) -> Tensor:
     """
     rates = torch.gradient(states, spacing=dt, dim=-2, edge_order=2)[0]
     features = torch.cat([states, torch.ones_like(states[..., :1])], -1).reshape(-1, states.shape[-1] + 1)
-    coeffs = torch.linalg.lstsq(features, rates.reshape(-1, states.shape[-1]), driver="gelsd").solution
+    # On the CPU: CUDA's lstsq has only `gels` (full rank), not the minimum-norm `gelsd`; the fit is (D+1)-wide.
+    coeffs = torch.linalg.lstsq(features.cpu(), rates.reshape(-1, states.shape[-1]).cpu(), driver="gelsd").solution
+    coeffs = coeffs.to(states.device)
     return torch.cat([coeffs.T, torch.zeros_like(coeffs[:, :1].T)], 0)
 
 

@@ -38,9 +38,9 @@ from encons.io import atomic_open, write_text
 
 
 def print_summary(title: str, results: dict[str, float], output_dir: Path, note: str = "",
-                  console: bool = True, files: str = "checkpoints/, figures/, test_metrics.json") -> None:
+                  console: bool = True) -> None:
     """One table of the run's validation and test metrics, ``note`` (which weights were tested) and
-    where its files are, on the console (unless ``console`` is false) and in the run's log files
+    where its files are (those of checkpoints/, figures/ and test_metrics.json that it holds), on the console (unless ``console`` is false) and in the run's log files
     (``train.log`` under the CLI)."""
     table = Table(title=title)
     table.add_column("metric")
@@ -52,7 +52,9 @@ def print_summary(title: str, results: dict[str, float], output_dir: Path, note:
     out.print(table)
     if note:
         out.print(note)
-    out.print(f"outputs: {output_dir}  ({files})")
+    held = [f"{name}/" if (output_dir / name).is_dir() else name for name in ("checkpoints", "figures", "test_metrics.json")
+            if (output_dir / name).is_file() or ((output_dir / name).is_dir() and any((output_dir / name).iterdir()))]
+    out.print(f"outputs: {output_dir}" + (f"  ({', '.join(held)})" if held else ""))
     to_log_files(out.export_text())
 
 

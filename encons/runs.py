@@ -331,7 +331,7 @@ def evaluate(run: Run | str | Path, overrides: Iterable[str] = (), ckpt: str = "
     run.metrics = {f"test/{k}": v for k, v in run.module.test_metrics.items()}
     note = (f"tested: {run.checkpoint.name if run.checkpoint else 'in-memory weights'}; "
             f"{run.module.evaluation.describe()}; {horizon_note(run.module, run.data)}")
-    print_summary(run.module.run_title(), run.metrics, out, note=note, files="figures/, test_metrics.json")
+    print_summary(run.module.run_title(), run.metrics, out, note=note)
     return run.metrics
 
 

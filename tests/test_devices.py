@@ -92,12 +92,32 @@ def test_training_step_on_meta(system, cache, monkeypatch):
 @pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
 @pytest.mark.parametrize("system", SYSTEMS)
-def test_training_step_on_cuda_matches_cpu(system, cache):
+def test_training_step_on_cuda_matches_cpu(system, cache, monkeypatch):
+    """The GPU's loss is as close to the CPU's float64 loss as 4× the CPU's own float32 error (at least 1e-3
+    relative): the Lagrangian models' Hessian solves on an untrained pixel latent are near-singular (lnn_structure
+    17 % from float64 in float32 on the CPU, glnn 1e6 against 1e13; 2026-11-27), where no tighter match exists."""
+    monkeypatch.setattr(torch.backends.cudnn, "allow_tf32", False)  # PyTorch's default TF32 convolutions: ~1e-3
     for model, data, module in built_pairs(system, cache, "cuda"):
         batch = next(iter(data.train_dataloader()))
         on_gpu = copy.deepcopy(module).to("cuda")
-        cpu_loss = step_loss(module, batch)
+        cpu_loss = step_loss(module, batch).detach()
+        exact = step_loss(copy.deepcopy(module).double(),
+                          {k: v.double() if v.is_floating_point() else v for k, v in batch.items()}).detach()
         gpu_loss = step_loss(on_gpu, {k: v.to("cuda") for k, v in batch.items()})
         gpu_loss.backward()
         assert gpu_loss.device.type == "cuda", model
-        torch.testing.assert_close(gpu_loss.cpu(), cpu_loss.detach(), rtol=1e-3, atol=1e-5, msg=model)
+        if not torch.isfinite(cpu_loss):  # no reference: the CPU's float32 step fails too
+            continue
+        tol = max(1e-3 * float(exact.abs()), 4 * float((cpu_loss.double() - exact).abs()))
+        assert abs(float(gpu_loss) - float(exact)) <= tol, (model, float(gpu_loss), float(cpu_loss), float(exact))
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
+@pytest.mark.parametrize("seeds", [None, "[0,1]"], ids=["one model", "ensemble"])
+def test_a_run_trains_and_tests_on_cuda(seeds, train_run):
+    """The whole run on the GPU, as ``trainer.accelerator=gpu`` gives it: the training loop (an ensemble's
+    manual step too), the dopri5 test and its metrics (a step alone missed tensors made on the CPU there)."""
+    extra = [] if seeds is None else [f"seeds={seeds}"]
+    metrics = train_run(["model=node", "system=gyroscope", "trainer.accelerator=gpu", *extra])
+    assert torch.isfinite(torch.tensor(metrics["test/traj_rel_err"])), metrics
