@@ -178,8 +178,8 @@ def run_ensemble(members: list[PlannedRun], out: Path, cache_dir: str | None, co
     by_seed = {m.seed: m for m in members}
     ens_dir = out / "runs" / f"{first.cell}-seeds{'-'.join(map(str, seeds))}"
     cfg = compose(["trainer.enable_model_summary=false", *overrides, f"seeds={json.dumps(seeds)}"], ens_dir, cache_dir)
-    for m in members:
-        shutil.rmtree(finished(m, out).parent / "checkpoints", ignore_errors=True)  # an ensemble starts afresh
+    for folder in [ens_dir, *(finished(m, out).parent for m in members)]:  # an interrupted ensemble starts afresh
+        shutil.rmtree(folder / "checkpoints", ignore_errors=True)
     started = time.perf_counter()
     try:
         with runs.log_file(ens_dir / "train.log"):
