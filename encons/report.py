@@ -40,8 +40,8 @@ from encons.io import atomic_open, write_text
 def print_summary(title: str, results: dict[str, float], output_dir: Path, note: str = "",
                   console: bool = True) -> None:
     """One table of the run's validation and test metrics, ``note`` (which weights were tested) and
-    where its files are (those of checkpoints/, figures/ and test_metrics.json that it holds), on the console (unless ``console`` is false) and in the run's log files
-    (``train.log`` under the CLI)."""
+    where its files are (those of checkpoints/, figures/ and test_metrics.json that it holds), on the console
+    (unless ``console`` is false) and in the run's log files (``train.log`` under the CLI)."""
     table = Table(title=title)
     table.add_column("metric")
     table.add_column("value", justify="right")
@@ -52,8 +52,13 @@ def print_summary(title: str, results: dict[str, float], output_dir: Path, note:
     out.print(table)
     if note:
         out.print(note)
-    held = [f"{name}/" if (output_dir / name).is_dir() else name for name in ("checkpoints", "figures", "test_metrics.json")
-            if (output_dir / name).is_file() or ((output_dir / name).is_dir() and any((output_dir / name).iterdir()))]
+    held = []
+    for name in ("checkpoints", "figures", "test_metrics.json"):
+        path = output_dir / name
+        if path.is_file():
+            held.append(name)
+        elif path.is_dir() and any(path.iterdir()):
+            held.append(f"{name}/")
     out.print(f"outputs: {output_dir}" + (f"  ({', '.join(held)})" if held else ""))
     to_log_files(out.export_text())
 

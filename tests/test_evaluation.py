@@ -19,7 +19,7 @@ STATE_SYSTEMS = [s for s in simulated_systems()
 #: Steps of the test horizon checked here: Lim & Kasim's and Xiao et al.'s horizons of 462–4759 steps cost
 #: minutes of ground-truth simulation and dopri5 each; the whole horizons are measured by
 #: ``benchmarks/evaluation_floor.py --long`` (benchmarks/reports/evaluation-floor/), where Lim & Kasim's chaotic
-#: double pendulum parts from the data (~2e-2 over 100 s).
+#: double pendulum parts from the data (5e-3 over 100 s).
 STEPS = 30
 
 
