@@ -77,6 +77,12 @@ ALLOWED_SKIPS = ("no CUDA device", "needs a machine without a GPU", "declared in
 _skips: Counter = Counter()
 
 
+def pytest_collection_modifyitems(items):
+    """The slow tests first (a stable sort, the same on every xdist worker): the minute-long ones then start
+    while there is work left to steal, instead of one of them running alone at the end (CI: 2 workers)."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 def pytest_runtest_logreport(report):
     if report.skipped and not hasattr(report, "wasxfail"):  # an expected failure reports as skipped: not a skip
         longrepr = report.longrepr

@@ -7,14 +7,13 @@ import json
 import pytest
 
 from encons.report import write_sweep_report
-from tests.helpers import run_cli
 
 
 @pytest.mark.slow
-def test_glnn_size_grid_runs_every_width_and_depth(tmp_path):
-    proc = run_cli("-m", "sweeps=glnn_size", "debug=fast", "figures=false", "trainer.max_epochs=1",
-                   "model.hidden=8,16", "model.depth=2,3",
-                   cwd=tmp_path, env={"ENCONS_ROOT": str(tmp_path)})
+def test_glnn_size_grid_runs_every_width_and_depth(tmp_path, cli, monkeypatch):
+    monkeypatch.setenv("ENCONS_ROOT", str(tmp_path))
+    proc = cli("-m", "sweeps=glnn_size", "debug=fast", "figures=false", "trainer.max_epochs=1",
+               "model.hidden=8,16", "model.depth=2,3", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
     folder = next((tmp_path / "multirun" / "glnn_size-damped_oscillator").iterdir())
     results = {p.name: json.loads((p / "test_metrics.json").read_text()) for p in folder.iterdir() if p.is_dir()}

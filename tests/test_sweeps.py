@@ -23,8 +23,17 @@ NODE = ["model=node", *TINY]
 PNG = b"\x89PNG"
 
 
-def sweep(tmp_path: Path, *args: str) -> str:
-    proc = run_cli("-m", *args, cwd=tmp_path, env={"ENCONS_ROOT": str(tmp_path)})
+@pytest.fixture
+def cli(cli, tmp_path, monkeypatch):
+    """The in-process CLI with the encons root at ``tmp_path``, as :func:`sweep`'s real process has it."""
+    monkeypatch.setenv("ENCONS_ROOT", str(tmp_path))
+    return cli
+
+
+def sweep(tmp_path: Path, *args: str, cli=None) -> str:
+    """A multirun's stdout: in this process through the ``cli`` fixture when given, else a real process."""
+    proc = (cli("-m", *args, cwd=tmp_path) if cli is not None
+            else run_cli("-m", *args, cwd=tmp_path, env={"ENCONS_ROOT": str(tmp_path)}))
     assert proc.returncode == 0, proc.stderr[-3000:]
     return proc.stdout
 
@@ -34,9 +43,9 @@ def stored(folder: Path, study: str) -> list[optuna.trial.FrozenTrial]:
 
 
 @pytest.mark.slow
-def test_sweep_reports_its_best_trial_and_a_rerun_continues_the_study(tmp_path):
+def test_sweep_reports_its_best_trial_and_a_rerun_continues_the_study(tmp_path, cli):
     args = [*NODE, "sweeps=chnn_tuning", "hydra.sweeper.n_trials=2"]
-    out = sweep(tmp_path, *args)
+    out = sweep(tmp_path, *args, cli=cli)
     folder = tmp_path / "multirun" / "chnn_tuning-pendulum1-node"
     trials = stored(folder, "chnn_tuning-pendulum1-node")
     assert [t.state for t in trials] == [TrialState.COMPLETE] * 2
@@ -50,7 +59,7 @@ def test_sweep_reports_its_best_trial_and_a_rerun_continues_the_study(tmp_path):
     for name in ("optimization_history.png", "param_importances.png"):
         assert (folder / name).read_bytes()[:4] == PNG
 
-    sweep(tmp_path, *args)  # the same command again continues the stored study
+    sweep(tmp_path, *args, cli=cli)  # the same command again continues the stored study
     trials = stored(folder, "chnn_tuning-pendulum1-node")
     assert [t.number for t in trials] == list(range(4))
     assert all(t.state == TrialState.COMPLETE for t in trials)
@@ -99,9 +108,9 @@ def test_pruned_and_diverged_trials_are_recorded_and_wandb_logs_every_trial_offl
 
 
 @pytest.mark.slow
-def test_model_grid_runs_every_model_and_seed(tmp_path):
+def test_model_grid_runs_every_model_and_seed(tmp_path, cli):
     sweep(tmp_path, *TINY, "sweeps=model_grid", "hydra.sweeper.params.model='node,hnn'", "hydra.sweeper.params.seed='0,1'",
-          "trainer.max_epochs=1")
+          "trainer.max_epochs=1", cli=cli)
     folder = next((tmp_path / "multirun" / "model_grid-pendulum1").iterdir())
     runs = {p.name: yaml.safe_load((p / ".hydra" / "config.yaml").read_text()) for p in folder.iterdir() if p.is_dir()}
     assert sorted(runs) == ["hnn-seed0", "hnn-seed1", "node-seed0", "node-seed1"]
@@ -111,9 +120,9 @@ def test_model_grid_runs_every_model_and_seed(tmp_path):
 
 
 @pytest.mark.slow
-def test_shared_schedule_trains_every_model_under_the_swept_optimiser(tmp_path):
+def test_shared_schedule_trains_every_model_under_the_swept_optimiser(tmp_path, cli):
     sweep(tmp_path, "sweeps=shared_schedule", "debug=fast", "figures=false", "trainer.max_epochs=1",
-          "hydra.sweeper.params.model='node,chnn'", "optimizer.lr=3e-3")
+          "hydra.sweeper.params.model='node,chnn'", "optimizer.lr=3e-3", cli=cli)
     folder = next((tmp_path / "multirun" / "shared_schedule").iterdir())
     runs = {p.name: yaml.safe_load((p / ".hydra" / "config.yaml").read_text()) for p in folder.iterdir() if p.is_dir()}
     assert sorted(runs) == ["chnn-cosine-lr0.003-ep1", "chnn-none-lr0.003-ep1", "node-cosine-lr0.003-ep1",

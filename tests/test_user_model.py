@@ -48,7 +48,7 @@ def user_project(tmp_path):
 
 
 @pytest.mark.slow
-def test_user_model_trains_through_the_cli(user_project):
+def test_user_model_trains_through_the_cli(user_project, cli):
     root, env = user_project
     args = ["model=linear", "system=pendulum1", *TINY, f"hydra.searchpath=[file://{root / 'myconf'}]",
             f"hydra.run.dir={root / 'run'}"]
@@ -58,15 +58,14 @@ def test_user_model_trains_through_the_cli(user_project):
     assert metrics["traj_rel_err"] > 0
     assert "linear on pendulum1" in proc.stdout
 
-    untrusted = run_cli(*args[:-1], f"hydra.run.dir={root / 'run2'}", cwd=root, env=env)
+    # refused on the string, before any import: no trust variable, so no run (in this process)
+    untrusted = cli(*args[:-1], f"hydra.run.dir={root / 'run2'}", cwd=root)
     assert untrusted.returncode == 2 and "Traceback" not in untrusted.stderr
     assert ("encons: error: model._target_='mypkg.linear.Linear' is not a trusted target; allowed: encons.*"
             in untrusted.stderr)
 
 
-@pytest.mark.slow
-def test_a_missing_target_gives_one_line(user_project):
-    root, env = user_project
-    proc = run_cli("model=node", "model._target_=encons.models.node.Nope", "debug=fast", cwd=root, env=env)
+def test_a_missing_target_gives_one_line(cli, tmp_path):
+    proc = cli("model=node", "model._target_=encons.models.node.Nope", "debug=fast", cwd=tmp_path)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and "encons.models.node.Nope" in proc.stderr, proc.stderr
