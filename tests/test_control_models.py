@@ -7,13 +7,14 @@ from __future__ import annotations
 import pytest
 import torch
 from torch import nn
-from torch.func import jvp
+from torch.func import jvp, vjp
 
 from encons import control
 from encons.errors import ConfigError
 from encons.models.hnn import HNNStructure
 from encons.models.lnn import LNNStructure
 from encons.models.lnode import LNode, forced_euler_lagrange
+from encons.models.networks import AngleEmbedding, embed_angles
 from encons.models.symo import SyMo
 from encons.systems.controlled import CartPole, ControlledPendulum
 
@@ -26,11 +27,14 @@ def states_and_inputs(system, n=16):
     return s, u
 
 
+@pytest.mark.parametrize("angular", [False, True], ids=["raw", "angular"])
 @pytest.mark.parametrize("kind", ["known", "learned"])
 @pytest.mark.parametrize("name", SYSTEMS)
-def test_lnn_structure_field_under_inputs_is_the_forced_euler_lagrange_field_of_its_own_m_v_g(name, kind):
+def test_lnn_structure_field_under_inputs_is_the_forced_euler_lagrange_field_of_its_own_m_v_g(name, kind, angular):
+    """The closed-form field (the embedding's own jvp/vjp; on the cart-pole θ on S¹ and x as it is) equals
+    autodiff of q ↦ M(q), V(q) through ``embed_angles``."""
     system = SYSTEMS[name]()
-    model = LNNStructure(system, hidden=16, depth=2, input_matrix=kind).double()
+    model = LNNStructure(system, hidden=16, depth=2, input_matrix=kind, angular=angular).double()
     s, u = states_and_inputs(system)
     expected = forced_euler_lagrange(model.mass, model.potential, model.input_matrix, s, u)
     torch.testing.assert_close(model(torch.zeros(()), s, u), expected, rtol=1e-9, atol=1e-9)
@@ -38,12 +42,13 @@ def test_lnn_structure_field_under_inputs_is_the_forced_euler_lagrange_field_of_
     assert (expected - free).abs().max() > 1e-3   # u moves it
 
 
+@pytest.mark.parametrize("angular", [False, True], ids=["raw", "angular"])
 @pytest.mark.parametrize("kind", ["known", "learned"])
 @pytest.mark.parametrize("name", SYSTEMS)
-def test_hnn_structure_momentum_rate_under_inputs_is_the_forced_euler_lagrange_one(name, kind):
+def test_hnn_structure_momentum_rate_under_inputs_is_the_forced_euler_lagrange_one(name, kind, angular):
     """ṗ of the (q, p) field equals d/dt (M(q) q̇) = Ṁ q̇ + M q̈ with q̈ of eq. (4) for the model's M, V, g."""
     system = SYSTEMS[name]()
-    model = HNNStructure(system, hidden=16, depth=2, input_matrix=kind).double()
+    model = HNNStructure(system, hidden=16, depth=2, input_matrix=kind, angular=angular).double()
     s, u = states_and_inputs(system)
     q, qd = s.chunk(2, -1)
     field = model(torch.zeros(()), model.to_internal(s), u)
@@ -83,8 +88,35 @@ def test_input_matrix_is_checked_in_one_line():
         LNode(CartPole(), hidden=8, input_matrix="true")
     with pytest.raises(ConfigError, match=r"^model.input_matrix=learned for SyMo; allowed: known"):
         SyMo(CartPole(), hidden=8, input_matrix="learned")
-    with pytest.raises(ConfigError, match=r"^model.angular=true on system=cartpole"):
-        HNNStructure(CartPole(), hidden=8, angular=True)
+
+
+@pytest.mark.parametrize("mask", [True, False, (False, True), (True, False, True), (True, True)])
+def test_the_angle_embeddings_closed_form_derivatives_equal_autodiff(mask):
+    """``AngleEmbedding``'s x, jvp and vjp against torch.func on ``embed_angles``, angles anywhere in q."""
+    q = torch.randn(5, 2 if isinstance(mask, bool) else len(mask), dtype=torch.float64)
+    embedding = AngleEmbedding(q, mask)
+    x, x_dot = jvp(lambda v: embed_angles(v, mask), (q,), (t := torch.randn_like(q),))
+    torch.testing.assert_close(embedding.x, x, rtol=0, atol=0)
+    torch.testing.assert_close(embedding.jvp(t), x_dot, rtol=1e-12, atol=1e-12)
+    g = torch.randn_like(x)
+    (expected,) = vjp(lambda v: embed_angles(v, mask), q)[1](g)
+    torch.testing.assert_close(embedding.vjp(g), expected, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("cls", [HNNStructure, LNNStructure])
+def test_angular_on_the_cartpole_puts_the_pole_on_the_circle_and_leaves_the_cart_on_the_line(cls):
+    """``angular=true`` embeds the system's angles only: M, V and the field are 2π-periodic in θ, not in x."""
+    model = cls(CartPole(), hidden=16, depth=2, angular=True).double()
+    assert model.angular == (False, True)
+    s, u = states_and_inputs(CartPole())
+    turn = torch.tensor([0.0, 2 * torch.pi, 0.0, 0.0], dtype=s.dtype)
+    shift = torch.tensor([2 * torch.pi, 0.0, 0.0, 0.0], dtype=s.dtype)
+    q = s[..., :2]
+    torch.testing.assert_close(model.potential(q + turn[:2]), model.potential(q), rtol=1e-9, atol=1e-9)
+    torch.testing.assert_close(model.mass(q + turn[:2]), model.mass(q), rtol=1e-9, atol=1e-9)
+    field = model(torch.zeros(()), model.to_internal(s), u)
+    torch.testing.assert_close(model(torch.zeros(()), model.to_internal(s + turn), u), field, rtol=1e-9, atol=1e-9)
+    assert (model.potential(q + shift[:2]) - model.potential(q)).abs().max() > 1e-4
 
 
 def test_a_system_without_inputs_gets_no_input_network():

@@ -130,6 +130,9 @@ class DiscreteModel(DynamicsModel):
 
 
 def angle_mask(system: System, angular: bool) -> bool | tuple[bool, ...]:
-    """Which coordinates the networks embed on S¹ when ``angular``: the system's ``angles``, all when it
-    declares none."""
-    return tuple(system.angles) if angular and system.angles is not None else angular
+    """Which coordinates the networks embed on S¹ when ``angular``: the system's ``angles`` (a bool when they
+    are all alike: the same layout), all when it declares none."""
+    if not angular or system.angles is None:
+        return angular
+    mask = tuple(bool(a) for a in system.angles)
+    return mask[0] if len(set(mask)) == 1 else mask

@@ -282,27 +282,44 @@ def embed_angles(q: Tensor, angular: Angular) -> Tensor:
 
 
 class AngleEmbedding:
-    """``embed_angles(q, angular)`` for a bool ``angular`` (``x``), with cos q and sin q computed once
-    for its forward (``jvp``) and reverse (``vjp``) derivatives."""
+    """``embed_angles(q, angular)`` (``x``), with cos and sin of the angles computed once for its forward
+    (``jvp``) and reverse (``vjp``) derivatives. A per-coordinate ``angular`` (e.g. the cart-pole's
+    (False, True)) keeps the translations first, unchanged, as ``embed_angles`` does."""
 
-    def __init__(self, q: Tensor, angular: bool):
+    def __init__(self, q: Tensor, angular: Angular):
         self.angular = angular
-        if angular:
-            self.cos, self.sin = torch.cos(q), torch.sin(q)
-            self.x = torch.cat([self.cos, self.sin], -1)
+        if isinstance(angular, bool):
+            self.linear, self.angles = ([], slice(None)) if angular else (slice(None), [])
         else:
+            self.linear = [i for i, a in enumerate(angular) if not a]
+            self.angles = [i for i, a in enumerate(angular) if a]
+            self.order = torch.tensor(self.linear + self.angles, device=q.device).argsort()  # [lin, ang] -> q order
+        if angular is False:
             self.x = q
+            return
+        angles = q[..., self.angles]
+        self.cos, self.sin = torch.cos(angles), torch.sin(angles)
+        self.x = torch.cat([q[..., self.linear], self.cos, self.sin], -1) if self.linear else \
+            torch.cat([self.cos, self.sin], -1)
 
     def jvp(self, tangent: Tensor) -> Tensor:
         """∂embed_angles(q)/∂q · t for tangents t (..., n)."""
-        return torch.cat([-self.sin * tangent, self.cos * tangent], -1) if self.angular else tangent
+        if self.angular is False:
+            return tangent
+        angles = tangent[..., self.angles]
+        parts = [-self.sin * angles, self.cos * angles]
+        return torch.cat([tangent[..., self.linear], *parts] if self.linear else parts, -1)
 
     def vjp(self, cotangent: Tensor) -> Tensor:
         """gᵀ ∂embed_angles(q)/∂q for cotangents g on the embedding."""
-        if not self.angular:
+        if self.angular is False:
             return cotangent
-        cos, sin = cotangent.chunk(2, -1)
-        return self.cos * sin - self.sin * cos
+        if isinstance(self.angular, bool):
+            cos, sin = cotangent.chunk(2, -1)
+            return self.cos * sin - self.sin * cos
+        k = len(self.linear)
+        cos, sin = cotangent[..., k:].chunk(2, -1)
+        return torch.cat([cotangent[..., :k], self.cos * sin - self.sin * cos], -1)[..., self.order]
 
 
 def embedded_width(n: int, angular: Angular) -> int:

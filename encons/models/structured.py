@@ -5,15 +5,15 @@ from __future__ import annotations
 from torch import Tensor
 
 from encons.bounds import Count
-from encons.errors import ConfigError
 from encons.models import inputs
-from encons.models.base import DynamicsModel
+from encons.models.base import DynamicsModel, angle_mask
 from encons.models.networks import CholeskyMass, Potential
 from encons.systems.base import System
 
 
 class MassPotentialModel(DynamicsModel):
-    """Learns the Cholesky factor L(q) of M(q) (``mass``: ``forward``/``solve``) and V(q); "-angle" via ``angular``.
+    """Learns the Cholesky factor L(q) of M(q) (``mass``: ``forward``/``solve``) and V(q); "-angle" via ``angular``
+    (the system's angles on S¹, translations such as the cart's position as they are).
 
     ``shared_trunk=True`` (default): one ``depth`` × ``hidden`` network with n(n+1)/2 + 1 outputs
     gives L(q) and V(q), so a field evaluation runs one network instead of two (about half the
@@ -29,10 +29,7 @@ class MassPotentialModel(DynamicsModel):
                  activation: str = "softplus", mass_eps: float = 1e-3, angular: bool = False,
                  shared_trunk: bool = True, input_matrix: str = "known"):
         super().__init__(system, chart)
-        if angular and system.angles is not None and not all(system.angles):
-            raise ConfigError(f"model.angular=true on system={system.name}, whose coordinates are not all angles "
-                              f"{tuple(system.angles)}; allowed: false (this model embeds every coordinate on S¹)")
-        self.angular, self.shared_trunk = angular, shared_trunk
+        self.angular, self.shared_trunk = angle_mask(system, angular), shared_trunk
         self.mass = CholeskyMass(self.n, self.angular, hidden, depth, activation, mass_eps, extra=int(shared_trunk))
         if not shared_trunk:
             self.potential_net = Potential(self.n, self.angular, hidden, depth, activation)
