@@ -52,6 +52,8 @@ def _assert_member_is(ens, seed, separate, folder):
     pytest.param("chnn", "gyroscope", "loop", [], marks=pytest.mark.slow),
     pytest.param("lnn", "pendulum2", "loop", [], marks=pytest.mark.slow),
     pytest.param("e2e_symo", "pendulum_control", "loop", SANTOS_TINY, marks=pytest.mark.slow),
+    pytest.param("e2e_symo", "pendulum_control", "loop", [*SANTOS_TINY, "trainer.gradient_clip_val=0.01"],
+                 marks=pytest.mark.slow, id="e2e_symo-clipped"),   # the control profile's clipping, per member
     pytest.param("glnn", "damped_oscillator", "loop", [], marks=pytest.mark.slow),
 ])
 def test_members_equal_their_separate_runs(tmp_path, run, model, system, path, extra):
