@@ -17,8 +17,11 @@ def built(tmp_path, *overrides: str):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("model, system", [("chnn", "gyroscope"), ("lnn", "pendulum2")])
+@pytest.mark.parametrize("model, system", [("lnn", "pendulum2")])
 def test_compiled_rollout_loss_and_gradients_equal_eager(tmp_path, model, system):
+    """LNN: the family with compile-only code (``layer_curvature``'s plain expression under torch.compile).
+    Each case costs 80–90 s of inductor's C++ builds on a cold cache (CI's; chnn on the gyroscope 79 s, LNN
+    90 s, one core at load 3), so CI runs this one; ``("chnn", "gyroscope")`` passes too when added here."""
     data, compiled = built(tmp_path, f"model={model}", f"system={system}", "compile=true")
     _, eager = built(tmp_path, f"model={model}", f"system={system}")
     eager.model.load_state_dict(compiled.model.state_dict())
