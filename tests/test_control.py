@@ -162,7 +162,7 @@ def test_control_profile_lists_the_energy_models_with_inputs_on_both_systems_per
         assert ("system.inputs=steps" in r.overrides) == (r.system == "cartpole")
         assert ("trainer.max_epochs=300" in r.overrides) == (r.system == "cartpole" or r.label == "symo")  # control-c
         assert ("trainer.gradient_clip_val=1.0" in r.overrides) == (r.label == "e2e_symo")  # control-c: seed 1
-        assert "model.angular=true" in r.overrides  # every model embeds the angles (control-c, control-32)
+        assert "model.angular=true" in r.overrides  # every model embeds the angles (control-c, control)
         assert ("model.input_matrix=learned" in r.overrides) == r.label.endswith("learned_g")
 
 
