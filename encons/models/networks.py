@@ -288,15 +288,15 @@ class AngleEmbedding:
 
     def __init__(self, q: Tensor, angular: Angular):
         self.angular = angular
-        if isinstance(angular, bool):
-            self.linear, self.angles = ([], slice(None)) if angular else (slice(None), [])
+        if angular is False:
+            self.x = q
+            return
+        if angular is True:
+            self.linear, self.angles = [], slice(None)  # a slice: no gathered copy of q
         else:
             self.linear = [i for i, a in enumerate(angular) if not a]
             self.angles = [i for i, a in enumerate(angular) if a]
             self.order = torch.tensor(self.linear + self.angles, device=q.device).argsort()  # [lin, ang] -> q order
-        if angular is False:
-            self.x = q
-            return
         angles = q[..., self.angles]
         self.cos, self.sin = torch.cos(angles), torch.sin(angles)
         self.x = torch.cat([q[..., self.linear], self.cos, self.sin], -1) if self.linear else \
