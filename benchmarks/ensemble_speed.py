@@ -67,7 +67,7 @@ def separate_step(mods: list, opts: list, batch: dict) -> None:
 def ensemble_step(module, opt, batch: dict) -> None:
     opt.zero_grad(set_to_none=True)
     if isinstance(module, ensemble.StackedEnsemble):
-        module.stacked.member_losses(batch).sum().backward()
+        sum(x for x in module.stacked.member_losses(batch) if x is not None).sum().backward()
     else:
         sum(m.loss(batch) for m in module.members).backward()
     opt.step()

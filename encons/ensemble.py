@@ -327,9 +327,10 @@ class StackedEnsemble(EnsembleModule):
         super().__init__(members, seeds, clip)
         m = members[0]
         self.path = "stacked"
-        self.stacked = stacking.StackedTraining(stacking.StackedModel([x.model for x in members]), m.system, m.dt, m.integrator,
-                                       m.optimizer, m.scheduler, objective=m.objective, horizon=m.horizon,
-                                       model_name=m.model_name)
+        model = stacking.StackedModel([x.model for x in members], dimension=m.regulariser is None)
+        self.stacked = stacking.StackedTraining(model, m.system, m.dt, m.integrator, m.optimizer, m.scheduler,
+                                                objective=m.objective, regulariser=m.regulariser, horizon=m.horizon,
+                                                model_name=m.model_name)
         self.factors: list[Any] = []  # per member: a one-parameter optimiser whose lr its plateau scheduler moves
 
     def configure_optimizers(self):
@@ -355,11 +356,14 @@ class StackedEnsemble(EnsembleModule):
 
     def training_step(self, batch: dict, batch_idx: int) -> None:
         opt = self.optimizers()
-        losses = self.stacked.member_losses(batch)
+        objective, penalty = self.stacked.member_losses(batch)
+        losses = objective if penalty is None else objective + penalty
         size = len(batch["states"])
         finite = torch.isfinite(losses.detach())
-        for i in self.active:
-            self.log(f"seed{self.seeds[i]}/train/loss", losses[i].detach(), batch_size=size)
+        for i in self.active:  # as each member's own training_step logs them
+            self.log(f"seed{self.seeds[i]}/train/loss", objective[i].detach(), batch_size=size)
+            if penalty is not None:
+                self.log(f"seed{self.seeds[i]}/train/regulariser", penalty[i].detach(), batch_size=size)
             if not bool(finite[i]):
                 self.diverged[i] = (f"training diverged: loss is {float(losses[i])} at epoch {self.current_epoch}, "
                                     f"step {self.global_step}")

@@ -88,7 +88,7 @@ def rollout(model: DynamicsModel, start: Tensor, t: Tensor, integrator: Integrat
             z = odeint(model, model.to_internal(start), t, **options)
         else:
             z = odeint_held(model, model.to_internal(start), t, u.to(start), **options)
-        return torch.cat([start.unsqueeze(0), model.from_internal(z[1:])]).movedim(0, -2)
+        return torch.cat([start.unsqueeze(-2), model.from_internal(z[1:].movedim(0, -2))], -2)  # batch-major rows
 
 
 def state_derivative(model: DynamicsModel, s: Tensor, u: Tensor | None = None) -> Tensor:

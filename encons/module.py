@@ -105,14 +105,11 @@ class TrainingModule(pl.LightningModule):
         return OBJECTIVES[self.objective](self, batch)
 
     def training_step(self, batch: Batch, batch_idx: int) -> Tensor:
-        u, size = batch.get("u"), len(batch["states"])
+        size = len(batch["states"])
         loss = self.loss(batch)
         self.log("train/loss", loss, prog_bar=True, batch_size=size)
-        if self.regulariser is not None:  # at the (encoded) states, detached: it shapes the field, not the encoder
-            with torch.no_grad():
-                points = self.observe(batch)[1]
-            u = None if u is None else u[:, : points.shape[1]]
-            penalty = self.regulariser(self.model, points.flatten(0, 1), None if u is None else u.flatten(0, 1))
+        penalty = self.penalty(batch)
+        if penalty is not None:
             self.log("train/regulariser", penalty, batch_size=size)
             loss = loss + penalty
         if not torch.isfinite(loss):
@@ -120,6 +117,21 @@ class TrainingModule(pl.LightningModule):
                 f"training diverged: loss is {loss.item()} at epoch {self.current_epoch + 1}, step "
                 f"{self.global_step}; {self._kept_checkpoint()}; allowed: a lower optimizer.lr (or a larger model.mass_eps / model.guard where the model has one)")
         return loss
+
+    def penalty(self, batch: Batch) -> Tensor | None:
+        """The regulariser's weighted penalty (None: no regulariser) at the batch's (encoded) states, detached:
+        it shapes the field, not the encoder."""
+        if self.regulariser is None:
+            return None
+        with torch.no_grad():
+            points = self.observe(batch)[1]
+        u = batch.get("u")
+        u = None if u is None else u[:, : points.shape[1]].flatten(0, 1)
+        return self.regularise(points.flatten(0, 1), u)
+
+    def regularise(self, points: Tensor, u: Tensor | None) -> Tensor:
+        """The regulariser on the model at ``points`` (B, 2n) under inputs ``u`` (B, m) or None."""
+        return self.regulariser(self.model, points, u)
 
     def _kept_checkpoint(self) -> str:
         """What a diverged run leaves to resume from, said truthfully."""

@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import copy
 import inspect
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 import torch
@@ -51,9 +52,17 @@ class EnsembleLinear(nn.Module):
         return out.reshape(k, *lead, out.shape[-1])
 
 
+#: the methods of a model that act on its parameters per batch row, called per member on the folded rows
+PER_MEMBER = ("to_internal", "from_internal", "residual")
+
+
 def dimension_model(models: Sequence[DynamicsModel]) -> nn.Module | None:
     """A copy of ``models[0]`` whose every ``nn.Linear`` is an ``EnsembleLinear`` of the members' layers; None
-    where a parameter or buffer lives outside ``nn.Linear`` layers (with bias) or the members differ in layout."""
+    where a parameter or buffer lives outside ``nn.Linear`` layers (with bias), the members differ in layout, or
+    the model does parameter-dependent work outside its ``forward`` (``PER_MEMBER``, ``rollout_scope``)."""
+    if any(getattr(type(models[0]), m) is not getattr(DynamicsModel, m) for m in ("to_internal", "from_internal",
+                                                                                    "rollout_scope")):
+        return None
     linears = [name for name, mod in models[0].named_modules() if isinstance(mod, nn.Linear)]
     owned = {f"{n}.{p}" for n in linears for p in ("weight", "bias")}
     names = {n for n, _ in models[0].named_parameters()} | {n for n, _ in models[0].named_buffers()}
@@ -67,14 +76,34 @@ def dimension_model(models: Sequence[DynamicsModel]) -> nn.Module | None:
     return stacked
 
 
+class _Call(nn.Module):
+    """``model.<fn>(*args)`` (a method's name) or ``fn(model, *args)`` as a module's forward, so that
+    ``functional_call`` can run it on a member's weights."""
+
+    def __init__(self, model: nn.Module, fn: str | Callable[..., Any]):
+        super().__init__()
+        self.model, self.fn = model, fn
+
+    def forward(self, *args: Any) -> Any:
+        return getattr(self.model, self.fn)(*args) if isinstance(self.fn, str) else self.fn(self.model, *args)
+
+
 class StackedModel(nn.Module):
-    """K copies of one ``DynamicsModel`` with their parameters stacked (``weights``: member axis first);
-    ``forward(t, s, u)`` takes states with the member axis folded into the leading axis (member-major)."""
+    """K copies of one ``DynamicsModel`` with their parameters stacked (``weights``: member axis first).
+
+    Its ``forward(t, z, u)`` and the ``PER_MEMBER`` methods take tensors whose leading axis is the member axis
+    folded into the batch (member-major: rows ``k·N … (k+1)·N − 1`` are member ``k``'s) and return the same
+    layout: each member's own call on its rows, as ``vmap`` over the member axis of ``functional_call`` on one
+    template of the model (or, where every weight is an ``nn.Linear`` and the model does nothing outside its
+    field, an ensemble dimension written into the layers: ``EnsembleLinear``, measured faster than ``vmap``).
+    ``rollout_scope`` is empty: a model's per-rollout cache (CHNN/CLNN's inverse masses) is the template's, so
+    each field evaluation computes it from the member's weights instead. ``penalty`` gives a regulariser per
+    member."""
 
     def __init__(self, models: Sequence[DynamicsModel], dimension: bool = True):
         super().__init__()
         self.k = len(models)
-        self.dimension = dimension_model(models) if dimension else None  # measured faster than vmap (benchmarks/)
+        self.dimension = dimension_model(models) if dimension else None
         if self.dimension is not None:
             self.names, self.buffer_names = [], []
             self.weights = nn.ParameterList(self.dimension.parameters())
@@ -88,7 +117,7 @@ class StackedModel(nn.Module):
             self.register_buffer(f"stacked_buffer_{i}", buffers[name].clone())
         self.__dict__["template"] = copy.deepcopy(models[0])  # not a submodule: its own weights are never used
 
-    def __getattr__(self, name: str) -> Any:  # chart, history, objectives, to_internal, ...: the template's
+    def __getattr__(self, name: str) -> Any:  # chart, history, objectives, discrete, ...: the template's
         try:
             return super().__getattr__(name)
         except AttributeError:
@@ -103,19 +132,47 @@ class StackedModel(nn.Module):
     def fold(self, x: Tensor) -> Tensor:
         return x.reshape(self.k, x.shape[0] // self.k, *x.shape[1:])
 
+    def per_member(self, fn: str | Callable[..., Any], args: tuple, folded: tuple[bool, ...]) -> Any:
+        """``template.<fn>(*args)`` (or ``fn(template, *args)``) for every member on its weights (vmap over the
+        member axis): the ``folded`` arguments are tensors folded member-major along their leading axis, the
+        others (times, points, None) are shared by all members. The result is folded the same way where an
+        argument was, else it gets a leading member axis."""
+        template = _Call(self.__dict__["template"], fn)
+        params, buffers = self.member_weights()
+        params = {f"model.{n}": v for n, v in params.items()}
+        buffers = {f"model.{n}": v for n, v in buffers.items()}
+        dims = tuple(0 if f else None for f in folded)
+        args = tuple(self.fold(a) if f else a for a, f in zip(args, folded))
+        out = vmap(lambda p, b, *xs: functional_call(template, (p, b), xs), in_dims=(0, 0, *dims))(params, buffers,
+                                                                                                   *args)
+        return out.reshape(-1, *out.shape[2:]) if any(folded) else out
+
     def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
         if self.dimension is not None:
             out = self.dimension(t, self.fold(z)) if u is None else self.dimension(t, self.fold(z), self.fold(u))
             return out.reshape(-1, *out.shape[2:])
-        template = self.__dict__["template"]
-        params, buffers = self.member_weights()
+        if u is None:
+            return self.per_member("forward", (t, z), (False, True))
+        return self.per_member("forward", (t, z, u), (False, True, True))
 
-        def one(p: dict, b: dict, z: Tensor, u: Tensor | None) -> Tensor:
-            return functional_call(template, (p, b), (t, z) if u is None else (t, z, u))
+    def to_internal(self, s: Tensor) -> Tensor:
+        return s if self.dimension is not None else self.per_member("to_internal", (s,), (True,))
 
-        out = vmap(one, in_dims=(0, 0, 0, None if u is None else 0))(params, buffers, self.fold(z),
-                                                                      None if u is None else self.fold(u))
-        return out.reshape(-1, *out.shape[2:])
+    def from_internal(self, z: Tensor) -> Tensor:
+        return z if self.dimension is not None else self.per_member("from_internal", (z,), (True,))
+
+    def residual(self, states: Tensor, t: Tensor, u: Tensor | None = None) -> Tensor:
+        if u is None:
+            return self.per_member("residual", (states, t), (True, False))
+        return self.per_member("residual", (states, t, u), (True, False, True))
+
+    @contextmanager
+    def rollout_scope(self) -> Iterator[None]:
+        yield
+
+    def penalty(self, regulariser: Any, points: Tensor, u: Tensor | None) -> Tensor:
+        """``regulariser(member, points, u)`` of every member (K,), at the same points for all."""
+        return self.per_member(regulariser, (points, u), (False, False))
 
     @torch.no_grad()
     def copy_to(self, models: Sequence[nn.Module]) -> None:
@@ -141,10 +198,15 @@ class StackedTraining(TrainingModule):
     def reduce(self, terms: Tensor) -> Tensor:
         return terms.reshape(self.model.k, -1).mean(1)
 
-    def member_losses(self, batch: dict) -> Tensor:
+    def regularise(self, points: Tensor, u: Tensor | None) -> Tensor:
+        return self.model.penalty(self.regulariser, points, u)
+
+    def member_losses(self, batch: dict) -> tuple[Tensor, Tensor | None]:
+        """The K members' objectives on ``batch`` and their regulariser's penalties (None: no regulariser);
+        a member's training loss is their sum."""
         k = self.model.k
         folded = {key: v.repeat(k, *[1] * (v.dim() - 1)) for key, v in batch.items() if isinstance(v, Tensor)}
-        return self.loss(folded)
+        return self.loss(folded), self.penalty(batch)
 
 
 def optimizer(partial: Any, params: list[Tensor]) -> torch.optim.Optimizer:
@@ -163,15 +225,11 @@ def why_not(cfg: Any, members: Sequence[TrainingModule]) -> str | None:
     """Why the members cannot train stacked (None: they can), from the model, objective and settings alone."""
     member = members[0]
     model, name = member.model, member.model_name or type(member.model).__name__
-    if model.discrete:
-        return f"model={name} is discrete: it advances by its own step (Newton iterations), not a field"
-    if member.regulariser is not None:
-        return "a regulariser takes Jacobians of one sample's field, which the member axis does not reach"
+    if model.discrete and member.objective != "residual":
+        return (f"model={name} objective={member.objective} rolls out by Newton iterations whose stopping test "
+                f"(any sample still unconverged) is a branch on values, which the member axis does not pass")
     if not member.observation.identity:
         return f"observation={type(member.observation).__name__} trains an encoder beside the model"
-    for method in ("to_internal", "from_internal", "rollout_scope"):
-        if getattr(type(model), method) is not getattr(DynamicsModel, method):
-            return f"model={name} overrides {method} (parameter-dependent work outside its field)"
     if cfg.get("compile"):
         return "compile=true compiles one model's field"
     opt = member.optimizer.func if hasattr(member.optimizer, "func") else member.optimizer
@@ -184,10 +242,11 @@ def probe(stacked: StackedTraining, members: Sequence[TrainingModule], batch: di
     """None when the stacked losses on ``batch`` equal each member's own (relative ``rtol``), else why not
     (the first line of the error ``vmap`` raised, e.g. at a data-dependent branch)."""
     try:
-        got = stacked.member_losses(batch).detach()
+        objective, penalty = stacked.member_losses(batch)
+        got = (objective if penalty is None else objective + penalty).detach()
     except Exception as err:  # noqa: BLE001 - any failure of the stacked forward sends the run down the loop path
-        return f"the stacked field failed ({type(err).__name__}: {str(err).splitlines()[0][:120]})"
-    want = torch.stack([m.loss(batch).detach() for m in members])
+        return f"the stacked field failed ({type(err).__name__}: {str(err).splitlines()[0]})"
+    want = torch.stack([(m.loss(batch) + (0 if (p := m.penalty(batch)) is None else p)).detach() for m in members])
     diff = ((got - want).abs() / want.abs().clamp_min(1e-12)).max()
     if not bool(diff <= rtol):
         return f"the stacked losses differ from the members' own by {float(diff):.2g} (relative) on the first batch"

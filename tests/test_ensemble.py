@@ -49,12 +49,14 @@ def _assert_member_is(ens, seed, separate, folder):
 @pytest.mark.parametrize("model, system, path, extra", [
     pytest.param("node", "pendulum_control", "stacked", ["scheduler=plateau", "scheduler.patience=0", *SANTOS_TINY],
                  marks=pytest.mark.slow),  # controls; ReduceLROnPlateau on each member's own val/loss
-    pytest.param("chnn", "gyroscope", "loop", [], marks=pytest.mark.slow),
-    pytest.param("lnn", "pendulum2", "loop", [], marks=pytest.mark.slow),
+    pytest.param("chnn", "gyroscope", "stacked", [], marks=pytest.mark.slow),  # per-member to_internal, no cache
+    pytest.param("lnn", "pendulum2", "stacked", [], marks=pytest.mark.slow),  # guarded_solve's per-sample mask
+    pytest.param("hnn_angle", "pendulum2", "stacked", [], marks=pytest.mark.slow),
+    pytest.param("node", "mass_spring", "stacked", ["regulariser=hamiltonian"], marks=pytest.mark.slow),
     pytest.param("e2e_symo", "pendulum_control", "loop", SANTOS_TINY, marks=pytest.mark.slow),
     pytest.param("e2e_symo", "pendulum_control", "loop", [*SANTOS_TINY, "trainer.gradient_clip_val=0.01"],
                  marks=pytest.mark.slow, id="e2e_symo-clipped"),   # the control profile's clipping, per member
-    pytest.param("glnn", "damped_oscillator", "loop", [], marks=pytest.mark.slow),
+    pytest.param("glnn", "damped_oscillator", "stacked", [], marks=pytest.mark.slow),
 ])
 def test_members_equal_their_separate_runs(tmp_path, run, model, system, path, extra):
     ovr = [f"model={model}", f"system={system}", *extra]

@@ -82,9 +82,10 @@ def test_the_guard_is_finite_where_the_hessian_vanishes_or_underflows():
 
 
 @pytest.mark.parametrize("singular", [False, True])
-def test_the_damped_path_solves_the_plain_system_once_unless_a_hessian_is_singular(monkeypatch, singular):
-    """Near-singular H: one plain solve (reused) and one damped; an exactly singular H (whose backward would be NaN
-    even under a zero gradient) costs one more plain solve, with I in its place."""
+def test_the_guard_is_a_mask_not_a_branch(monkeypatch, singular):
+    """Three solves whatever the values (no Python branch on them, so a seed ensemble vmaps it): the one that picks
+    the plain samples (no gradient), the plain system with I where damped (an exactly singular H would send NaN back
+    even under a zero gradient), the damped one; under vmap over a member axis the same q̈ as member by member."""
     h = torch.tensor([[[2.0, 0.0], [0.0, 1e-7]], [[2.0, 0.0], [0.0, 1.0]]], dtype=torch.float64)
     if singular:
         h[0, 1, 1] = 0
@@ -93,10 +94,14 @@ def test_the_damped_path_solves_the_plain_system_once_unless_a_hessian_is_singul
     solve_ex = torch.linalg.solve_ex
     monkeypatch.setattr(torch.linalg, "solve_ex", lambda a, b: calls.append(a.detach().clone()) or solve_ex(a, b))
     x = guarded_solve(h, torch.ones(2, 2, dtype=torch.float64), 1e-4)
-    assert len(calls) == 2 + singular
+    assert len(calls) == 3
     assert torch.equal(x[1], torch.tensor([0.5, 1.0], dtype=torch.float64)) and x[0, 0].item() == pytest.approx(0.5)
     x.sum().backward()
     assert h.grad.isfinite().all()
+    members = torch.stack([h.detach(), h.detach().flip(0)])
+    rhs = torch.ones(2, 2, 2, dtype=torch.float64)
+    vmapped = torch.func.vmap(lambda a, b: guarded_solve(a, b, 1e-4))(members, rhs)
+    assert torch.equal(vmapped, torch.stack([guarded_solve(m, b, 1e-4) for m, b in zip(members, rhs)]))
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

@@ -53,21 +53,16 @@ def guarded_solve(hessian: Tensor, rhs: Tensor, guard: float) -> Tensor:
     curvature fades along its own trajectory (a softplus L at growing q̇) from running away: that is the
     initialisation's job (``LNN``).
     """
-    x, info = torch.linalg.solve_ex(hessian, rhs.unsqueeze(-1))
-    x = x.squeeze(-1)
     if guard == 0:
-        return x
+        return torch.linalg.solve_ex(hessian, rhs.unsqueeze(-1))[0].squeeze(-1)
     scale = hessian.flatten(-2).norm(dim=-1)
-    with torch.no_grad():
-        plain = x.norm(dim=-1) * guard * scale <= rhs.norm(dim=-1)  # NaN compares False
-        # a damped sample's zero gradient goes back through the solve as 0, unless its H is exactly singular (a zero
-        # LU pivot) or its x overflowed: then as NaN, so only then is the plain branch solved again, with I there
-        poisoned = (info > 0) | ~x.isfinite().all(-1)
-    if not plain.is_meta and bool(plain.all()):  # a meta tensor has no values to branch on
-        return x
     eye = torch.eye(hessian.shape[-1], dtype=rhs.dtype, device=rhs.device)
-    if not plain.is_meta and bool(poisoned.any()):
-        x = torch.linalg.solve_ex(torch.where(plain[..., None, None], hessian, eye), rhs.unsqueeze(-1))[0].squeeze(-1)
+    with torch.no_grad():  # which samples take the plain solve: a mask, no branch on values (a seed ensemble vmaps it)
+        x = torch.linalg.solve_ex(hessian, rhs.unsqueeze(-1))[0].squeeze(-1)
+        plain = x.norm(dim=-1) * guard * scale <= rhs.norm(dim=-1)  # NaN compares False
+    # solved again with I where damped: a damped sample's zero gradient then goes back through the solve as 0,
+    # where an exactly singular H (a zero LU pivot) or an overflowed x would send NaN
+    x = torch.linalg.solve_ex(torch.where(plain[..., None, None], hessian, eye), rhs.unsqueeze(-1))[0].squeeze(-1)
     unit = torch.where(scale > 0, scale, 1)[..., None, None]  # H/‖H‖: no under/overflow in HᵀH; H = 0 gives q̈ = 0
     h, r = hessian / unit, rhs.unsqueeze(-1) / unit
     ht = h.transpose(-1, -2)
