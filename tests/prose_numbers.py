@@ -224,7 +224,7 @@ def check(root: Path = ROOT, docs: list[Path] | None = None) -> Verdict:
             for n in printed:
                 if _canon(n) in p.exempt:
                     verdict.marked += 1
-                elif any(matches(n, f) for f in files if f != p.doc):
+                elif any(matches(n, f) for f in files if f != p.doc or not is_record(p, root)):
                     verdict.tied += 1
                 elif is_record(p, root):
                     verdict.recorded += 1
