@@ -212,7 +212,7 @@ def run_ensemble(members: list[PlannedRun], out: Path, cache_dir: str | None, co
         row = {"system": m.system, "model": m.label, "seed": m.seed, "n_train": cfg.data.n_train,
                "data_efficiency": m.n_train is not None, "run_dir": recorded(finished(m, out).parent, out),
                "error": why, "wall_time_s": wall,
-               "ensemble": f"{len(members)} seeds, {recorded(trained.path, out) if trained else 'failed'}",
+               "ensemble": f"{len(members)} seeds, {trained.path if trained else 'failed'}",
                "overrides": " ".join(m.overrides), "optimiser": optimiser(cfg, steps),
                **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))}}
         write_json(finished(m, out), row, indent=1)
