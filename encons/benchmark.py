@@ -30,6 +30,7 @@ from encons import threads
 from encons.errors import ConfigError, EnconsError, Interrupted
 from encons.io import write_json, write_yaml
 from encons.paths import config_dir
+from encons.report import recorded
 
 
 @dataclass
@@ -58,6 +59,12 @@ def plain(cfg: DictConfig) -> dict:
     """The benchmark config without Hydra's own node, resolved."""
     return {k: OmegaConf.to_container(cfg[k], resolve=True) if OmegaConf.is_config(cfg[k]) else cfg[k]
             for k in cfg if k != "hydra"}
+
+
+def recorded_config(config: dict, out: Path) -> dict:
+    """``benchmark.yaml``'s content: the config with its folders (``out``, ``cache_dir``) as a report records
+    them (``encons.report.recorded``), never the machine's absolute path."""
+    return {**config, **{k: recorded(config[k], out) for k in ("out", "cache_dir") if config.get(k)}}
 
 
 def expand(cfg: DictConfig) -> list[PlannedRun]:
@@ -158,7 +165,7 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
     except EnconsError as err:
         results, error, wall, steps = {}, str(err), time.perf_counter() - started, None
     row = {"system": run.system, "model": run.label, "seed": run.seed, "n_train": cfg.data.n_train,
-           "data_efficiency": run.n_train is not None, "run_dir": str(run_dir), "error": error,
+           "data_efficiency": run.n_train is not None, "run_dir": recorded(run_dir, out), "error": error,
            "wall_time_s": wall, "overrides": " ".join(run.overrides), "optimiser": optimiser(cfg, steps),
            **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))}}
     write_json(done, row, indent=1)  # atomic: a run killed before it is rerun
@@ -203,8 +210,9 @@ def run_ensemble(members: list[PlannedRun], out: Path, cache_dir: str | None, co
                 results.update({f"test/{k}": v for k, v in score_control(member).items()})
         steps = trained.members[i].module.trainer.global_step if trained is not None and not why else None
         row = {"system": m.system, "model": m.label, "seed": m.seed, "n_train": cfg.data.n_train,
-               "data_efficiency": m.n_train is not None, "run_dir": str(finished(m, out).parent), "error": why,
-               "wall_time_s": wall, "ensemble": f"{len(members)} seeds, {trained.path if trained else 'failed'}",
+               "data_efficiency": m.n_train is not None, "run_dir": recorded(finished(m, out).parent, out),
+               "error": why, "wall_time_s": wall,
+               "ensemble": f"{len(members)} seeds, {trained.path if trained else 'failed'}",
                "overrides": " ".join(m.overrides), "optimiser": optimiser(cfg, steps),
                **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))}}
         write_json(finished(m, out), row, indent=1)
@@ -261,7 +269,7 @@ def run_profile(cfg: DictConfig) -> Path:
 
     runs = expand(cfg)
     out = Path(cfg.out)
-    write_yaml(out / "benchmark.yaml", plain(cfg))
+    write_yaml(out / "benchmark.yaml", recorded_config(plain(cfg), out))
     cache_dir = cfg.get("cache_dir")
     todo = [run for run in runs if not finished(run, out).is_file()]
     progress = Progress(len(runs), "benchmark run", work=len(todo))  # the ETA counts runs still to train

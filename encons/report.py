@@ -63,9 +63,22 @@ def print_summary(title: str, results: dict[str, float], output_dir: Path, note:
     to_log_files(out.export_text())
 
 
+def recorded(path: str | Path, out: str | Path) -> str:
+    """``path`` as a report records it: relative to ``out`` (``.`` for ``out`` itself) when it lies inside, else
+    its name alone, so a committed report holds none of the machine's absolute folders."""
+    path, out = Path(path).absolute(), Path(out).absolute()
+    return path.relative_to(out).as_posix() or "." if path.is_relative_to(out) else path.name
+
+
+def portable_row(row: dict, out: str | Path) -> dict:
+    """A result row with its ``run_dir`` recorded relative to ``out`` (``recorded``)."""
+    return {**row, "run_dir": recorded(row["run_dir"], out)} if row.get("run_dir") else row
+
+
 def load_rows(out: Path) -> list[dict]:
     """The rows of the finished runs under ``out/runs`` (sorted by run folder), each ``run_dir`` the folder
-    its ``result.json`` lies in now (a moved or committed results folder still finds its curves)."""
+    its ``result.json`` lies in now (a moved or committed results folder still finds its curves; ``results.csv``
+    records it relative to ``out``)."""
     allowed = "allowed: a benchmark's output folder (runs/*/result.json) or a Hydra multirun folder (multirun.yaml)"
     if not out.is_dir():
         raise ConfigError(f"folder={str(out)!r} {'is a file' if out.exists() else 'does not exist'}; {allowed}")
@@ -225,7 +238,7 @@ def write_report(out: str | Path) -> list[Path]:
     source = ""
     if (out / "benchmark.yaml").is_file():
         source = OmegaConf.load(out / "benchmark.yaml").get("paper_source", "")
-    write_csv(out / "results.csv", rows)
+    write_csv(out / "results.csv", [portable_row(r, out) for r in rows])
     write_csv(out / "summary.csv", [{**e, **{f"paper {m}": v for m, v in
                                             paper.get(f"{e['system']}/{e['model']}", {}).items()}}
                                     for e in summary])

@@ -1,8 +1,9 @@
-import time, torch, encons
+import tempfile, time, torch, encons
+TMP = tempfile.gettempdir()
 torch.set_num_threads(1)
 def run(i, fig):
     cfg = encons.compose("debug=fast", "model=node", "system=pendulum2", "logger=none", f"figures={fig}",
-                         output_dir=f"/tmp/encons-figcost/{fig}{i}", cache_dir="/tmp/encons-figcost/cache")
+                         output_dir=f"{TMP}/encons-figcost/{fig}{i}", cache_dir=f"{TMP}/encons-figcost/cache")
     t = time.perf_counter(); encons.train(cfg, summary=False); return time.perf_counter() - t
 run(0, "true")
 rows = [(fig, run(i, fig)) for i in range(1, 4) for fig in ("true", "false")]

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import sys
+import tempfile
 
 import torch
 
@@ -23,8 +24,8 @@ SYSTEMS = ("compound_pendulum", "pendulum_control", "cartpole")
 def main(systems: tuple[str, ...] = SYSTEMS) -> None:
     print(f"{'system':<20}{'states |q|>π':>14}{'metric':>42}{'plain':>12}{'on circle':>12}{'change':>10}")
     for name in systems:
-        cfg = api.compose(f"system={name}", "model=node", output_dir="/tmp/encons-affected",
-                          cache_dir="/tmp/encons-affected-cache")
+        cfg = api.compose(f"system={name}", "model=node", output_dir=f"{tempfile.gettempdir()}/encons-affected",
+                          cache_dir=f"{tempfile.gettempdir()}/encons-affected-cache")
         data, module = api.build(cfg)
         data.prepare_data()
         data.setup()
