@@ -21,7 +21,7 @@ log = logging.getLogger(__name__)
 CONFIG_KEY = "encons_config"  # where a checkpoint carries its resolved run config
 #: The config keys a resume must share with the checkpoint's run (budget and paths may differ).
 RESUME_KEYS = ("system", "model", "data", "integrator", "regulariser", "objective", "optimizer", "scheduler",
-               "seed")
+               "seed", "seeds")
 
 
 def read(path: str | Path, key: str = "ckpt") -> dict[str, Any]:
@@ -54,7 +54,8 @@ def find(run_dir: Path, which: str = "best") -> Path:
 
 def resume_from(cfg: DictConfig) -> str | None:
     """The checkpoint to resume from: ``cfg.ckpt_path``, or for ``last`` the newest ``last.ckpt`` among
-    the earlier runs beside this one whose saved config matches this run's :data:`RESUME_KEYS`.
+    the earlier runs beside this one whose saved config matches this run's :data:`RESUME_KEYS` (this run's own
+    folder first: the resume line's ``hydra.run.dir``).
     Every candidate is read (and so validated) here, before Lightning opens it; a damaged one is
     skipped with one warning."""
     if cfg.ckpt_path != "last":
@@ -63,8 +64,9 @@ def resume_from(cfg: DictConfig) -> str | None:
         if cfg.ckpt_path is not None:
             read(cfg.ckpt_path, "ckpt_path")
         return cfg.ckpt_path
+    own = Path(cfg.paths.output_dir) / "checkpoints" / "last.ckpt"  # a resume into the stopped run's own folder
     runs = Path(cfg.paths.output_dir).parent
-    found = sorted(runs.glob("*/checkpoints/last.ckpt"), key=lambda p: p.stat().st_mtime, reverse=True)
+    found = sorted(runs.glob("*/checkpoints/last.ckpt"), key=lambda p: (p == own, p.stat().st_mtime), reverse=True)
     if not found:
         raise ConfigError(f"ckpt_path=last: no earlier run of '{cfg.name}' has a checkpoint under {runs}; "
                           f"allowed: a .ckpt file, or null to start afresh")
@@ -133,7 +135,12 @@ def load_weights(module: Any, state_dict: dict[str, Any]) -> None:
 
 def check_fits(module: Any, path: str) -> None:
     """Refuse a checkpoint whose parameters do not fit ``module`` (another model or size), naming the first."""
-    saved = read(path, "ckpt_path")["state_dict"]
+    state = read(path, "ckpt_path")
+    if "optimizer_states" not in state:  # a seed ensemble member's best checkpoint: its weights alone
+        raise ConfigError(f"ckpt_path={path!r} holds weights only (an ensemble member's best checkpoint), no optimiser "
+                          f"state to resume from; allowed: evaluate it (python -m encons.evaluate {path}), or resume "
+                          f"the ensemble with its seeds=[...] and ckpt_path=last")
+    saved = state["state_dict"]
     own = module.state_dict()
     old = dropped_biases(module, saved)
     if old:

@@ -26,6 +26,7 @@ import copy
 import logging
 import math
 import time
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,6 +45,7 @@ if TYPE_CHECKING:
     from encons.config import Request
 
 log = logging.getLogger(__name__)
+ENSEMBLE_KEY = "encons_ensemble"  # where an ensemble's last.ckpt keeps what Lightning does not
 
 
 def check_seeds(seeds: Any) -> list[int]:
@@ -57,14 +59,11 @@ def check_seeds(seeds: Any) -> list[int]:
 
 
 def refuse(cfg: DictConfig, request: Request) -> None:
-    """Refuse, in one line each, what an ensemble cannot be: a resume, data that differ per seed, DDP, the
-    plain-inverse retry, an explicit ``seed`` beside ``seeds``."""
+    """Refuse, in one line each, what an ensemble cannot be: data that differ per seed, DDP, the plain-inverse
+    retry, an explicit ``seed`` beside ``seeds``."""
     if "seed" in request.overridden():
         raise ConfigError(f"seed={cfg.seed} beside seeds={list(cfg.seeds)}: the members' seeds are the list; "
                           f"allowed: one of seed=K or seeds=[...]")
-    if cfg.get("ckpt_path") is not None:
-        raise ConfigError(f"ckpt_path={cfg.ckpt_path} with seeds: an ensemble does not resume (its members' best "
-                          f"checkpoints are single-seed runs); allowed: ckpt_path=null")
     if cfg.get("plain_solve"):
         raise ConfigError("plain_solve=true retrains a run from scratch when the plain inverse diverges, which "
                           "one member of an ensemble cannot do alone; allowed: plain_solve=false with seeds")
@@ -213,6 +212,30 @@ class EnsembleModule(pl.LightningModule):
             self.rng[i] = torch.get_rng_state()
             torch.set_rng_state(outer)
 
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        """What Lightning does not keep of an ensemble (its ``last.ckpt``): each member's RNG and schedules
+        (stepped here, not by Lightning) and which members diverged."""
+        checkpoint[ENSEMBLE_KEY] = {"seeds": list(self.seeds), "rng": list(self.rng), "diverged": dict(self.diverged),
+                                    "schedules": self.schedule_states()}
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        self.__dict__["restored"] = checkpoint.get(ENSEMBLE_KEY)  # applied once the optimisers exist
+
+    def on_train_start(self) -> None:
+        state = self.__dict__.pop("restored", None)
+        if state is None:
+            return
+        self.rng, self.diverged = list(state["rng"]), {int(i): why for i, why in state["diverged"].items()}
+        self.load_schedule_states(state["schedules"])
+
+    def schedule_states(self) -> dict:
+        return {"members": [None if s is None else s.scheduler.state_dict() for s in self.schedules]}
+
+    def load_schedule_states(self, states: dict) -> None:
+        for s, state in zip(self.schedules, states["members"]):
+            if s is not None and state is not None:
+                s.scheduler.load_state_dict(state)
+
     def _diverge(self, i: int, err: Exception) -> None:
         why = str(err).split(";")[0]
         self.diverged[i] = why
@@ -311,6 +334,12 @@ class MemberCheckpoints(pl.Callback):
                 old[1].unlink(missing_ok=True)
             self.best[i] = (value, path)
 
+    def state_dict(self) -> dict:  # in the ensemble's last.ckpt: a resumed ensemble keeps its members' bests
+        return {"best": {i: [value, str(path)] for i, (value, path) in self.best.items()}}
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        self.best = {int(i): (float(value), Path(path)) for i, (value, path) in state_dict["best"].items()}
+
     def on_validation_end(self, trainer: pl.Trainer, module: EnsembleModule) -> None:
         if not trainer.sanity_checking:
             self._save(trainer, module)
@@ -353,6 +382,18 @@ class StackedEnsemble(EnsembleModule):
         else:
             self.shared = Schedule(member.scheduler(opt), "epoch")
         return opt
+
+    def schedule_states(self) -> dict:
+        shared = getattr(self, "shared", None)
+        return {**super().schedule_states(), "shared": None if shared is None else shared.scheduler.state_dict(),
+                "factors": [shadow.state_dict() for shadow in self.factors]}
+
+    def load_schedule_states(self, states: dict) -> None:
+        super().load_schedule_states(states)
+        if states["shared"] is not None:
+            self.shared.scheduler.load_state_dict(states["shared"])
+        for shadow, state in zip(self.factors, states["factors"]):
+            shadow.load_state_dict(state)
 
     def training_step(self, batch: dict, batch_idx: int) -> None:
         opt = self.optimizers()
@@ -472,24 +513,28 @@ def train(cfg: DictConfig, summary: bool, request: Request, run_type: type,
     False forces the loop."""
     from encons.build import build, build_trainer
     from encons.config import run_config, validate
-    from encons.io import write_json, write_yaml
-    from encons.report import print_summary
+    from encons.fitting import fit
+    from encons.io import write_yaml
 
     started = time.perf_counter()
     seeds = check_seeds(cfg.seeds)
     refuse(cfg, request)
+    checked = validate(cfg, request)  # the one validation pass: the members differ from it in seed and folders only
     run_dir = Path(cfg.paths.output_dir)
     dirs = [member_dir(s) if member_dir else run_dir / f"seed{s}" for s in seeds]
     configs = [member_config(cfg, s, d) for s, d in zip(seeds, dirs)]
-    checked = [validate(c, request) for c in configs]  # the one validation pass per member
     ens_cfg = copy.deepcopy(cfg)
-    with open_dict(ens_cfg):
-        kept = _checkpointers(cfg, checked[0].targets)
-        ens_cfg.callbacks = {k: v for k, v in (cfg.get("callbacks") or {}).items() if k not in kept}
+    with open_dict(ens_cfg):  # the members keep their own best checkpoints (MemberCheckpoints), the ensemble its last
+        best = [k for k, node in _checkpointers(cfg, checked.targets).items() if node.get("monitor")]
+        ens_cfg.callbacks = {k: v for k, v in (cfg.get("callbacks") or {}).items() if k not in best}
         ens_cfg.trainer.gradient_clip_val = None
         ens_cfg.trainer.pop("gradient_clip_algorithm", None)
-    trainer, loggers = build_trainer(ens_cfg, request)
-    built = [build(ck) for ck in checked]
+    trainer, loggers = build_trainer(checked.derived(ens_cfg))
+    resume = checkpoints.resume_from(cfg)
+    if resume is not None and ENSEMBLE_KEY not in checkpoints.read(resume, "ckpt_path"):
+        raise ConfigError(f"ckpt_path={resume} is not a seed ensemble's checkpoint (a single run's, or a member's best "
+                          f"weights); allowed: ckpt_path=last, or the ensemble's checkpoints/last.ckpt")
+    built = [build(checked.derived(c)) for c in configs]
     data, members = built[0][0], [m for _, m in built]
     if len({str(d.cache_file) for d, _ in built}) > 1:
         raise ConfigError("the members' data differ (data.* depends on seed); allowed: a fixed data.seed with seeds")
@@ -497,26 +542,30 @@ def train(cfg: DictConfig, summary: bool, request: Request, run_type: type,
     for d, c in zip(dirs, saved):
         d.mkdir(parents=True, exist_ok=True)
         write_yaml(d / "config.yaml", c)
-    write_yaml(run_dir / "config.yaml", run_config(cfg))
+    write_yaml(run_dir / "config.yaml", checked.resolved)
     for lg in loggers:
-        lg.log_hyperparams(OmegaConf.to_container(run_config(cfg)))
+        lg.log_hyperparams(OmegaConf.to_container(checked.resolved))
     module = _module(cfg, members, seeds, data, stacked)
-    monitor = _monitor(cfg, checked[0].targets)
+    monitor = _monitor(cfg, checked.targets)
     if monitor is not None:
         trainer.callbacks.append(MemberCheckpoints(dirs, [OmegaConf.to_container(c) for c in saved], *monitor))
         keeper = trainer.callbacks[-1]
     else:
         keeper = None
-    log.info("ensemble of %d members (seeds %s), path: %s", len(seeds), seeds, module.path)
+    if resume is not None:  # resuming writes into the run's own checkpoints/ on purpose
+        warnings.filterwarnings("ignore", message=r"Checkpoint directory .* exists and is not empty")
+    log.info("ensemble of %d members (seeds %s), path: %s%s", len(seeds), seeds, module.path,
+             f"; resumed from {resume}" if resume else "")
     try:
-        trainer.fit(module, datamodule=data, weights_only=True)
+        fit(cfg, trainer, module, data, resume, request)
     finally:
         if any(type(lg).__name__ == "WandbLogger" for lg in loggers):
             import wandb
 
             wandb.finish()
     module.release()
-    return _test_members(cfg, request, module, data, configs, saved, dirs, keeper, trainer, started, summary, run_type)
+    return _test_members(cfg, checked, module, data, configs, saved, dirs, keeper, trainer, started, summary,
+                         run_type)
 
 
 def _module(cfg: DictConfig, members: list, seeds: list[int], data, stacked: bool | None) -> EnsembleModule:
@@ -538,7 +587,7 @@ def _clip(cfg: DictConfig) -> tuple[float | None, str | None]:
     return cfg.trainer.get("gradient_clip_val"), cfg.trainer.get("gradient_clip_algorithm")
 
 
-def _test_members(cfg, request, module, data, configs, saved, dirs, keeper, trainer, started, summary, run_type) -> Ensemble:
+def _test_members(cfg, checked, module, data, configs, saved, dirs, keeper, trainer, started, summary, run_type) -> Ensemble:
     """Test each member that did not diverge on its best checkpoint (else its last weights), as its separate
     run would; write the ensemble's ``test_metrics.json`` and summary."""
     from encons.build import build_trainer
@@ -566,7 +615,7 @@ def _test_members(cfg, request, module, data, configs, saved, dirs, keeper, trai
                 test_cfg.callbacks, test_cfg.logger = None, None
                 test_cfg.trainer.enable_progress_bar = False
                 test_cfg.trainer.enable_model_summary = False
-            tester, _ = build_trainer(test_cfg, request)
+            tester, _ = build_trainer(checked.derived(test_cfg))
             tester.test(member, datamodule=data, verbose=False, weights_only=True)
             results.update({f"test/{k}": v for k, v in member.test_metrics.items()})
         results["wall_time_s"] = time.perf_counter() - started

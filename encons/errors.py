@@ -41,8 +41,13 @@ class WriteError(EnconsError):
 
 
 class Interrupted(EnconsError):
-    """A run stopped by SIGTERM (what a scheduler sends before it kills a job): the CLI prints
-    ``encons: interrupted: <line>`` with the command that resumes it, and exits with status 143 (128 + 15)."""
+    """A run stopped by SIGTERM (what a scheduler sends before it kills a job) or Ctrl-C: the CLI prints
+    ``encons: interrupted: <line>`` with the command that resumes it, and exits with ``status``: 143 (128 + 15)
+    for SIGTERM, 130 (128 + 2) for SIGINT."""
+
+    def __init__(self, message: str, status: int = 143):
+        super().__init__(message)
+        self.status = status
 
 
 class SweepError(EnconsError):
@@ -62,7 +67,7 @@ def one_line_errors() -> Iterator[None]:
         yield
     except Interrupted as err:
         print(f"encons: interrupted: {err}", file=sys.stderr)
-        sys.exit(143)
+        sys.exit(err.status)
     except (EnconsError, ConfigCompositionException, OverrideParseException, InstantiationException) as err:
         print(f"encons: error: {user_line(err)}", file=sys.stderr)
         sys.exit(2)

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig, OmegaConf
 
-from encons import attempts, checkpoints, compat
+from encons import attempts, checkpoints, compat, fitting
 from encons.build import build, build_trainer
 from encons.config import Checked, Request, validate
 from encons.errors import ConfigError, DivergenceError, Interrupted
@@ -176,7 +176,7 @@ def _attempt(attempt: attempts.Attempt, checked: Checked, summary: bool, started
         lg.log_hyperparams(OmegaConf.to_container(config))
     tested = None
     try:
-        _fit(cfg, trainer, module, data, resume, request)
+        fitting.fit(cfg, trainer, module, data, resume, request)
         results = {k: float(v) for k, v in trainer.callback_metrics.items()}
         best = _best_checkpoint(trainer)
         if best is not None:
@@ -201,39 +201,6 @@ def _attempt(attempt: attempts.Attempt, checked: Checked, summary: bool, started
                                        horizon_note(module, data) if cfg.test else "")))
         print_summary(module.run_title(), results, run_dir, note=note, console=summary)
     return Run(module, data, config, run_dir, tested, results)
-
-
-def _fit(cfg: DictConfig, trainer, module, data, resume: str | None, request: Request) -> None:
-    """``trainer.fit`` (a resume read with ``weights_only=True``), with a monitored metric the module
-    never logs named as the user's key, and SIGTERM (Lightning stops after the epoch) as :class:`Interrupted`."""
-    from lightning.fabric.utilities.exceptions import MisconfigurationException
-    from lightning.pytorch.utilities.exceptions import SIGTERMException
-
-    from encons.compat import logged_metric_names
-
-    try:
-        trainer.fit(module, datamodule=data, ckpt_path=resume, weights_only=True)
-    except SIGTERMException:
-        raise Interrupted(_resume_line(cfg, request, trainer.current_epoch)) from None
-    except MisconfigurationException as err:
-        names = logged_metric_names(err)
-        if names is None:
-            raise
-        raise ConfigError(f"optimized_metric={cfg.optimized_metric!r} is not a metric this run logs; allowed: "
-                          f"{', '.join(names)}") from None
-
-
-def _resume_line(cfg: DictConfig, request: Request, epoch: int) -> str:
-    """What an interrupted fit says: where it stopped and the command that continues it in the same folder."""
-    run_dir = Path(cfg.paths.output_dir)
-    last = run_dir / "checkpoints" / "last.ckpt"
-    given = list(request.overrides)
-    kept = [o for o in given if not o.lstrip("+~").startswith(("ckpt_path=", "hydra.run.dir="))]
-    if not last.is_file():
-        return f"SIGTERM during fit, epoch {epoch + 1}, before the first checkpoint; start again: " + \
-            shlex.join(["python", "-m", "encons.train", *given])
-    return (f"SIGTERM during fit, epoch {epoch + 1} (checkpoints/last.ckpt holds the last whole epoch); resume: "
-            + shlex.join(["python", "-m", "encons.train", *kept, f"ckpt_path={last}", f"hydra.run.dir={run_dir}"]))
 
 
 def _which(ckpt: Path | None, results: dict[str, float]) -> str:

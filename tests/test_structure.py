@@ -30,7 +30,7 @@ LAYERS = [
     ["learner", "config"],              # the Learner protocol; the one validation pass (Request, Checked)
     ["evaluators", "objectives", "attempts", "callbacks"],                  # what reads a Learner; the attempt policy
     ["module"],                                                             # the LightningModule (a Learner)
-    ["build", "stacked"],                                                              # checked config -> objects
+    ["build", "stacked", "fitting"],                                                              # checked config -> objects
     ["runs", "ensemble", "report", "sweep", "control", "benchmark"],                    # a run's life; the commands' libraries
     ["api", "__init__"],                                                    # the Python API
     ["cli"],                                                                # the one entry room: argv of every command
