@@ -161,7 +161,7 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
             results.update({f"test/{k}": v for k, v in score_control(trained).items()})
     except Interrupted as err:  # stops the benchmark; its rerun resumes this run (resume_or_clear)
         raise Interrupted(f"{run.id}: {str(err).split(';')[0]}; rerun the same benchmark command: finished runs "
-                          f"are skipped and this one resumes from its last.ckpt") from None
+                          f"are skipped and this one resumes from its last.ckpt", err.status) from None
     except EnconsError as err:
         results, error, wall, steps = {}, str(err), time.perf_counter() - started, None
     row = {"system": run.system, "model": run.label, "seed": run.seed, "n_train": cfg.data.n_train,
@@ -185,8 +185,10 @@ def run_ensemble(members: list[PlannedRun], out: Path, cache_dir: str | None, co
     by_seed = {m.seed: m for m in members}
     ens_dir = out / "runs" / f"{first.cell}-seeds{'-'.join(map(str, seeds))}"
     cfg = compose(["trainer.enable_model_summary=false", *overrides, f"seeds={json.dumps(seeds)}"], ens_dir, cache_dir)
-    for folder in [ens_dir, *(finished(m, out).parent for m in members)]:  # an interrupted ensemble starts afresh
-        shutil.rmtree(folder / "checkpoints", ignore_errors=True)
+    resume_or_clear(cfg, ens_dir / "checkpoints")  # an interrupted ensemble resumes from its last.ckpt
+    if cfg.ckpt_path is None:  # a fresh start: its members' earlier best checkpoints go too
+        for m in members:
+            shutil.rmtree(finished(m, out).parent / "checkpoints", ignore_errors=True)
     started = time.perf_counter()
     try:
         with runs.log_file(ens_dir / "train.log"):
@@ -195,7 +197,7 @@ def run_ensemble(members: list[PlannedRun], out: Path, cache_dir: str | None, co
         wall, error = time.perf_counter() - started, ""
     except Interrupted as err:
         raise Interrupted(f"{first.cell}: {str(err).split(';')[0]}; rerun the same benchmark command: finished "
-                          f"runs are skipped and this ensemble trains again") from None
+                          f"runs are skipped and this ensemble resumes from its last.ckpt", err.status) from None
     except EnconsError as err:
         trained, wall, error = None, time.perf_counter() - started, str(err)
     rows = []

@@ -23,8 +23,10 @@ that did not diverge and its ``_sd`` (sample std), ``_min`` and ``_max``, with `
 from __future__ import annotations
 
 import copy
+import json
 import logging
 import math
+import os
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
@@ -46,6 +48,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 ENSEMBLE_KEY = "encons_ensemble"  # where an ensemble's last.ckpt keeps what Lightning does not
+MEMBERS_FILE = "members.json"  # in an ensemble's folder: its seeds and member folders (relative), for load/evaluate
 
 
 def check_seeds(seeds: Any) -> list[int]:
@@ -490,6 +493,15 @@ class Ensemble:
     member_metrics: dict[int, dict[str, float]] = field(default_factory=dict)
 
 
+def member_folders(path: Path) -> tuple[list[int], list[Path]] | None:
+    """The seeds and member folders of the ensemble folder ``path`` (its ``members.json``); None: not one."""
+    file = path / MEMBERS_FILE
+    if not file.is_file():
+        return None
+    listed = json.loads(file.read_text())
+    return [int(s) for s in listed["seeds"]], [path / p for p in listed["members"]]
+
+
 def summarise(per_member: dict[int, dict[str, float]]) -> dict[str, float]:
     """Mean, sample std (``_sd``), ``_min`` and ``_max`` over members of every metric they share."""
     out: dict[str, float] = {}
@@ -514,7 +526,7 @@ def train(cfg: DictConfig, summary: bool, request: Request, run_type: type,
     from encons.build import build, build_trainer
     from encons.config import run_config, validate
     from encons.fitting import fit
-    from encons.io import write_yaml
+    from encons.io import write_json, write_yaml
 
     started = time.perf_counter()
     seeds = check_seeds(cfg.seeds)
@@ -543,6 +555,7 @@ def train(cfg: DictConfig, summary: bool, request: Request, run_type: type,
         d.mkdir(parents=True, exist_ok=True)
         write_yaml(d / "config.yaml", c)
     write_yaml(run_dir / "config.yaml", checked.resolved)
+    write_json(run_dir / MEMBERS_FILE, {"seeds": seeds, "members": [os.path.relpath(d, run_dir) for d in dirs]})
     for lg in loggers:
         lg.log_hyperparams(OmegaConf.to_container(checked.resolved))
     module = _module(cfg, members, seeds, data, stacked)

@@ -79,4 +79,4 @@ def resume_line(cfg: DictConfig, request: Request, epoch: int, name: str = "SIGT
         return f"{name} during fit, epoch {epoch + 1}, before the first checkpoint; start again: " + \
             shlex.join(["python", "-m", "encons.train", *given])
     return (f"{name} during fit, epoch {epoch + 1} (checkpoints/last.ckpt holds the last whole epoch); resume: "
-            + shlex.join(["python", "-m", "encons.train", *kept, "ckpt_path=last", f"hydra.run.dir={run_dir}"]))
+            + shlex.join(["python", "-m", "encons.train", *kept, f"ckpt_path={last}", f"hydra.run.dir={run_dir}"]))

@@ -29,6 +29,7 @@ from encons.io import write_yaml
 
 if TYPE_CHECKING:
     from encons.data.datamodule import TrajectoryDataModule
+    from encons.ensemble import Ensemble
     from encons.module import TrainingModule
 
 log = logging.getLogger(__name__)
@@ -44,6 +45,7 @@ class Run:
     run_dir: Path
     checkpoint: Path | None = None     # None: the in-memory weights (no checkpoint was kept)
     metrics: dict[str, float] = field(default_factory=dict)
+    checked: Checked | None = field(default=None, repr=False)  # its validated config, where load made it
 
     @property
     def model(self):
@@ -82,7 +84,7 @@ def _best_checkpoint(trainer):
     return next((cb for cb in trainer.checkpoint_callbacks if cb.monitor and cb.best_model_path), None)
 
 
-def train(cfg: DictConfig | str | list[str], summary: bool = True, request: Request | None = None) -> Run:
+def train(cfg: DictConfig | str | list[str], summary: bool = True, request: Request | None = None) -> Run | Ensemble:
     """Train one model on one system, then test the best-by-validation checkpoint (the one kept).
 
     Returns a :class:`Run` whose module holds the tested weights, whose ``metrics`` are every
@@ -217,14 +219,17 @@ def _finish_wandb(loggers: list) -> None:
         wandb.finish()
 
 
-def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") -> Run:
-    """A run back from its folder (checkpoint ``ckpt``: best, last or a path) or from a ``.ckpt`` file.
+def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") -> Run | Ensemble:
+    """A run back from its folder (checkpoint ``ckpt``: best, last or a path) or from a ``.ckpt`` file; a seed
+    ensemble's folder gives an ``encons.ensemble.Ensemble`` of its members, each loaded so.
 
     The config comes from the checkpoint itself (``encons_config``), else from ``config.yaml``
     beside ``checkpoints/``; ``overrides`` (``"data.test_steps=400"``) change it before building.
     Data are re-simulated from the config if the cache is gone. Results go to ``<run>/evaluation``.
     """
     path = Path(path)
+    if path.is_dir() and (ensemble := _ensemble(path, overrides, ckpt)) is not None:
+        return ensemble
     if path.is_file():
         ckpt_file, run_dir = path, path.parent.parent
     elif path.is_dir() and ((path / "checkpoints").is_dir() or (path / "config.yaml").is_file()):
@@ -249,7 +254,23 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
         raise ConfigError(f"overrides {list(overrides)} change the model, so the weights of {ckpt_file.name} no "
                           f"longer fit; allowed: overrides of data.*, horizon, integrator.*, evaluation.*") from None
     module.eval()
-    return Run(module, data, cfg, run_dir, ckpt_file)
+    return Run(module, data, cfg, run_dir, ckpt_file, checked=checked)
+
+
+def _ensemble(path: Path, overrides: Iterable[str], ckpt: str) -> Ensemble | None:
+    """The seed ensemble of folder ``path``, its members loaded (None: ``path`` is not an ensemble's folder)."""
+    from encons.ensemble import Ensemble, member_folders
+
+    found = member_folders(path)
+    if found is None:
+        return None
+    seeds, folders = found
+    missing = [str(f) for f in folders if not f.is_dir()]
+    if missing:
+        raise ConfigError(f"{str(path)!r} is a seed ensemble whose member folder {missing[0]!r} is gone; allowed: "
+                          f"an ensemble folder with its members, or one member's folder")
+    members = [load(f, overrides, ckpt) for f in folders]
+    return Ensemble(members, seeds, {}, {}, path)
 
 
 def _key_overrides(cfg: DictConfig, overrides: Iterable[str]) -> DictConfig:
@@ -276,30 +297,54 @@ def _new_evaluation_folder(run_dir: Path) -> Path:
     return out
 
 
-def evaluate(run: Run | str | Path, overrides: Iterable[str] = (), ckpt: str = "best") -> dict[str, float]:
-    """Test a run (a :class:`Run`, a run folder or a ``.ckpt``) on its test set; return ``test/...`` metrics.
+def evaluate(run: Run | Ensemble | str | Path, overrides: Iterable[str] = (), ckpt: str = "best") -> dict[str, float]:
+    """Test a run (a :class:`Run`, a run folder or a ``.ckpt``) on its test set; return ``test/...`` metrics. A
+    seed ensemble (its folder, or an ``encons.ensemble.Ensemble``) is tested member by member: the members' mean
+    and spread (``_sd``, ``_min``, ``_max``).
 
     Overrides change the evaluation, e.g. ``data.test_steps=1000``: a longer test horizon. Metrics
     such as ``traj_rel_err`` sum over the first ``horizon`` steps; add ``horizon=1000`` to score
     the whole trajectory. Figures and ``test_metrics.json`` go to ``<run>/evaluation`` (``evaluation-2``, ...
     when an earlier evaluation is there).
     """
+    from encons.ensemble import Ensemble
     from encons.report import print_summary
 
-    if not isinstance(run, Run) or list(overrides):
-        run = load(run.checkpoint if isinstance(run, Run) else run, overrides, ckpt)
+    if isinstance(run, (str, Path)) or list(overrides):
+        run = load(run.run_dir if isinstance(run, Ensemble) else run.checkpoint if isinstance(run, Run) else run,
+                   overrides, ckpt)
+    if isinstance(run, Ensemble):
+        return _evaluate_ensemble(run)
     config = run.config.copy()
     config.logger, config.callbacks = None, None
     out = _new_evaluation_folder(run.run_dir)
     config.paths.output_dir = str(out)
     with log_file(out / "evaluate.log"):
-        trainer, _ = build_trainer(config)
+        trainer, _ = build_trainer(run.checked.derived(config) if run.checked is not None else config)
         trainer.test(run.module, datamodule=run.data, verbose=False, weights_only=True)
     run.metrics = {f"test/{k}": v for k, v in run.module.test_metrics.items()}
     note = (f"tested: {run.checkpoint.name if run.checkpoint else 'in-memory weights'}; "
             f"{run.module.evaluation.describe()}; {horizon_note(run.module, run.data)}")
     print_summary(run.module.run_title(), run.metrics, out, note=note)
     return run.metrics
+
+
+def _evaluate_ensemble(ensemble: Ensemble) -> dict[str, float]:
+    """Every member evaluated as a run of its own, then the members' mean, ``_sd``, ``_min`` and ``_max``,
+    written to ``<ensemble>/evaluation`` (``-2``, ... beside earlier ones) and returned as ``test/...``."""
+    from encons.ensemble import summarise
+    from encons.io import write_json
+    from encons.report import print_summary
+
+    per_member = {seed: evaluate(member) for seed, member in zip(ensemble.seeds, ensemble.members)}
+    metrics = summarise(per_member)
+    out = _new_evaluation_folder(ensemble.run_dir)
+    write_json(out / "test_metrics.json", {k.removeprefix("test/"): v for k, v in metrics.items()})
+    shown = {k: v for k, v in metrics.items() if not k.endswith(("_min", "_max"))}
+    print_summary(f"{ensemble.members[0].module.run_title()} × {len(ensemble.seeds)} seeds", shown, out,
+                  note=f"members: {', '.join(str(m.run_dir) for m in ensemble.members)}; each as its own evaluate")
+    ensemble.metrics = metrics
+    return metrics
 
 
 def horizon_note(module, data) -> str:

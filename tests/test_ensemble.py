@@ -32,8 +32,8 @@ def run(tmp_path, cache):
 
 
 def _losses(folder, key="train/loss"):
-    """The per-step training losses the CSV logger wrote under ``folder``."""
-    with next(folder.glob("csv/*/metrics.csv")).open() as f:
+    """The per-step training losses the CSV logger wrote under ``folder`` (its latest version: a resume's)."""
+    with sorted(folder.glob("csv/*/metrics.csv"))[-1].open() as f:
         return [float(row[key]) for row in csv.DictReader(f) if row.get(key)]
 
 
@@ -119,7 +119,7 @@ def test_bad_seeds_are_one_line(tmp_path, run, bad, says):
 @pytest.mark.parametrize("extra, says", [
     (["trainer=ddp", "trainer.devices=2"], "allowed: trainer.devices=1"),
     (["seed=3"], "allowed: one of seed=K or seeds"),
-    (["ckpt_path=x.ckpt"], "allowed: ckpt_path=null"),
+    (["ckpt_path=x.ckpt"], "ckpt_path=.x.ckpt. does not exist"),
 ])
 def test_what_an_ensemble_cannot_be_is_refused(tmp_path, run, extra, says):
     with pytest.raises(ConfigError, match=says):
@@ -144,3 +144,81 @@ def test_a_profile_folds_its_seeds_into_one_ensemble_per_cell(tmp_path, cache):
     line = next(x for x in (out / "summary.md").read_text().splitlines() if x.startswith("| pendulum1 | node |"))
     mean, sd = sum(values) / 2, abs(values[0] - values[1]) / math.sqrt(2)
     assert f"{mean:.3g} ± {sd:.2g}" in line
+
+
+def _stop_after_epoch(monkeypatch, epoch, stacked=None):
+    """SIGTERM (what a scheduler sends) to this process at the end of training epoch ``epoch`` (from 1) of the
+    next ensemble, once; ``stacked=False`` forces the loop path."""
+    import os
+    import signal
+
+    original = ensemble._module
+
+    def stopping(cfg, members, seeds, data, _):
+        module = original(cfg, members, seeds, data, stacked)
+        own = module.on_train_epoch_end
+
+        def on_train_epoch_end():
+            own()
+            if module.current_epoch + 1 == epoch:
+                os.kill(os.getpid(), signal.SIGTERM)
+        module.on_train_epoch_end = on_train_epoch_end
+        monkeypatch.setattr(ensemble, "_module", original)
+        return module
+
+    monkeypatch.setattr(ensemble, "_module", stopping)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("stacked", [None, False])
+def test_an_ensemble_stopped_by_sigterm_resumes_to_the_uninterrupted_result(tmp_path, run, monkeypatch, stacked):
+    """Stopped after epoch 2 of 4: Interrupted with the resume line, last.ckpt at epoch 2; resumed from it, every
+    member ends where the uninterrupted ensemble's does (its optimiser, schedule and best checkpoint came back)."""
+    from encons.errors import Interrupted
+
+    ovr = ["model=node", "system=pendulum1", "seeds=[0,1]", "trainer.max_epochs=4", "scheduler=plateau",
+           "scheduler.patience=0"]
+    if stacked is False:
+        monkeypatch.setattr(ensemble, "_module", lambda c, m, s, d, _, real=ensemble._module: real(c, m, s, d, False))
+    whole = run("whole", ovr)
+    _stop_after_epoch(monkeypatch, 2, stacked)
+    with pytest.raises(Interrupted, match=r"SIGTERM during fit, epoch 3 .*resume: python -m encons.train .*ckpt_path="):
+        run("part", ovr)
+    last = tmp_path / "part" / "checkpoints" / "last.ckpt"
+    assert torch.load(last, weights_only=True)["epoch"] == 1 and not (tmp_path / "part" / "test_metrics.json").exists()
+    if stacked is False:
+        monkeypatch.setattr(ensemble, "_module", lambda c, m, s, d, _, real=ensemble._module: real(c, m, s, d, False))
+    resumed = run("part", [*ovr, f"ckpt_path={last}"])
+    assert resumed.path.split(":")[0] == whole.path.split(":")[0] == ("stacked" if stacked is None else "loop")
+    for a, b in zip(resumed.members, whole.members):
+        tests = {k: v for k, v in b.metrics.items() if k.startswith(("test/", "best/")) or k == "best_epoch"}
+        assert {k: a.metrics[k] for k in tests} == pytest.approx(tests, rel=1e-6)
+    assert _losses(tmp_path / "part", "seed1/train/loss")[-4:] == pytest.approx(
+        _losses(tmp_path / "whole", "seed1/train/loss")[-4:], rel=1e-6)
+
+
+@pytest.mark.slow
+def test_a_benchmark_rerun_resumes_an_interrupted_ensemble(tmp_path, cache, monkeypatch, capsys):
+    from encons.cli import benchmark
+
+    args = ["profile=smoke", "seeds=[0,1]", "models=[node]", "n_train=[]", f"out={tmp_path / 'bench'}",
+            f"cache_dir={cache}", 'train=["evaluation.method=rk4","data.n_test=2","trainer.max_epochs=4"]']
+    _stop_after_epoch(monkeypatch, 2)
+    with pytest.raises(SystemExit) as stop:
+        benchmark(args)
+    assert stop.value.code == 143
+    assert "this ensemble resumes from its last.ckpt" in capsys.readouterr().err
+    benchmark(args)
+    assert "resuming from" in capsys.readouterr().out
+    with (tmp_path / "bench" / "results.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert sorted(r["seed"] for r in rows) == ["0", "1"] and not any(r["error"] for r in rows)
+
+
+def test_a_members_best_checkpoint_is_refused_for_resuming_in_one_line(tmp_path, run):
+    ens = run("ens", ["model=node", "system=pendulum1", "seeds=[0,1]"])
+    best = ens.members[0].checkpoint
+    with pytest.raises(ConfigError, match="holds weights only .* allowed: evaluate it"):
+        run("seed0", ["model=node", "system=pendulum1", "seed=0", f"ckpt_path={best}"])
+    with pytest.raises(ConfigError, match="is not a seed ensemble's checkpoint"):
+        run("ens2", ["model=node", "system=pendulum1", "seeds=[0,1]", f"ckpt_path={best}"])

@@ -36,19 +36,22 @@ def _wait_for(path, text, proc, timeout=300):
 
 
 @pytest.mark.slow
-def test_sigterm_during_fit_exits_non_zero_prints_the_resume_command_and_resuming_continues(tmp_path):
+@pytest.mark.parametrize("stop, status, extra", [(signal.SIGTERM, 143, []),
+                                                 (signal.SIGINT, 130, ["seeds=[0,1]"])])  # Ctrl-C; an ensemble
+def test_sigterm_during_fit_exits_non_zero_prints_the_resume_command_and_resuming_continues(tmp_path, stop, status,
+                                                                                           extra):
     run = tmp_path / "run"
     args = ["model=node", "system=pendulum1", "debug=fast", "figures=false", "trainer.max_epochs=30", f"hydra.run.dir={run}",
-            f"paths.cache_dir={tmp_path / 'cache'}"]
+            f"paths.cache_dir={tmp_path / 'cache'}", *extra]
     env = {**os.environ, "ENCONS_ROOT": str(tmp_path)}
     proc = subprocess.Popen([sys.executable, "-m", "encons.train", *args], cwd=tmp_path, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     _wait_for(run / "train.log", "epoch 3 of 30", proc)
-    proc.send_signal(signal.SIGTERM)
+    proc.send_signal(stop)
     out, err = proc.communicate(timeout=300)
-    assert proc.returncode == 143, err[-2000:]
+    assert proc.returncode == status, err[-2000:]
     line = err.strip().splitlines()[-1]
-    assert line.startswith("encons: interrupted: SIGTERM during fit"), err[-2000:]
+    assert line.startswith(f"encons: interrupted: {stop.name} during fit"), err[-2000:]
     command = line.split("resume: ", 1)[1]
     assert f"hydra.run.dir={run}" in command and f"ckpt_path={run / 'checkpoints' / 'last.ckpt'}" in command
     assert not (run / "test_metrics.json").exists()

@@ -33,9 +33,10 @@ def fast(tmp_path, *overrides):
                           output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
 
 
-def test_a_run_validates_once_and_looks_each_target_up_once(tmp_path, monkeypatch, lookups):
+@pytest.mark.parametrize("extra", [[], ["seeds=[0,1]"]])  # a run; a seed ensemble (its members derive from it)
+def test_a_run_validates_once_and_looks_each_target_up_once(tmp_path, monkeypatch, lookups, extra):
     """Composing looks the model up once (its presets); the run, every target once more at most."""
-    cfg = fast(tmp_path)
+    cfg = fast(tmp_path, *extra)
     assert lookups == Counter({"encons.models.hnn.HNN": 1})
     lookups.clear()
     calls = []
@@ -51,6 +52,19 @@ def test_a_run_validates_once_and_looks_each_target_up_once(tmp_path, monkeypatc
     assert len(calls) == 1
     assert "encons.models.hnn.HNN" in lookups and max(lookups.values()) == 1, lookups
     assert run.metrics["test/traj_rel_err"] > 0
+
+
+@pytest.mark.parametrize("extra", [[], ["seeds=[0,1]"]])
+def test_evaluate_validates_once(tmp_path, monkeypatch, extra):
+    """``encons.evaluate RUN`` (a run's folder; an ensemble's: once per member, each a run of its own)."""
+    trained = encons.train(fast(tmp_path, *extra), summary=False)
+    calls = []
+    real = config.validate
+    monkeypatch.setattr(runs, "validate", lambda *a, **k: calls.append(a) or real(*a, **k))
+    monkeypatch.setattr(config, "validate", lambda *a, **k: calls.append(a) or real(*a, **k))
+    metrics = encons.evaluate(trained.run_dir)
+    assert len(calls) == (1 if not extra else 2)
+    assert metrics["test/traj_rel_err"] == pytest.approx(trained.metrics["test/traj_rel_err"], rel=1e-12)
 
 
 def test_a_second_build_of_a_checked_value_looks_nothing_up(tmp_path, lookups):
