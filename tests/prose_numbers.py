@@ -7,7 +7,8 @@ and ``RUN.md``. Each printed number is one of three things:
   convention a number in backticks is a setting, not a result), inside a rendered table
   (``<!-- encons-report: ... -->``, checked by ``tests/test_docs.py``), a link target, a heading, part of a
   word (``pendulum2``, ``L-NODE-RK4``, ``float64``), a list item's number, a year after a citation
-  (``Zhong et al. 2021``) or a reference (``§6``, ``Table 1``, ``Fig. 3``, ``Eq. 12``, ``issue 42``);
+  (``Zhong et al. 2021``) or a reference (``§6``, ``Table 1``, ``Fig. 3``, ``Eq. 12``, ``eqs. 15``, ``equation (11)``,
+  ``Theorem 1``, ``issue 42``);
 * **a setting**, by its word: a number list next to a setting's key or unit from ``SETTING`` (``lr 1e-3``,
   ``seeds 0–2``, ``N_train 8, 32, 128``, ``2000 epochs``, ``800 training trajectories``, ``3 × 200``
   networks): the word marks it as a configuration or a size, not a result;
@@ -49,7 +50,8 @@ NUMBER = re.compile(r"(?<![\w.\-/^])[-−]?(?:\d{1,3}(?:,\d{3})+|\d+)(?:\.\d+)?(
 FILE_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 MARK = re.compile(r"<!--\s*not-a-result:(.*?)-->", re.S)
 PATH = re.compile(r"(?<![\w/.])((?:\.\./)*[\w.-]+(?:/[\w.+-]+)*/?)")
-REFERENCE = re.compile(r"(?:§|\bTable\s|\bTab\.\s|\bFig\.\s|\bFigure\s|\bEq\.\s|\bSection\s|\bissue\s|\bAppendix\s|"
+REFERENCE = re.compile(r"(?:§|\bTable\s|\bTab\.\s|\bFigs?\.\s|\bFigure\s|\b[Ee]qs?\.\s\(?|\b[Ee]quation\s\(?|"
+                       r"\bTheorem\s|\bSection\s|\bissue\s|\bAppendix\s|"
                        r"\bet al\.,?\s|\bet al\.\s\(|&\s\w+\s|\bPR\s|#)$")
 
 
