@@ -9,7 +9,7 @@ and ``RUN.md``. Each printed number is one of three things:
   word (``pendulum2``, ``L-NODE-RK4``, ``float64``), a list item's number, a year after a citation
   (``Zhong et al. 2021``), a date or a clock time (``27 November 2026``, ``2026-11-26``, ``01:11–01:18``) or a
   reference (``§6``, ``Table 1``, ``Fig. 3``, ``Eq. 12``, ``eqs. 15``, ``equation (11)``, ``Theorem 1``,
-  ``issue 42``);
+  ``issue 42``; a range such as ``Figs. 3–4`` or ``eqs. 12–13`` too);
 * **a setting**, by its word: a number list next to a setting's key or unit from ``SETTING`` (``lr 1e-3``,
   ``seeds 0–2``, ``N_train 8, 32, 128``, ``2000 epochs``, ``800 training trajectories``, ``3 × 200``
   networks): the word marks it as a configuration or a size, not a result;
@@ -53,9 +53,10 @@ NUMBER = re.compile(r"(?<![\w.\-/^])[-−]?(?:\d{1,3}(?:,\d{3})+|\d+)(?:\.\d+)?(
 FILE_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 MARK = re.compile(r"<!--\s*not-a-result:(.*?)-->", re.S)
 PATH = re.compile(r"(?<![\w/.])((?:\.\./)*[\w.-]+(?:/[\w.+-]+)*/?)")
-REFERENCE = re.compile(r"(?:§|\bTable\s|\bTab\.\s|\bFigs?\.\s|\bFigure\s|\b[Ee]qs?\.\s\(?|\b[Ee]quation\s\(?|"
+REFERENCE = re.compile(r"(?:§|\bTables?\s|\bTab\.\s|\bFigs?\.\s|\bFigure\s|\b[Ee]qs?\.\s\(?|\b[Ee]quation\s\(?|"
                        r"\bTheorem\s|\bSection\s|\bissue\s|\bAppendix\s|"
                        r"\bet al\.,?\s|\bet al\.\s\(|&\s\w+\s|\bPR\s|#)$")
+RANGE = re.compile(r"(?:§|\bTables?\s|\bFigs?\.\s|\b[Ee]qs?\.\s\(?)\d+(?:\.\d+)?\)?(?:\s*[–/-]\s*|,\s|\sand\s)\(?$")
 
 
 _N = r"[-−]?\d[\d,]*(?:\.\d+)?(?:[eE][-+−]?\d+)?"
@@ -147,7 +148,7 @@ def numbers(p: Paragraph) -> list[str]:
             p.settings += 1
             continue
         before = text[max(0, m.start() - 20):m.start()]
-        if REFERENCE.search(before):
+        if REFERENCE.search(before) or RANGE.search(text[max(0, m.start() - 30):m.start()]):
             continue
         if re.match(r"(?:1[89]|20)\d\d$", m.group(0)) and re.search(r"(?:et al\.,?|&\s?\w+|\w+,)\s*\(?$", before):
             continue
