@@ -19,7 +19,8 @@ and ``RUN.md``. Each printed number is one of three things:
 * **tied**: the paragraph (a block between blank lines; a list item or a table row is its own paragraph)
   names a committed file or folder by a relative path (to the repository or to the document) that holds
   the number. The items of a list speak with the paragraph that introduces them (the one just above, ending
-  in a colon), so a lead-in that names the file ties its items too. A report's README.md or RUN.md also
+  in a colon, or a list item ending in a colon for its sub-items), so a lead-in that names the file ties its
+  items too. A report's README.md or RUN.md also
   speaks for the files beside it (its folder, recursively, prose files aside) and for its own tables, so its
   numbers may come from any of them;
 * **recorded**: a table row of a report's README.md or RUN.md is the report's record itself (a table typed
@@ -111,12 +112,16 @@ def paragraphs(doc: Path) -> list[Paragraph]:
             if not lines:
                 start = i
             lines.append(line)
-    lead = ""
+    lead, depth = "", -1           # the lead-in in force, and its indent (-1: a paragraph, not an item)
     for p in out:
-        if re.match(r"\s*(?:[-*+]|\d+\.)\s", p.text):
+        item = re.match(r"(\s*)(?:[-*+]|\d+\.)\s", p.text)
+        indent = len(item.group(1)) if item else -1
+        if item and indent > depth:
             p.lead = lead
-        else:
-            lead = p.text if re.sub(r"<!--.*?-->", "", p.text, flags=re.S).rstrip().endswith(":") else ""
+        elif item or lead:
+            lead, depth = "", -1
+        if re.sub(r"<!--.*?-->", "", p.text, flags=re.S).rstrip().endswith(":") and not p.lead:
+            lead, depth = p.text, indent
         for mark in MARK.findall(p.text):
             p.exempt |= {_canon(n) for n in NUMBER.findall(mark)}
     return out
