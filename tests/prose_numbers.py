@@ -7,7 +7,9 @@ and ``RUN.md``. Each printed number is one of three things:
   convention a number in backticks is a setting, not a result), inside a rendered table
   (``<!-- encons-report: ... -->``, checked by ``tests/test_docs.py``), a link target, a heading, part of a
   word (``pendulum2``, ``L-NODE-RK4``, ``float64``), a list item's number, a year after a citation
-  (``Zhong et al. 2021``) or a reference (``§6``, ``Table 1``, ``Fig. 3``, ``Eq. 12``, ``issue 42``);
+  (``Zhong et al. 2021``), a date or a clock time (``27 November 2026``, ``2026-11-26``, ``01:11–01:18``) or a
+  reference (``§6``, ``Table 1``, ``Fig. 3``, ``Eq. 12``, ``eqs. 15``, ``equation (11)``, ``Theorem 1``,
+  ``issue 42``; a range such as ``Figs. 3–4`` or ``eqs. 12–13`` too);
 * **a setting**, by its word: a number list next to a setting's key or unit from ``SETTING`` (``lr 1e-3``,
   ``seeds 0–2``, ``N_train 8, 32, 128``, ``2000 epochs``, ``800 training trajectories``, ``3 × 200``
   networks): the word marks it as a configuration or a size, not a result;
@@ -16,8 +18,11 @@ and ``RUN.md``. Each printed number is one of three things:
   ``date``, ``paper Finzi et al. Table 2``. Only the listed numbers are exempt;
 * **tied**: the paragraph (a block between blank lines; a list item or a table row is its own paragraph)
   names a committed file or folder by a relative path (to the repository or to the document) that holds
-  the number. A report's README.md or RUN.md also speaks for the files beside it (its folder, recursively,
-  prose files aside) and for its own tables, so its numbers may come from any of them;
+  the number. The items of a list speak with the paragraph that introduces them (the one just above, ending
+  in a colon, or a list item ending in a colon for its sub-items), so a lead-in that names the file ties its
+  items too. A report's README.md or RUN.md also
+  speaks for the files beside it (its folder, recursively, prose files aside) and for its own tables, so its
+  numbers may come from any of them;
 * **recorded**: a table row of a report's README.md or RUN.md is the report's record itself (a table typed
   where the run printed it, with no CSV beside it); prose that quotes it names that README.
 
@@ -49,8 +54,10 @@ NUMBER = re.compile(r"(?<![\w.\-/^])[-−]?(?:\d{1,3}(?:,\d{3})+|\d+)(?:\.\d+)?(
 FILE_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 MARK = re.compile(r"<!--\s*not-a-result:(.*?)-->", re.S)
 PATH = re.compile(r"(?<![\w/.])((?:\.\./)*[\w.-]+(?:/[\w.+-]+)*/?)")
-REFERENCE = re.compile(r"(?:§|\bTable\s|\bTab\.\s|\bFig\.\s|\bFigure\s|\bEq\.\s|\bSection\s|\bissue\s|\bAppendix\s|"
+REFERENCE = re.compile(r"(?:§|\bTables?\s|\bTab\.\s|\bFigs?\.\s|\bFigure\s|\b[Ee]qs?\.\s\(?|\b[Ee]quation\s\(?|"
+                       r"\bTheorem\s|\bSection\s|\bissue\s|\bAppendix\s|"
                        r"\bet al\.,?\s|\bet al\.\s\(|&\s\w+\s|\bPR\s|#)$")
+RANGE = re.compile(r"(?:§|\bTables?\s|\bFigs?\.\s|\b[Ee]qs?\.\s\(?)\d+(?:\.\d+)?\)?(?:\s*[–/-]\s*|,\s|\sand\s)\(?$")
 
 
 _N = r"[-−]?\d[\d,]*(?:\.\d+)?(?:[eE][-+−]?\d+)?"
@@ -60,6 +67,11 @@ KEYS = (r"lr|learning rates?|seeds?|batch(?: size)?|widths?|depths?|N_train|n_tr
 UNITS = (r"epochs?|trajector(?:y|ies)|steps?|seeds|networks?|layers?|hidden units|units|neurons|starts|members|cores?|"
          r"threads?|workers?|points|samples|GPUs?|CPUs?|iterations|batches|dimensions|frames|links|bodies|trials|"
          r"time steps|hidden layers|pixels|px|channels|evaluations|rollouts|states|digits|bits|masses|pendulums")
+_MONTH = (r"(?:January|February|March|April|May|June|July|August|September|October|November|December|"
+          r"Jan|Feb|Mar|Apr|Jun|Jul|Aug|Sept?|Oct|Nov|Dec)\b\.?")
+DATE = re.compile(rf"\b\d{{1,2}}\s+{_MONTH}(?:\s+\d{{4}})?|\b{_MONTH}\s+\d{{1,2}}(?:,?\s+\d{{4}})?\b|"
+                  rf"\b{_MONTH}\s+\d{{4}}|"
+                  r"\b\d{4}-\d\d-\d\d\b|\b\d{1,2}:\d\d(?::\d\d)?(?:[–-]\d{1,2}:\d\d(?::\d\d)?)?\b")
 SETTING = re.compile(rf"(?<![\w.])(?:(?:{KEYS})\s*(?:=|:|of)?\s*{_LIST}|{_LIST}\s+(?:[a-z-]+\s+)?(?:{UNITS})\b|"
                      rf"\d+\s*[×x]\s*\d+(?:\s*[×x]\s*\d+)*(?!\.\d|\d))")
 
@@ -78,6 +90,7 @@ class Paragraph:
     text: str                      # as written
     exempt: set[str] = field(default_factory=set)
     settings: int = 0
+    lead: str = ""                 # a list item's lead-in paragraph (ending in a colon), else empty
 
 
 def paragraphs(doc: Path) -> list[Paragraph]:
@@ -99,7 +112,16 @@ def paragraphs(doc: Path) -> list[Paragraph]:
             if not lines:
                 start = i
             lines.append(line)
+    lead, depth = "", -1           # the lead-in in force, and its indent (-1: a paragraph, not an item)
     for p in out:
+        item = re.match(r"(\s*)(?:[-*+]|\d+\.)\s", p.text)
+        indent = len(item.group(1)) if item else -1
+        if item and indent > depth:
+            p.lead = lead
+        elif item or lead:
+            lead, depth = "", -1
+        if re.sub(r"<!--.*?-->", "", p.text, flags=re.S).rstrip().endswith(":") and not p.lead:
+            lead, depth = p.text, indent
         for mark in MARK.findall(p.text):
             p.exempt |= {_canon(n) for n in NUMBER.findall(mark)}
     return out
@@ -122,13 +144,16 @@ def numbers(p: Paragraph) -> list[str]:
     """The printed numbers of a paragraph that are looked at (see the module's first list)."""
     text = _visible(p.text)
     settings = [m.span() for m in SETTING.finditer(text)]
+    dates = [m.span() for m in DATE.finditer(text)]
     found = []
     for m in NUMBER.finditer(text):
+        if any(a <= m.start() and m.end() <= b for a, b in dates):
+            continue
         if any(a <= m.start() and m.end() <= b for a, b in settings):
             p.settings += 1
             continue
         before = text[max(0, m.start() - 20):m.start()]
-        if REFERENCE.search(before):
+        if REFERENCE.search(before) or RANGE.search(text[max(0, m.start() - 30):m.start()]):
             continue
         if re.match(r"(?:1[89]|20)\d\d$", m.group(0)) and re.search(r"(?:et al\.,?|&\s?\w+|\w+,)\s*\(?$", before):
             continue
@@ -149,7 +174,7 @@ def sources(p: Paragraph, root: Path = ROOT) -> list[Path]:
     """The committed files a paragraph names (a folder stands for its text files), and for a report's
     README.md or RUN.md the files beside it."""
     named: list[Path] = []
-    for candidate in PATH.findall(p.text):
+    for candidate in PATH.findall(p.text + "\n" + p.lead):
         candidate = candidate.rstrip(".")
         if "/" not in candidate and "." not in candidate:
             continue

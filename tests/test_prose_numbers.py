@@ -82,3 +82,15 @@ def test_a_mark_exempts_only_the_numbers_it_lists(tmp_path):
     doc.write_text("Trained for 800 of them and 801 more <!-- not-a-result: config 800 -->.\n")
     verdict = pn.check(tmp_path, [doc])
     assert verdict.marked == 1 and [u.split(" not in ")[0] for u in verdict.untied] == ["docs/page.md:1: 801"]
+
+
+def test_dates_equations_and_a_list_lead_in(tmp_path):
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "r.csv").write_text("x\n1.77\n")
+    doc = tmp_path / "docs" / "page.md"
+    doc.parent.mkdir()
+    doc.write_text("Run on 27 November 2026 at 01:11–01:18 (2026-11-26 before), by eq. 15 and Theorem 1.\n\n"
+                   "Measured (`data/r.csv`):\n\n- ratio 1.77× at K = 2;\n- ratio 1.78× at K = 4.\n\n"
+                   "After the list: 1.77× again.\n")
+    untied = [u.split(" not in ")[0] for u in pn.check(tmp_path, [doc]).untied]
+    assert untied == ["docs/page.md:6: 1.78", "docs/page.md:8: 1.77"]
