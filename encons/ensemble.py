@@ -219,7 +219,7 @@ class EnsembleModule(pl.LightningModule):
         """What Lightning does not keep of an ensemble (its ``last.ckpt``): each member's RNG and schedules
         (stepped here, not by Lightning) and which members diverged."""
         checkpoint[ENSEMBLE_KEY] = {"seeds": list(self.seeds), "rng": list(self.rng), "diverged": dict(self.diverged),
-                                    "schedules": self.schedule_states()}
+                                    "schedules": self.schedule_states(), "path": self.path}
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         self.__dict__["restored"] = checkpoint.get(ENSEMBLE_KEY)  # applied once the optimisers exist
@@ -355,11 +355,13 @@ class MemberCheckpoints(pl.Callback):
 class StackedEnsemble(EnsembleModule):
     """``EnsembleModule`` whose members train as one ``StackedTraining`` (one forward and backward for all)."""
 
-    def __init__(self, members: Sequence[TrainingModule], seeds: Sequence[int], clip=(None, None)):
+    def __init__(self, members: Sequence[TrainingModule], seeds: Sequence[int], clip=(None, None),
+                 dimension: bool = True):
         super().__init__(members, seeds, clip)
         m = members[0]
-        self.path = "stacked"
-        model = stacking.StackedModel([x.model for x in members], dimension=m.regulariser is None)
+        model = stacking.StackedModel([x.model for x in members],
+                                      dimension=dimension and stacking.dimension_penalty(m.model, m.regulariser))
+        self.path = f"stacked ({'ensemble dimension' if model.dimension is not None else 'vmap'})"
         self.stacked = stacking.StackedTraining(model, m.system, m.dt, m.integrator, m.optimizer, m.scheduler,
                                                 objective=m.objective, regulariser=m.regulariser, horizon=m.horizon,
                                                 model_name=m.model_name)
@@ -543,9 +545,12 @@ def train(cfg: DictConfig, summary: bool, request: Request, run_type: type,
         ens_cfg.trainer.pop("gradient_clip_algorithm", None)
     trainer, loggers = build_trainer(checked.derived(ens_cfg))
     resume = checkpoints.resume_from(cfg)
-    if resume is not None and ENSEMBLE_KEY not in checkpoints.read(resume, "ckpt_path"):
-        raise ConfigError(f"ckpt_path={resume} is not a seed ensemble's checkpoint (a single run's, or a member's best "
-                          f"weights); allowed: ckpt_path=last, or the ensemble's checkpoints/last.ckpt")
+    if resume is not None:
+        saved_state = checkpoints.read(resume, "ckpt_path").get(ENSEMBLE_KEY)
+        if saved_state is None:
+            raise ConfigError(f"ckpt_path={resume} is not a seed ensemble's checkpoint (a single run's, or a member's "
+                              f"best weights); allowed: ckpt_path=last, or the ensemble's checkpoints/last.ckpt")
+        stacked = saved_state["path"] if stacked is None else stacked  # the path its checkpoint was written on
     built = [build(checked.derived(c)) for c in configs]
     data, members = built[0][0], [m for _, m in built]
     if len({str(d.cache_file) for d, _ in built}) > 1:
@@ -581,18 +586,42 @@ def train(cfg: DictConfig, summary: bool, request: Request, run_type: type,
                          run_type)
 
 
-def _module(cfg: DictConfig, members: list, seeds: list[int], data, stacked: bool | None) -> EnsembleModule:
-    """The stacked ensemble where ``encons.stacked`` accepts the run (its settings, then its first batch),
-    else the loop, its path saying why."""
-    why = ("stacked=False" if stacked is False else "one member: nothing to stack (the path of a single run)"
-           if len(members) == 1 else stacking.why_not(cfg, members))
-    if why is None:
-        module = StackedEnsemble(members, seeds, _clip(cfg))
-        why = stacking.probe(module.stacked, members, next(iter(data.train_dataloader())))
+def _module(cfg: DictConfig, members: list, seeds: list[int], data, stacked: bool | str | None) -> EnsembleModule:
+    """The stacked ensemble where ``encons.stacked`` accepts the run (its settings, then its first batch) and
+    its step on the first batch measures faster than the loop's, else the loop, its path saying why.
+    ``stacked``: None decides so; True takes the stacked path wherever it computes the members' losses (no
+    timing); False forces the loop; a path (``module.path`` of an earlier run: a resume) takes that path again,
+    so that its checkpoint fits."""
+    if stacked is False or (isinstance(stacked, str) and stacked.startswith("loop")):
+        return _loop(cfg, members, seeds, stacked if isinstance(stacked, str) else "loop: stacked=False")
+    if len(members) == 1:
+        return _loop(cfg, members, seeds, "loop: one member: nothing to stack (the path of a single run)")
+    why = stacking.why_not(cfg, members)
+    if why is not None:
+        return _loop(cfg, members, seeds, f"loop: {why}")
+    batch = next(iter(data.train_dataloader()))
+    ways = [True, False] if not isinstance(stacked, str) else [stacked == "stacked (ensemble dimension)"]
+    for dimension in ways:  # the ensemble dimension first (measured faster than vmap), then vmap
+        module = StackedEnsemble(members, seeds, _clip(cfg), dimension)
+        if dimension and module.stacked.model.dimension is None:
+            why = "a parameter outside nn.Linear layers or a per-rollout cache (no ensemble dimension)"
+            continue
+        why = stacking.probe(module.stacked, members, batch)
         if why is None:
-            return module
+            break
+    if why is not None:
+        return _loop(cfg, members, seeds, f"loop: {why}")
+    if stacked is None:
+        fast, slow = stacking.step_times(module.stacked, members, batch)
+        if fast >= slow:
+            return _loop(cfg, members, seeds, f"loop: measured faster on the first batch ({module.path}: "
+                                              f"{1e3 * fast:.3g} ms per step, loop: {1e3 * slow:.3g} ms)")
+    return module
+
+
+def _loop(cfg: DictConfig, members: list, seeds: list[int], why: str) -> EnsembleModule:
     module = EnsembleModule(members, seeds, _clip(cfg))
-    module.path = f"loop: {why}"
+    module.path = why
     return module
 
 

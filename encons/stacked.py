@@ -23,33 +23,20 @@ from __future__ import annotations
 
 import copy
 import inspect
+import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
 import torch
 from torch import Tensor, nn
-from torch.func import functional_call, stack_module_state, vmap
+from torch.func import functional_call, stack_module_state, vjp, vmap
 
 from encons.models.base import DynamicsModel
+from encons.models.networks import EnsembleLinear
 from encons.module import TrainingModule
 
 ELEMENTWISE = ("Adam", "AdamW", "SGD", "RMSprop", "Adamax")  # optimisers whose step acts on each element alone
-
-
-class EnsembleLinear(nn.Module):
-    """K ``nn.Linear`` layers as one, on inputs whose leading axis is the member axis: (K, ..., in) -> (K, ..., out)
-    by one ``baddbmm`` (the ensemble dimension written into the layer)."""
-
-    def __init__(self, layers: Sequence[nn.Linear]):
-        super().__init__()
-        self.weight = nn.Parameter(torch.stack([layer.weight.detach().t() for layer in layers]).contiguous())
-        self.bias = nn.Parameter(torch.stack([layer.bias.detach() for layer in layers]).unsqueeze(1).contiguous())
-
-    def forward(self, x: Tensor) -> Tensor:
-        k, lead = x.shape[0], x.shape[1:-1]
-        out = torch.baddbmm(self.bias, x.reshape(k, -1, x.shape[-1]), self.weight)
-        return out.reshape(k, *lead, out.shape[-1])
 
 
 #: the methods of a model that act on its parameters per batch row, called per member on the folded rows
@@ -58,15 +45,18 @@ PER_MEMBER = ("to_internal", "from_internal", "residual")
 
 def dimension_model(models: Sequence[DynamicsModel]) -> nn.Module | None:
     """A copy of ``models[0]`` whose every ``nn.Linear`` is an ``EnsembleLinear`` of the members' layers; None
-    where a parameter or buffer lives outside ``nn.Linear`` layers (with bias), the members differ in layout, or
-    the model does parameter-dependent work outside its ``forward`` (``PER_MEMBER``, ``rollout_scope``)."""
-    if any(getattr(type(models[0]), m) is not getattr(DynamicsModel, m) for m in ("to_internal", "from_internal",
-                                                                                    "rollout_scope")):
+    where a parameter lives outside ``nn.Linear`` layers, a buffer differs between members (a constant of the
+    model is shared), the members differ in layout, or the model keeps a per-rollout cache (``rollout_scope``)."""
+    if getattr(type(models[0]), "rollout_scope") is not getattr(DynamicsModel, "rollout_scope"):
         return None
     linears = [name for name, mod in models[0].named_modules() if isinstance(mod, nn.Linear)]
     owned = {f"{n}.{p}" for n in linears for p in ("weight", "bias")}
-    names = {n for n, _ in models[0].named_parameters()} | {n for n, _ in models[0].named_buffers()}
-    if not linears or names != owned:
+    if not linears or not {n for n, _ in models[0].named_parameters()} <= owned:
+        return None
+    buffers = [dict(m.named_buffers()) for m in models]
+    if any(b.keys() != buffers[0].keys() or not all(torch.equal(b[n], buffers[0][n]) for n in b) for b in buffers):
+        return None
+    if any([n for n, _ in m.named_parameters()] != [n for n, _ in models[0].named_parameters()] for m in models):
         return None
     stacked = copy.deepcopy(models[0])
     for name in linears:
@@ -106,7 +96,8 @@ class StackedModel(nn.Module):
         self.dimension = dimension_model(models) if dimension else None
         if self.dimension is not None:
             self.names, self.buffer_names = [], []
-            self.weights = nn.ParameterList(self.dimension.parameters())
+            self.weights = nn.ParameterList([w for layer in self.dimension.modules() if isinstance(layer, EnsembleLinear)
+                                             for w in (layer.weight, layer.bias) if w is not None])
             self.__dict__["template"] = self.dimension
             return
         params, buffers = stack_module_state(list(models))
@@ -147,32 +138,55 @@ class StackedModel(nn.Module):
                                                                                                    *args)
         return out.reshape(-1, *out.shape[2:]) if any(folded) else out
 
+    def call(self, name: str, args: tuple, folded: tuple[bool, ...]) -> Any:
+        """The template's method ``name`` for all members: with the ensemble dimension in its layers, one call on
+        the ``folded`` arguments unfolded to (K, N, ...) (the model's code broadcasts over the extra leading
+        axis); else ``per_member``."""
+        if self.dimension is None:
+            return self.per_member(name, args, folded)
+        out = getattr(self.dimension, name)(*(self.fold(a) if f else a for a, f in zip(args, folded)))
+        return out.reshape(-1, *out.shape[2:])
+
     def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
-        if self.dimension is not None:
-            out = self.dimension(t, self.fold(z)) if u is None else self.dimension(t, self.fold(z), self.fold(u))
-            return out.reshape(-1, *out.shape[2:])
-        if u is None:
-            return self.per_member("forward", (t, z), (False, True))
-        return self.per_member("forward", (t, z, u), (False, True, True))
+        return self.call("forward", (t, z), (False, True)) if u is None else \
+            self.call("forward", (t, z, u), (False, True, True))
 
     def to_internal(self, s: Tensor) -> Tensor:
-        return s if self.dimension is not None else self.per_member("to_internal", (s,), (True,))
+        return self.call("to_internal", (s,), (True,))
 
     def from_internal(self, z: Tensor) -> Tensor:
-        return z if self.dimension is not None else self.per_member("from_internal", (z,), (True,))
+        return self.call("from_internal", (z,), (True,))
 
     def residual(self, states: Tensor, t: Tensor, u: Tensor | None = None) -> Tensor:
-        if u is None:
-            return self.per_member("residual", (states, t), (True, False))
-        return self.per_member("residual", (states, t, u), (True, False, True))
+        return self.call("residual", (states, t), (True, False)) if u is None else \
+            self.call("residual", (states, t, u), (True, False, True))
+
+    def rollout(self, start: Tensor, t: Tensor, u: Tensor | None = None) -> Tensor:
+        """A discrete model's rollout (SyMo/E2E-SyMo: Newton iterations, each sample of each member converging on
+        its own), with the ensemble dimension only: ``vmap`` cannot pass its stopping test."""
+        return self.call("rollout", (start, t), (True, False)) if u is None else \
+            self.call("rollout", (start, t, u), (True, False, True))
 
     @contextmanager
     def rollout_scope(self) -> Iterator[None]:
         yield
 
     def penalty(self, regulariser: Any, points: Tensor, u: Tensor | None) -> Tensor:
-        """``regulariser(member, points, u)`` of every member (K,), at the same points for all."""
-        return self.per_member(regulariser, (points, u), (False, False))
+        """``regulariser(member, points, u)`` of every member (K,), at the same points for all. With the ensemble
+        dimension (``dimension_penalty``: a Jacobian penalty on the default constrained field), every member's
+        per-sample Jacobians come from one reverse pass per field dimension through the whole stacked field (its
+        rows are independent, so row b's cotangent e_j gives row j of row b's Jacobian); else ``per_member``."""
+        if self.dimension is None:
+            return self.per_member(regulariser, (points, u), (False, False))
+        s = points.repeat(self.k, 1)
+        u = None if u is None else u.repeat(self.k, 1)
+        z = self.to_internal(s)
+        t = torch.zeros((), dtype=s.dtype, device=s.device)
+        _, pullback = vjp(lambda z: self(t, z) if u is None else self(t, z, u), z)
+        basis = torch.eye(z.shape[-1], dtype=z.dtype, device=z.device).unsqueeze(1).expand(-1, *z.shape)
+        jac = vmap(pullback)(basis)[0].movedim(0, 1)  # (B, d out, d in)
+        return regulariser.weight * regulariser.violation(jac).reshape(self.k, -1).mean(1)
+
 
     @torch.no_grad()
     def copy_to(self, models: Sequence[nn.Module]) -> None:
@@ -181,14 +195,23 @@ class StackedModel(nn.Module):
             for name, layer in self.dimension.named_modules():
                 if isinstance(layer, EnsembleLinear):
                     for k, model in enumerate(models):
-                        model.get_submodule(name).weight.copy_(layer.weight[k].t())
-                        model.get_submodule(name).bias.copy_(layer.bias[k, 0])
+                        model.get_submodule(name).weight.copy_(layer.weight[k])
+                        if layer.bias is not None:
+                            model.get_submodule(name).bias.copy_(layer.bias[k])
             return
         params, buffers = self.member_weights()
         for k, model in enumerate(models):
             own = dict(model.named_parameters()) | dict(model.named_buffers())
             for name, value in (params | buffers).items():
                 own[name].copy_(value[k])
+
+
+def dimension_penalty(model: DynamicsModel, regulariser: Any) -> bool:
+    """Whether ``StackedModel.penalty`` takes ``regulariser`` with the ensemble dimension: a Jacobian penalty
+    (``encons.regularisers.JacobianPenalty``: a weight and a violation per Jacobian) of the default constrained
+    field (the internal field at ``to_internal(s)``; an INN's latent field is another)."""
+    return (regulariser is None or callable(getattr(regulariser, "violation", None))) and \
+        type(model).constrained_field is DynamicsModel.constrained_field
 
 
 class StackedTraining(TrainingModule):
@@ -225,9 +248,6 @@ def why_not(cfg: Any, members: Sequence[TrainingModule]) -> str | None:
     """Why the members cannot train stacked (None: they can), from the model, objective and settings alone."""
     member = members[0]
     model, name = member.model, member.model_name or type(member.model).__name__
-    if model.discrete and member.objective != "residual":
-        return (f"model={name} objective={member.objective} rolls out by Newton iterations whose stopping test "
-                f"(any sample still unconverged) is a branch on values, which the member axis does not pass")
     if not member.observation.identity:
         return f"observation={type(member.observation).__name__} trains an encoder beside the model"
     if cfg.get("compile"):
@@ -236,6 +256,32 @@ def why_not(cfg: Any, members: Sequence[TrainingModule]) -> str | None:
     if getattr(opt, "__name__", "") not in ELEMENTWISE:
         return f"optimizer {getattr(opt, '__name__', opt)} may mix elements across members; allowed stacked: {', '.join(ELEMENTWISE)}"
     return None
+
+
+def step_times(stacked: StackedTraining, members: Sequence[TrainingModule], batch: dict,
+               repeats: int = 2) -> tuple[float, float]:
+    """Seconds of one forward and backward of the members' training losses on ``batch``: stacked, and member by
+    member (the loop path), the faster of ``repeats`` after a warm-up; the gradients are cleared after."""
+    def step_stacked() -> None:
+        objective, penalty = stacked.member_losses(batch)
+        (objective if penalty is None else objective + penalty).sum().backward()
+
+    def step_loop() -> None:
+        for m in members:
+            penalty = m.penalty(batch)
+            (m.loss(batch) if penalty is None else m.loss(batch) + penalty).backward()
+
+    best = []
+    for step, modules in ((step_stacked, [stacked]), (step_loop, members)):
+        times = []
+        for _ in range(repeats + 1):
+            started = time.perf_counter()
+            step()
+            times.append(time.perf_counter() - started)
+        for module in modules:
+            module.zero_grad(set_to_none=True)
+        best.append(min(times[1:]))
+    return best[0], best[1]
 
 
 def probe(stacked: StackedTraining, members: Sequence[TrainingModule], batch: dict, rtol: float = 1e-4) -> str | None:

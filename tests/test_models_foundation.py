@@ -62,11 +62,11 @@ def test_a_rollout_starts_at_its_start_and_maps_back_only_the_later_states(syste
     model = HNN(system, hidden=8, depth=1).double()
     decoded = []
     decode = model.from_internal
-    monkeypatch.setattr(model, "from_internal", lambda z: decoded.append(z.shape[0]) or decode(z))
+    monkeypatch.setattr(model, "from_internal", lambda z: decoded.append(z.shape[:-1]) or decode(z))
     t = torch.arange(6, dtype=torch.float64) * 0.03
     pred = rollout(model, s, t, Integrator("rk4"))
     assert torch.equal(pred[:, 0], s) and pred.shape == (64, 6, 4)
-    assert decoded == [5]
+    assert decoded == [(64, 5)]  # batch-major (a seed ensemble's members fold into the batch axis)
     assert not torch.allclose(pred[:, 1], s, atol=1e-3)  # and it moves
 
 

@@ -17,7 +17,8 @@ from encons.batching import batched_grad
 from encons.bounds import Count, Range
 from encons.errors import PhysicsError
 from encons.models.base import DynamicsModel
-from encons.models.networks import AngleEmbedding, MLPTape, cranmer_init_, embed_angles, embedded_width, mlp, narrow_in
+from encons.models.networks import (AngleEmbedding, MLPTape, cranmer_init_, embed_angles, embedded_width, member_view,
+                                    mlp, narrow_in)
 from encons.models.structured import MassPotentialModel
 from encons.systems.base import System, split_state
 
@@ -145,9 +146,11 @@ class LNN(DynamicsModel):
         tape = MLPTape(self.lagrangian_net, torch.cat([embedding.x, qd], -1))
         g = tape.pullback()
         width = g.shape[-1]
-        along = narrow_in(embedding.jvp(qd), tape.first[:width - self.n])  # W_1 (q̇ through the embedding, 0)
-        units = tape.first[width - self.n:]  # W_1 (0, e_i): columns of W_1, no product
-        tangents = tape.hidden_tangents(torch.cat([units.expand(*along.shape[:-1], *units.shape), along.unsqueeze(-2)], -2))
+        along = narrow_in(embedding.jvp(qd), tape.first[..., :width - self.n, :])  # W_1 (q̇ through the embedding, 0)
+        units = tape.first[..., width - self.n:, :]  # W_1 (0, e_i): columns of W_1, no product (per member if stacked)
+        units = units if units.dim() == 2 else member_view(units, along.dim() + 1)
+        tangents = tape.hidden_tangents(torch.cat([units.expand(*along.shape[:-1], *units.shape[-2:]),
+                                                   along.unsqueeze(-2)], -2))
         curvature = tape.curvature(tangents, rows=self.n)
         return embedding.vjp(g[..., :width - self.n]), curvature[..., :self.n], curvature[..., self.n]
 

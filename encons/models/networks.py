@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Callable
 
 import torch
@@ -112,14 +113,57 @@ def _narrow(width: int) -> bool:
     return 1 < width < 16
 
 
+class EnsembleLinear(nn.Module):
+    """K ``nn.Linear`` layers as one: ``weight`` (K, out, in) and ``bias`` (K, out) (or None), on inputs whose
+    leading axis is the member axis, (K, ..., in) -> (K, ..., out), by one batched product (the ensemble
+    dimension written into the layer; ``encons.stacked`` builds seed ensembles of them). ``MLPTape`` and
+    ``narrow_in``/``narrow_out`` read these weights per member too."""
+
+    def __init__(self, layers: Sequence[nn.Linear]):
+        super().__init__()
+        self.weight = nn.Parameter(torch.stack([layer.weight.detach() for layer in layers]).contiguous())
+        self.bias = None if layers[0].bias is None else \
+            nn.Parameter(torch.stack([layer.bias.detach() for layer in layers]).contiguous())
+
+    def forward(self, x: Tensor) -> Tensor:
+        k, lead = x.shape[0], x.shape[1:-1]
+        rows = x.reshape(k, -1, x.shape[-1])
+        weight = self.weight.transpose(1, 2)
+        out = torch.bmm(rows, weight) if self.bias is None else torch.baddbmm(self.bias.unsqueeze(1), rows, weight)
+        return out.reshape(k, *lead, out.shape[-1])
+
+
+#: The layers ``MLPTape`` reads as linear: a network's own, and K of them stacked
+LINEAR = (nn.Linear, EnsembleLinear)
+
+
+def member_view(t: Tensor, dim: int) -> Tensor:
+    """A member-stacked tensor (K, *rest) viewed as (K, 1, ..., 1, *rest) of ``dim`` axes: broadcastable against
+    activations (K, ..., ·) whose leading axis is the member axis."""
+    return t.reshape(t.shape[0], *[1] * (dim - t.dim()), *t.shape[1:])
+
+
+def product(x: Tensor, w: Tensor) -> Tensor:
+    """x @ w for a matrix w (a, b), or per member for member-stacked matrices w (K, a, b) and x (K, ..., a) whose
+    leading axis is the member axis (an ensemble's networks, ``encons.stacked.EnsembleLinear``): one batched
+    product for all members."""
+    if w.dim() == 2:
+        return x @ w
+    return torch.bmm(x.reshape(w.shape[0], -1, x.shape[-1]), w).reshape(*x.shape[:-1], w.shape[-1])
+
+
 def narrow_in(x: Tensor, weight_t: Tensor, bias: Tensor | None = None) -> Tensor:
     """x @ Wᵀ (+ b) for x (..., d) and Wᵀ (d, width) given row-major (a network's first layer, or
-    an output cotangent pulled back through its last).
+    an output cotangent pulled back through its last); member-stacked Wᵀ (K, d, width) and b (K, width) act per
+    member on x (K, ..., d) (``product``).
 
     For a ``_narrow`` d, x goes in column-major: torch's mm backward returns each operand's gradient in
     that operand's layout (``mm_mat1_backward``/``mm_mat2_backward``), so x̄ = (W ḡᵀ)ᵀ and
     W̄ᵀ = xᵀ ḡ both come out (d, ·) wide, not (·, d) narrow. Same values as ``x @ weight_t``.
     """
+    if weight_t.dim() == 3:
+        out = product(x, weight_t)
+        return out if bias is None else out + member_view(bias, out.dim())
     if not _narrow(x.shape[-1]):
         return x @ weight_t if bias is None else torch.nn.functional.linear(x, weight_t.T, bias)
     rows = x.reshape(-1, x.shape[-1]).T.contiguous().T
@@ -130,7 +174,10 @@ def narrow_in(x: Tensor, weight_t: Tensor, bias: Tensor | None = None) -> Tensor
 def narrow_out(g: Tensor, weight_t: Tensor, bias: Tensor | None = None) -> Tensor:
     """g @ W (+ b) (..., d) for g (..., width) and Wᵀ (d, width) row-major, as (Wᵀ gᵀ + b)ᵀ for a
     ``_narrow`` d (a first layer's input gradient, or a last layer of a few outputs: W_L is its own
-    row-major Wᵀ); its own backward products come out wide, see ``narrow_in``."""
+    row-major Wᵀ); its own backward products come out wide, see ``narrow_in``. Member-stacked as ``narrow_in``."""
+    if weight_t.dim() == 3:
+        out = product(g, weight_t.transpose(-1, -2))
+        return out if bias is None else out + member_view(bias, out.dim())
     if not _narrow(weight_t.shape[0]):
         return g @ weight_t.T if bias is None else torch.nn.functional.linear(g, weight_t, bias)
     rows = g.reshape(-1, g.shape[-1]).T
@@ -142,7 +189,7 @@ def run(net: nn.Sequential, x: Tensor) -> Tensor:
     """net(x) for an ``mlp``, its first layer through ``narrow_in`` and its last through ``narrow_out``
     (same values to rounding)."""
     first, *hidden, last = net
-    a = narrow_in(x, first.weight.T.contiguous(), first.bias)
+    a = narrow_in(x, first.weight.transpose(-1, -2).contiguous(), first.bias)
     for layer in hidden:
         a = layer(a)
     return narrow_out(a, last.weight, last.bias)
@@ -159,15 +206,17 @@ class MLPTape:
     uᵀ ∇²f v = Σ_k Σ_j ḡ_kj σ''(z_kj) ż_kj(u) ż_kj(v) with ḡ_k = ∂f/∂a_k from ``pullback`` and ż_k
     the forward tangents from ``push``, so a Hessian block costs one forward tangent per direction
     instead of a Hessian-vector product (reverse over reverse). Values equal autodiff's to rounding.
+    Member-stacked layers (``encons.stacked.EnsembleLinear``: weights (K, out, in)) act per member on inputs
+    whose leading axis is the member axis: one batched product per layer for all members.
     """
 
     def __init__(self, net: nn.Sequential, x: Tensor):
-        self.linears = [layer for layer in net if isinstance(layer, nn.Linear)]
-        self.first = self.linears[0].weight.T.contiguous()  # W_1ᵀ (d, width), row-major (``narrow_in``)
+        self.linears = [layer for layer in net if isinstance(layer, LINEAR)]
+        self.first = self.linears[0].weight.transpose(-1, -2).contiguous()  # W_1ᵀ (d, width), row-major (``narrow_in``)
         self.slopes: list[tuple[Tensor, Callable[[], Tensor]]] = []
         self.adjoints: list[Tensor] = []
         a = x
-        for linear, activation in zip(self.linears, (layer for layer in net if not isinstance(layer, nn.Linear))):
+        for linear, activation in zip(self.linears, (layer for layer in net if not isinstance(layer, LINEAR))):
             z = narrow_in(a, self.first, linear.bias) if linear is self.linears[0] else linear(a)
             a = activation(z)
             self.slopes.append(SLOPES[type(activation)](z))
@@ -176,11 +225,13 @@ class MLPTape:
     def pullback(self, cotangent: Tensor | None = None) -> Tensor:
         """cᵀ ∂out/∂x (..., d) for output cotangents c (..., out), or ∇out for a scalar output (no c:
         the last layer's weight row, no product); keeps ḡ_k = cᵀ ∂out/∂a_k."""
-        g = self.linears[-1].weight if cotangent is None else narrow_in(cotangent, self.linears[-1].weight)
+        last = self.linears[-1].weight
+        g = (last if last.dim() == 2 else member_view(last, self.out.dim())) if cotangent is None else \
+            narrow_in(cotangent, last)
         self.adjoints = []
         for linear, (slope, _) in zip(reversed(self.linears[1:-1]), reversed(self.slopes[1:])):
             self.adjoints.insert(0, g)
-            g = (g * slope) @ linear.weight
+            g = product(g * slope, linear.weight)
         self.adjoints.insert(0, g)
         return narrow_out(g * self.slopes[0][0], self.first)
 
@@ -196,7 +247,7 @@ class MLPTape:
         (e.g. columns of W_1 for unit directions t)."""
         tangents = [first]
         for linear, (slope, _) in zip(self.linears[1:-1], self.slopes):
-            tangents.append((slope.unsqueeze(-2) * tangents[-1]) @ linear.weight.T)
+            tangents.append(product(slope.unsqueeze(-2) * tangents[-1], linear.weight.transpose(-1, -2)))
         return tangents
 
     def curvature(self, tangents: list[Tensor], rows: int | None = None) -> Tensor:
