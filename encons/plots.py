@@ -23,7 +23,7 @@ def subplots(*grid: int, figsize: tuple[float, float], **kwargs):
 TIME = "time t [s]"
 REL_ERR = "relative error ‖ŝₜ − sₜ‖ / ‖sₜ‖ [–]"
 ENERGY_ERR = "energy error |E(ŝₜ) − E(sₜ)| [J]"
-STATE_MSE = "state MSE of ŝₜ against sₜ [mixed: rad², (rad/s)²]"
+STATE_MSE = "state MSE, each coordinate / its test-set spread [–]"
 ENERGY_MSE = "energy MSE of E(ŝₜ) against E(sₜ) [J²]"
 
 
@@ -425,13 +425,14 @@ def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], title: str,
     keys = list(curves["model"])
     mixed = ", ".join(f"({u})²" if "/" in u else f"{u}²" for u in dict.fromkeys(
         [*(units or ("–",)), *(f"{u}/s" for u in (units or ("–",)))]))
-    labels = {"state_mse": f"state MSE, mean over every q and q̇ [mixed: {mixed}]", "energy_mse": "energy MSE [J²]"}
+    labels = {"state_mse": STATE_MSE, "state_mse_raw": f"state MSE, raw mean over every q and q̇ [mixed: {mixed}]",
+              "energy_mse": "energy MSE [J²]"}
     for key in keys:   # one unit family each (metrics.unit_families)
-        if key.startswith("state_mse_"):
+        if key.startswith("state_mse_") and key != "state_mse_raw":
             unit = key.removeprefix("state_mse_").replace("_per_", "/").replace("_", " ")
             labels[key] = f"MSE of the {'rates' if '/' in unit else 'coordinates'} in {unit} [{unit}]²"
-    if any(k.startswith("state_mse_") for k in keys) and sum(k.startswith("state_mse_") for k in keys) == 2:
-        keys.remove("state_mse")     # one unit for q and one for q̇: the two families say it in their units
+    if "state_mse_raw" in keys and sum(k.startswith("state_mse_") for k in keys) > 1:
+        keys.remove("state_mse_raw")     # the unit families say it in their own units
     fig, axes = subplots(1, len(keys), figsize=(5 * len(keys), 4), squeeze=False)
     for ax, key in zip(axes[0], keys):
         model = curves["model"][key][1:]

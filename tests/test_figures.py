@@ -76,7 +76,7 @@ def test_mse_axis_is_not_stretched_by_a_constant_baseline_energy_error():
               "baseline_linear_ode": {"state_mse": rising * 2, "energy_mse": rising * 5}}
     figure = plots.mse_figure(t, curves, "node on pendulum", units=("rad",))["mse_vs_time"]
     (state_label, _, _, state_lim, *_), (_, _, _, energy_lim, _, _, energy_lines) = described(figure)["axes"]
-    assert state_label == "state MSE, mean over every q and q̇ [mixed: rad², (rad/s)²]"
+    assert state_label == "state MSE, each coordinate / its test-set spread [–]"
     assert energy_lim[0] > 1e-5 and energy_lim[1] / energy_lim[0] < 1e5          # not 14 decades
     assert "constant (below the axis: ≤ 1e-14)" in energy_lines
 
@@ -133,7 +133,7 @@ def test_mse_per_unit_family_and_named_multi_body_coordinates():
     pred[..., 2] = 1.0                                              # only the m/s entry is off
     curves = metrics.mse_curves(pred, true, families=families)
     assert curves["state_mse_m_per_s"].tolist() == [1.0] * 3 and curves["state_mse_m"].tolist() == [0.0] * 3
-    assert curves["state_mse"].tolist() == [0.25] * 3               # Xiao's mean over every entry, units mixed
+    assert curves["state_mse_raw"].tolist() == [0.25] * 3           # Xiao's mean over every entry, units mixed
     names = plots.coordinate_names(24, CartesianLayout(4, 3, ((0, 1, 2, 3),)))
     assert names[:4] == ["x₁ (body 1)", "y₁ (body 1)", "z₁ (body 1)", "x₂ (body 1)"] and names[12] == "x\u0307₁ (body 1)"
 
