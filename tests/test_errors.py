@@ -295,3 +295,23 @@ def test_a_missing_study_names_the_stored_ones(tmp_path):
     with pytest.raises(ConfigError, match=r"^study='gone' is not in .*; allowed: kept$"):
         load_study(url, "gone")
     assert load_study(url, "kept").study_name == "kept"
+
+
+@pytest.mark.parametrize("module, args, line", [
+    ("encons.benchmark", ["profile=smoke", "train=[trainer.max_epochs=150]"],
+     "encons: error: train=[trainer.max_epochs=150]: a list element holding '=' needs quotes; allowed: "
+     "'train=[\"trainer.max_epochs=150\"]' (quoted as shown)"),
+    ("encons.train", ["trainer.max_epoch=3"],
+     "encons: error: trainer.max_epoch is not a key of the config, did you mean trainer.max_epochs; allowed: the "
+     "keys `--cfg job` prints, or +trainer.max_epoch=VALUE to add one"),
+    ("encons.train", ["modl.hidden=3"], "encons: error: modl.hidden is not a key of the config, did you mean "
+                                        "model.hidden; allowed:"),
+])
+def test_an_unquoted_list_and_a_misspelt_key_get_a_one_line_hint(tmp_path, monkeypatch, module, args, line):
+    """Issue 51: Hydra's parse error of an unquoted `train=[k=v]` and a key one letter off."""
+    from tests.helpers import in_process
+
+    monkeypatch.chdir(tmp_path)
+    proc = in_process(module, [*args, f"out={tmp_path / 'b'}"] if module == "encons.benchmark" else args, monkeypatch)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].startswith(line), proc.stderr
