@@ -220,6 +220,14 @@ HEADLINE = ("wall_time_s", "test/diverged", "test/traj_rel_err", "test/geom_rel_
             "test/control/b_rel_err")
 
 
+def mean_sd(mean: float, sd: float, runs: int) -> str:
+    """A cell "mean ± sd", or the mean alone where it is one run's value (no spread to give) or the spread is
+    below float64 rounding of the mean (identical runs: 8.5e-18 beside 0.1 is no spread)."""
+    if runs <= 1 or not sd > 1e-12 * abs(mean):   # NaN sd: a spread that cannot be told, so none
+        return f"{mean:.3g}"
+    return f"{mean:.3g} ± {sd:.2g}"
+
+
 def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", headline: bool = False) -> str:
     """A Markdown table: model × system rows, metrics as mean ± std, paper values beside (a published value
     named as a metric right after that metric's column, the others at the end); every metric, or with
@@ -241,7 +249,8 @@ def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", head
     for e in summary:
         cells = [e["system"], e["model"], str(e["n_train"]), f"{e['runs'] - e['failed']}/{e['runs']}"]
         values = paper.get(f"{e['system']}/{e['model']}", {}) if not e["data_efficiency"] else {}
-        cells += [(f"{e[m]:.3g} ± {e[m + '_sd']:.2g}" if m in e else "failed" if e["failed"] == e["runs"] else "—")
+        cells += [(mean_sd(e[m], e[m + "_sd"], e["runs"] - e["failed"]) if m in e
+                   else "failed" if e["failed"] == e["runs"] else "—")
                   if m else f"{values[k]:.3g}" if k in values else ""
                   for m, k in columns]  # —: a metric this model does not report (plain_inverse, newton_unconverged)
         cells.append(e.get("optimiser", ""))
