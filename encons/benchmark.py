@@ -66,6 +66,9 @@ def expand(cfg: DictConfig) -> list[PlannedRun]:
 
     c = plain(cfg)
     check_keys(c)
+    # the command's hydra.searchpath (a user's conf/ with models and systems of their own) reaches every run
+    folders = list(cfg.hydra.searchpath) if "hydra" in cfg and cfg.hydra.get("searchpath") else []
+    searched = ["hydra.searchpath=[" + ",".join(f"'{f}'" for f in folders) + "]"] if folders else []
     for key, group in (("systems", "system"), ("models", "model")):
         if c[key] == "all" or c[key] == ["all"]:
             c[key] = catalogue(group)  # a model a system cannot serve fails with its one-line reason
@@ -73,7 +76,7 @@ def expand(cfg: DictConfig) -> list[PlannedRun]:
     per_model = c.get("per_model") or {}
     per_family = c.get("per_family") or {}
     by_name = [m for m in (*c["models"], *c["n_train_models"]) if isinstance(m, str)]
-    family = {m: family_overrides(m, per_family) for m in dict.fromkeys(by_name)}  # placed after common: they refine it
+    family = {m: family_overrides(m, per_family, searched) for m in dict.fromkeys(by_name)}  # after common: refine it
     # an entry: system, label, overrides before common, n_train, published numbers, overrides after common
     entries = [(s, m, [f"model={m}", *per_model.get(m, [])], None, {}, family[m]) for s in c["systems"] for m in c["models"]]
     entries += [(r["system"], r["label"], list(r["overrides"]), None, r.get("paper", {}), []) for r in c["runs"]]
@@ -94,12 +97,12 @@ def expand(cfg: DictConfig) -> list[PlannedRun]:
                               f"system/label pairs")
     if not entries:
         raise ConfigError("profile has no runs: give systems and models, runs or n_train")
-    return [PlannedRun(system, label, seed, [f"system={system}", *ovr, *c["common"], *after, *per_system.get(system, []),
+    return [PlannedRun(system, label, seed, [*searched, f"system={system}", *ovr, *c["common"], *after, *per_system.get(system, []),
                                             f"seed={seed}", f"threads={json.dumps(c['threads'])}", *c["train"]], n, paper)
             for system, label, ovr, n, paper, after in entries for seed in c["seeds"]]
 
 
-def family_overrides(model: str, per_family: dict) -> list[str]:
+def family_overrides(model: str, per_family: dict, searched: list[str] = ()) -> list[str]:
     """The overrides ``per_family`` gives ``model``'s family: the ``family`` its class declares
     (``DynamicsModel.family``, e.g. ``constrained`` for CHNN and CLNN). A profile with ``per_family`` refuses a
     model whose family it does not list, so no model falls back to another setting unseen."""
@@ -108,7 +111,7 @@ def family_overrides(model: str, per_family: dict) -> list[str]:
     from encons import trust
     from encons.build import compose
 
-    family = trust.locate(compose([f"model={model}"]).model._target_, "model").family
+    family = trust.locate(compose([*searched, f"model={model}"]).model._target_, "model").family
     if family not in per_family:
         raise ConfigError(f"per_family has no entry for model={model} (family {family}); allowed: one entry per "
                           f"family of the profile's models, listed: {', '.join(per_family)}")

@@ -107,7 +107,7 @@ class TrainingModule(pl.LightningModule):
     def training_step(self, batch: Batch, batch_idx: int) -> Tensor:
         u, size = batch.get("u"), len(batch["states"])
         loss = self.loss(batch)
-        self.log("train/loss", loss, prog_bar=True, batch_size=size)
+        self.log("train/loss", loss, prog_bar=True, batch_size=size, sync_dist=True)  # every rank's, not rank 0's
         if self.regulariser is not None:  # at the (encoded) states, detached: it shapes the field, not the encoder
             with torch.no_grad():
                 points = self.observe(batch)[1]

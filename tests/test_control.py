@@ -136,6 +136,23 @@ def test_control_prints_success_rate_in_percent_and_effort_with_its_unit():
     assert "effort [∫ u² dt, (N)² s]" in dict(printed_rows(scores, CartPole()))
 
 
+@pytest.mark.slow
+def test_the_docs_control_snippet_runs_as_written(tmp_path, monkeypatch):
+    """docs/control.md's Python block, run as written but at debug size (issue 51: it lacked the import and
+    the run)."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).parents[1] / "docs" / "control.md").read_text()
+    block = re.search(r"```python\n(import encons\n.*?)```", text, re.S).group(1)
+    monkeypatch.setenv("ENCONS_ROOT", str(tmp_path))
+    small = block.replace('["model=lnode",', '["debug=fast", "figures=false", "logger=none", "model=lnode",')
+    assert small != block
+    scope: dict = {}
+    exec(compile(small, "docs/control.md", "exec"), scope)
+    assert 0 <= scope["metrics"]["control/success_rate"] <= 1 and scope["metrics"]["oracle/success_rate"] > 0
+
+
 def test_score_control_is_exported_from_encons():
     import encons
 

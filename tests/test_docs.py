@@ -89,7 +89,7 @@ def fenced_commands() -> dict[str, str]:
 
 PYTHON_BLOCKS = {
     "import torch, encons": "tests/test_api.py::test_notebook_workflow_round_trips_a_run",
-    "metrics = encons.score_control(run)": "tests/test_control.py::test_score_control_is_exported_from_encons",
+    "import encons": "tests/test_control.py::test_the_docs_control_snippet_runs_as_written",
 }
 
 
