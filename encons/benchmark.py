@@ -97,9 +97,39 @@ def expand(cfg: DictConfig) -> list[PlannedRun]:
                               f"system/label pairs")
     if not entries:
         raise ConfigError("profile has no runs: give systems and models, runs or n_train")
-    return [PlannedRun(system, label, seed, [*searched, f"system={system}", *ovr, *c["common"], *after, *per_system.get(system, []),
+    yielded = preset_keys(c["train"])   # the profile's overrides of what a train=[debug=...] preset sets: dropped
+
+    def kept(overrides: list[str]) -> list[str]:
+        return [o for o in overrides if o.partition("=")[0].lstrip("+~") not in yielded]
+
+    return [PlannedRun(system, label, seed, [*searched, f"system={system}", *kept([*ovr, *c["common"], *after,
+                                                                                *per_system.get(system, [])]),
                                             f"seed={seed}", f"threads={json.dumps(c['threads'])}", *c["train"]], n, paper)
             for system, label, ovr, n, paper, after in entries for seed in c["seeds"]]
+
+
+def preset_keys(train: list[str]) -> set[str]:
+    """The keys a ``debug=<preset>`` among a benchmark's ``train`` overrides sets (``conf/debug/<preset>.yaml``),
+    and ``data.chunk_len`` when it sets ``data.n_steps`` (a profile's window must not outgrow the preset's
+    trajectories). A group choice loses to any key override, wherever given, so without this a profile's
+    ``trainer.max_epochs=1000`` beat ``train=[debug=fast]`` and its ``data.chunk_len=30`` failed every run."""
+    from omegaconf import OmegaConf
+
+    keys: set[str] = set()
+    for item in train:
+        group, _, choice = item.partition("=")
+        path = Path(config_dir()) / "debug" / f"{choice}.yaml"
+        if group != "debug" or not path.is_file():
+            continue
+        preset = OmegaConf.to_container(OmegaConf.load(path))
+        stack = [("", {k: v for k, v in preset.items() if k not in ("defaults", "preset_keys")})]
+        while stack:
+            prefix, node = stack.pop()
+            for key, value in node.items():
+                (stack.append((f"{prefix}{key}.", value)) if isinstance(value, dict) else keys.add(f"{prefix}{key}"))
+        if "data.n_steps" in keys:
+            keys.add("data.chunk_len")
+    return keys
 
 
 def family_overrides(model: str, per_family: dict, searched: list[str] = ()) -> list[str]:
