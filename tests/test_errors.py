@@ -315,3 +315,22 @@ def test_an_unquoted_list_and_a_misspelt_key_get_a_one_line_hint(tmp_path, monke
     proc = in_process(module, [*args, f"out={tmp_path / 'b'}"] if module == "encons.benchmark" else args, monkeypatch)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert proc.stderr.strip().splitlines()[-1].startswith(line), proc.stderr
+
+
+def test_a_ckpt_path_to_a_text_file_is_the_only_line_printed(cli, tmp_path):
+    """Issue 51: the data were simulated (their log lines printed) before the checkpoint was read."""
+    (tmp_path / "notes.txt").write_text("not a checkpoint\n")
+    proc = cli("debug=fast", "model=node", "system=pendulum1", f"ckpt_path={tmp_path / 'notes.txt'}",
+               f"paths.cache_dir={tmp_path / 'cache'}", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
+    assert proc.returncode == 2 and not (tmp_path / "cache").exists()
+    assert (proc.stdout + proc.stderr).strip().splitlines() == [
+        f"encons: error: ckpt_path={str(tmp_path / 'notes.txt')!r} is not a readable checkpoint (RuntimeError); "
+        f"allowed: a .ckpt written by encons"]
+
+
+def test_evaluate_of_a_folder_that_does_not_exist_says_so(tmp_path, monkeypatch):
+    from tests.helpers import in_process
+
+    proc = in_process("encons.evaluate", [str(tmp_path / "nope")], monkeypatch)
+    assert proc.returncode == 2 and proc.stderr.strip() == (
+        f"encons: error: {str(tmp_path / 'nope')!r} does not exist; allowed: a run folder that train wrote, or its .ckpt")
