@@ -193,7 +193,7 @@ class TrainingModule(pl.LightningModule):
         if not self.observation.identity:
             return (f"{model} on {self.system.name} ({type(self.observation).__name__}, "
                     f"latent size {2 * self.model.n})")
-        return f"{model} on {self.system.name} ({self.model.chart} chart)"
+        return f"{model} on {self.system.name} (learns in the {self.model.chart} chart)"
 
     def configure_optimizers(self):
         """The ``optimizer`` partial on the parameters, and the ``scheduler`` partial on it (if any).

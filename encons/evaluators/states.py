@@ -94,4 +94,4 @@ class States(Evaluator):
                 **plots.rollout_figures(t.cpu(), pred_c.cpu(), true_c.cpu(),
                                         [e.cpu() for e in energies] if energies else None, title=title,
                                         units=units, baseline=baseline.cpu(), angles=module.compared_angles,
-                                        names=names, time_label=time_label)}
+                                        names=names, time_label=time_label, chart=module.system.common_chart)}
