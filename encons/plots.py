@@ -123,7 +123,8 @@ def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor
                     if baseline is not None:
                         ax.plot(t, baseline[k, :, idx], ":", color=palette[d], lw=1.0, zorder=2.5)
                     ax.plot(t, pred[k, :, idx], "--", color=palette[d], lw=1.3, zorder=3)
-                ax.set_ylabel(f"{'velocity q̇' if rate else 'position q'} {unit_label(units[group.start:group.stop], rate)}")
+                unit = unit_label(units[group.start:group.stop], rate)
+                ax.set_ylabel(f"{'velocity q̇' if rate else 'position q'} {unit}")
         turns = [f"{names[d]} {'−' if turn > 0 else '+'} {abs(turn)}·2π" for d in range(n)
                  if (turn := round(float(shift[k, 0, d]) / (2 * torch.pi)))]
         axes[0, col].set_title(f"test trajectory {k} ({tags[k]} of {len(order)} by relative error)"
