@@ -80,9 +80,11 @@ def test_quiet_upstream_keeps_lightnings_device_lines_off_the_console_but_in_the
     try:
         compat.quiet_upstream()
         compat.quiet_upstream()                                     # twice: one filter per handler
-        logger = logging.getLogger("lightning.pytorch.utilities.rank_zero")
+        name = "lightning.pytorch.utilities.rank_zero"   # what reaches the root's handlers from Lightning's logger
         for line in ("GPU available: False, used: False", "TPU available: False, using: 0 TPU cores", "kept"):
-            logger.info(line)
+            record = logging.LogRecord(name, logging.INFO, __file__, 0, line, (), None)
+            console.handle(record)
+            file.handle(record)
     finally:
         root.removeHandler(console)
         root.removeHandler(file)
