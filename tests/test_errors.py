@@ -332,5 +332,5 @@ def test_evaluate_of_a_folder_that_does_not_exist_says_so(tmp_path, monkeypatch)
     from tests.helpers import in_process
 
     proc = in_process("encons.evaluate", [str(tmp_path / "nope")], monkeypatch)
-    assert proc.returncode == 2 and proc.stderr.strip() == (
-        f"encons: error: {str(tmp_path / 'nope')!r} does not exist; allowed: a run folder that train wrote, or its .ckpt")
+    assert proc.returncode == 2 and proc.stderr.strip() == (f"encons: error: {str(tmp_path / 'nope')!r} does not "
+                                                            f"exist; allowed: a run folder that train wrote, or its .ckpt")
