@@ -73,6 +73,9 @@ def expand(cfg: DictConfig) -> list[PlannedRun]:
 
     c = plain(cfg)
     check_keys(c)
+    # the command's hydra.searchpath (a user's conf/ with models and systems of their own) reaches every run
+    folders = list(cfg.hydra.searchpath) if "hydra" in cfg and cfg.hydra.get("searchpath") else []
+    searched = ["hydra.searchpath=[" + ",".join(f"'{f}'" for f in folders) + "]"] if folders else []
     for key, group in (("systems", "system"), ("models", "model")):
         if c[key] == "all" or c[key] == ["all"]:
             c[key] = catalogue(group)  # a model a system cannot serve fails with its one-line reason
@@ -80,7 +83,7 @@ def expand(cfg: DictConfig) -> list[PlannedRun]:
     per_model = c.get("per_model") or {}
     per_family = c.get("per_family") or {}
     by_name = [m for m in (*c["models"], *c["n_train_models"]) if isinstance(m, str)]
-    family = {m: family_overrides(m, per_family) for m in dict.fromkeys(by_name)}  # placed after common: they refine it
+    family = {m: family_overrides(m, per_family, searched) for m in dict.fromkeys(by_name)}  # after common: refine it
     # an entry: system, label, overrides before common, n_train, published numbers, overrides after common
     entries = [(s, m, [f"model={m}", *per_model.get(m, [])], None, {}, family[m]) for s in c["systems"] for m in c["models"]]
     entries += [(r["system"], r["label"], list(r["overrides"]), None, r.get("paper", {}), []) for r in c["runs"]]
@@ -101,12 +104,42 @@ def expand(cfg: DictConfig) -> list[PlannedRun]:
                               f"system/label pairs")
     if not entries:
         raise ConfigError("profile has no runs: give systems and models, runs or n_train")
-    return [PlannedRun(system, label, seed, [f"system={system}", *ovr, *c["common"], *after, *per_system.get(system, []),
+    yielded = preset_keys(c["train"])   # the profile's overrides of what a train=[debug=...] preset sets: dropped
+
+    def kept(overrides: list[str]) -> list[str]:
+        return [o for o in overrides if o.partition("=")[0].lstrip("+~") not in yielded]
+
+    return [PlannedRun(system, label, seed, [*searched, f"system={system}", *kept([*ovr, *c["common"], *after,
+                                                                                *per_system.get(system, [])]),
                                             f"seed={seed}", f"threads={json.dumps(c['threads'])}", *c["train"]], n, paper)
             for system, label, ovr, n, paper, after in entries for seed in c["seeds"]]
 
 
-def family_overrides(model: str, per_family: dict) -> list[str]:
+def preset_keys(train: list[str]) -> set[str]:
+    """The keys a ``debug=<preset>`` among a benchmark's ``train`` overrides sets (``conf/debug/<preset>.yaml``),
+    and ``data.chunk_len`` when it sets ``data.n_steps`` (a profile's window must not outgrow the preset's
+    trajectories). A group choice loses to any key override, wherever given, so without this a profile's
+    ``trainer.max_epochs=1000`` beat ``train=[debug=fast]`` and its ``data.chunk_len=30`` failed every run."""
+    from omegaconf import OmegaConf
+
+    keys: set[str] = set()
+    for item in train:
+        group, _, choice = item.partition("=")
+        path = Path(config_dir()) / "debug" / f"{choice}.yaml"
+        if group != "debug" or not path.is_file():
+            continue
+        preset = OmegaConf.to_container(OmegaConf.load(path))
+        stack = [("", {k: v for k, v in preset.items() if k not in ("defaults", "preset_keys")})]
+        while stack:
+            prefix, node = stack.pop()
+            for key, value in node.items():
+                (stack.append((f"{prefix}{key}.", value)) if isinstance(value, dict) else keys.add(f"{prefix}{key}"))
+        if "data.n_steps" in keys:
+            keys.add("data.chunk_len")
+    return keys
+
+
+def family_overrides(model: str, per_family: dict, searched: list[str] = ()) -> list[str]:
     """The overrides ``per_family`` gives ``model``'s family: the ``family`` its class declares
     (``DynamicsModel.family``, e.g. ``constrained`` for CHNN and CLNN). A profile with ``per_family`` refuses a
     model whose family it does not list, so no model falls back to another setting unseen."""
@@ -115,7 +148,7 @@ def family_overrides(model: str, per_family: dict) -> list[str]:
     from encons import trust
     from encons.build import compose
 
-    family = trust.locate(compose([f"model={model}"]).model._target_, "model").family
+    family = trust.locate(compose([*searched, f"model={model}"]).model._target_, "model").family
     if family not in per_family:
         raise ConfigError(f"per_family has no entry for model={model} (family {family}); allowed: one entry per "
                           f"family of the profile's models, listed: {', '.join(per_family)}")

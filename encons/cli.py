@@ -106,6 +106,8 @@ def evaluate(argv: list[str] | None = None) -> None:
     overrides = [a for a in argv[1:] if not a.startswith("ckpt=")]
     ckpt = next((a.split("=", 1)[1] for a in argv[1:] if a.startswith("ckpt=")), "best")
     with one_line_errors():
+        if not os.path.exists(argv[0]):
+            raise ConfigError(f"{argv[0]!r} does not exist; allowed: a run folder that train wrote, or its .ckpt")
         runs.evaluate(argv[0], overrides, ckpt=ckpt)
 
 

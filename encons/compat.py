@@ -58,13 +58,27 @@ class _DropTips(logging.Filter):
         return not str(record.msg).startswith("💡")
 
 
+class _DeviceLinesOffConsole(logging.Filter):
+    """Drops Lightning 2.6's "GPU available: ... / TPU available: ..." lines (the device is in the run's
+    config and train.log); set on console handlers only, so the log files keep them."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not (record.name.startswith("lightning") and str(record.msg).startswith(("GPU available",
+                                                                                        "TPU available")))
+
+
 def quiet_upstream() -> None:
     """Silence upstream messages a user cannot act on: Lightning 2.6's tips and its deprecation
     warning about torch 2.13's pytree ``LeafSpec``, the notice of a resume into a new folder, and its advice
     to add DataLoader workers on machines of more than 2 cores (encons' windows are slices of tensors in
-    memory: workers would only copy them between processes; no key sets them)."""
+    memory: workers would only copy them between processes; no key sets them); its device lines on the
+    console (Hydra's, or one a script set up), kept in the log files."""
     warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\)")
     warnings.filterwarnings("ignore", message="The dirpath has changed from")
     warnings.filterwarnings("ignore", message=r"The '\w+' does not have many workers")
     for name in ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.rank_zero"):
         logging.getLogger(name).addFilter(_DropTips())  # the loggers rank_zero_info writes to
+    for handler in logging.getLogger().handlers:
+        if type(handler) is logging.StreamHandler and not any(isinstance(f, _DeviceLinesOffConsole)
+                                                                for f in handler.filters):
+            handler.addFilter(_DeviceLinesOffConsole())

@@ -12,6 +12,7 @@ from __future__ import annotations
 import inspect
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from omegaconf import DictConfig, OmegaConf, open_dict
@@ -112,6 +113,7 @@ def validate(cfg: DictConfig, request: Request | None = None) -> Checked:
         raise ConfigError(f"data.n_val=0 leaves no validation set for optimized_metric={cfg.optimized_metric}; "
                           f"allowed: data.n_val >= 1, or optimized_metric=train/loss")
     check_validation(cfg)
+    check_ckpt_path(cfg, request)
     model = targets[cfg.model._target_]
     objective = cfg.objective or model.objectives[0]
     observation = cfg.get("observation")
@@ -119,6 +121,20 @@ def validate(cfg: DictConfig, request: Request | None = None) -> Checked:
         check_observation(targets[observation._target_], objective)
     check_model(cfg, model, objective, request)
     return Checked(_frozen(cfg), resolved, request, trusted, targets, model, objective)
+
+
+def check_ckpt_path(cfg: DictConfig, request: Request) -> None:
+    """A ``ckpt_path`` file read once before any data are simulated, so that a wrong one (a text file, a
+    missing path) is the run's one line, not the last of the data's log lines. Only for a run to train (a
+    composed config: its request has group choices); a saved run's config keeps the ckpt_path it resumed from."""
+    from encons import checkpoints
+
+    path = cfg.get("ckpt_path")
+    if path is None or path == "last" or not request.choices:
+        return
+    if not Path(str(path)).is_file():
+        raise ConfigError(f"ckpt_path={str(path)!r} does not exist; allowed: a .ckpt file, last or null")
+    checkpoints.read(str(path), "ckpt_path")
 
 
 #: validation.criterion values (encons.module.TrainingModule.validation_step; none: no validation loop).

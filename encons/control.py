@@ -89,6 +89,23 @@ class Settings:
         return (2 * unit - 1) * torch.tensor(self.start_range, dtype=torch.float64)
 
 
+INPUT_UNIT = {ControlledPendulum: "N m", CartPole: "N"}   # u: the pivot's torque; the force on the cart
+
+
+def printed_rows(metrics: dict[str, float], system) -> list[tuple[str, list[str]]]:
+    """The rows of ``encons.control``'s table: each metric with its unit, ``success_rate`` in percent of the
+    starts (``control_metrics.json`` keeps the fraction), ``effort`` in the input's unit squared times s."""
+    u = INPUT_UNIT[type(system)]
+    units = {"success_rate": "% of starts", "time_to_upright_s": "s", "effort": f"∫ u² dt, ({u})² s",
+             "max_abs_u": u, "pred_rmse": "q and q̇ units, mixed", "a_rel_err": "–", "b_rel_err": "–"}
+    rows = []
+    for key, unit in units.items():
+        scale = 100.0 if key == "success_rate" else 1.0
+        cells = [metrics.get(f"{side}/{key}") for side in ("control", "oracle")]
+        rows.append((f"{key} [{unit}]", ["" if v is None else f"{v * scale:.4g}" for v in cells]))
+    return rows
+
+
 SETTINGS = {
     ControlledPendulum: Settings(gain_energy=2.0, q_weights=(10.0, 1.0), r_weight=1.0, switch=20.0,
                                  tolerance=(0.1, 0.5), duration=10.0, hold=2.0, start_range=(math.pi, 2 * math.pi)),
@@ -352,9 +369,8 @@ def score_control(run, starts: int = 100, seed: int = 0, duration: float | None 
                         f"control period {run.module.dt} s")
     for column in ("metric", "from the learned model", "from the true model (oracle)"):
         table.add_column(column, justify="left" if column == "metric" else "right")
-    for key in ("success_rate", "time_to_upright_s", "effort", "max_abs_u", "pred_rmse", "a_rel_err", "b_rel_err"):
-        cells = [outcome.metrics.get(f"{side}/{key}") for side in ("control", "oracle")]
-        table.add_row(key, *["" if v is None else f"{v:.4g}" for v in cells])
+    for label, cells in printed_rows(outcome.metrics, system):
+        table.add_row(label, *cells)
     console = Console()
     console.print(table)
     console.print(f"outputs: {out}  (control_metrics.json, control_*.png: closed loops, success, learned vs true portrait)")

@@ -98,7 +98,28 @@ def user_line(err: Exception) -> str:
     lines = str(err).strip().splitlines()
     missing = re.match(r"Could not override '([^']+)'", lines[0])
     if missing:
-        return (f"{missing.group(1)} is not a key of the config; allowed: the keys `--cfg job` prints, "
-                f"or +{missing.group(1)}=VALUE to add one")
+        key = missing.group(1)
+        return f"{key} is not a key of the config{_did_you_mean(key, err.__cause__)}; allowed: the keys `--cfg " \
+               f"job` prints, or +{key}=VALUE to add one"
+    unquoted = re.match(r"Error when parsing index: \d+, string: (([\w.+~/]+)=\[(.*=.*)\]) out of", lines[0])
+    if unquoted:   # train=[trainer.max_epochs=150]: Hydra reads an element holding '=' only in quotes
+        item, key, elements = unquoted.groups()
+        quoted = ",".join(f'"{e.strip()}"' for e in elements.split(","))
+        return f"{item}: a list element holding '=' needs quotes; allowed: '{key}=[{quoted}]' (quoted as shown)"
     return lines[0] + ("; allowed: key=value overrides (Hydra's override grammar)"
                        if isinstance(err, OverrideParseException) else "")
+
+
+def _did_you_mean(key: str, cause: BaseException | None) -> str:
+    """", did you mean trainer.max_epochs" for a misspelt ``key``: the part OmegaConf could not find (its error
+    carries the key and the node it was looked up in) replaced by the closest key of that node; nothing when
+    none is close."""
+    import difflib
+
+    node, missing, where = (getattr(cause, name, None) for name in ("parent_node", "key", "full_key"))
+    if node is None or not hasattr(node, "keys") or not isinstance(missing, str) or not isinstance(where, str):
+        return ""
+    close = difflib.get_close_matches(missing, [str(k) for k in node.keys()], n=1)
+    if not close:
+        return ""
+    return f", did you mean {where.removesuffix(missing) + close[0] + key.lstrip('+~').removeprefix(where)}"

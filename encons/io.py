@@ -137,11 +137,16 @@ def save_npz(path: str | Path, **arrays: Any) -> Path:
 
 
 def save_figure(fig: Any, path: str | Path, **kwargs: Any) -> Path:
-    """``fig.savefig`` to ``path`` atomically, in the format its suffix names (``.png``)."""
+    """``fig.savefig`` to ``path`` atomically, in the format its suffix names (``.png``). A PNG carries no
+    "Software" (matplotlib version) entry, so the same figure gives the same bytes; a file that already holds
+    them is left as it is (a report rebuilt over committed figures leaves the clone clean)."""
     path = Path(path)
-    with atomic_open(path) as f:
-        fig.savefig(f, format=path.suffix.lstrip(".") or None, **kwargs)
-    return path
+    fmt = path.suffix.lstrip(".") or None
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format=fmt, **({"metadata": {"Software": None}} if fmt == "png" else {}), **kwargs)
+    if path.is_file() and path.read_bytes() == buffer.getvalue():
+        return path
+    return write_bytes(path, buffer.getbuffer())
 
 
 def save_checkpoint(checkpoint: dict, path: str | Path) -> Path:

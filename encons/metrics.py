@@ -111,7 +111,8 @@ def summarise(pred: Tensor, true: Tensor, pred_energy: Tensor | None, true_energ
 
     ``diverged`` is the fraction of rollouts that diverged (``diverged``: a non-finite state, or an
     energy error ≥ ``DIVERGED_ENERGY_ERROR``); with a non-finite one the means over trajectories are NaN
-    on purpose (the horizon-``horizon`` ``traj_rel_err`` may still be finite). ``vpt``
+    on purpose (the horizon-``horizon`` ``traj_rel_err`` may still be finite); ``traj_rel_err_window`` sums
+    the relative error over the whole window, every step of ``pred``. ``vpt``
     is the mean ``valid_prediction_time`` at ``vpt_threshold``, ``vpt_censored`` the fraction of
     rollouts still valid at the last step (their VPT is the horizon).
     """
@@ -121,6 +122,7 @@ def summarise(pred: Tensor, true: Tensor, pred_energy: Tensor | None, true_energ
         "diverged": diverged(pred, pred_energy, true_energy).double().mean().item(),
         "traj_rel_err": tre.mean().item(),
         "traj_rel_err_std": tre.std().item() if tre.numel() > 1 else 0.0,
+        "traj_rel_err_window": trajectory_relative_error(pred, true, pred.shape[-2] - 1, angles).mean().item(),
         "rel_err_final": relative_error(pred, true, angles)[..., -1].mean().item(),
         "geom_rel_err": geometric_mean_relative_error(pred, true, angles).mean().item(),
         "vpt": vpt.mean().item(),
@@ -168,14 +170,30 @@ def unit_families(units: tuple[str, ...]) -> dict[str, Tensor]:
             for u in dict.fromkeys(per_entry)}
 
 
+def coordinate_spread(true: Tensor, angles: Tensor | None = None) -> Tensor:
+    """Each coordinate's spread over the test set: the standard deviation (D,) of ``true`` (..., D) over every
+    window and time, an angle's taken about its circular mean on the circle; a coordinate that never moves
+    (spread 0) gets 1, so its error stays in its own unit rather than dividing by zero."""
+    flat = true.reshape(-1, true.shape[-1])
+    if angles is not None:
+        centre = torch.atan2(flat.sin().mean(0), flat.cos().mean(0))
+        flat = wrapped(flat - torch.where(angles.to(flat.device), centre, 0.0), angles)
+    spread = flat.std(0, correction=0) if len(flat) > 1 else torch.zeros_like(flat[0])
+    return torch.where(spread > 0, spread, torch.ones_like(spread))
+
+
 def mse_curves(pred: Tensor, true: Tensor, pred_energy: Tensor | None = None,
                true_energy: Tensor | None = None, angles: Tensor | None = None,
                families: dict[str, Tensor] | None = None) -> dict[str, Tensor]:
-    """State MSE (over trajectories and coordinates, angles on the circle; Xiao et al.'s, whose units mix),
-    per unit family ``state_mse_<family>`` (over the entries of each mask of ``families``, one unit each)
-    and, given energies, energy MSE (over trajectories) at each time; each of shape (T,)."""
+    """State MSE against time (T,) each: ``state_mse``, the mean over trajectories and coordinates of the
+    error of each coordinate divided by its spread over the test set (``coordinate_spread`` of ``true``;
+    dimensionless, so rad² and (rad/s)² are never added); ``state_mse_raw``, the plain mean over every
+    coordinate (Xiao et al.'s, whose units mix); per unit family ``state_mse_<family>`` (over the entries of
+    each mask of ``families``, one unit each) and, given energies, energy MSE (over trajectories). Angles
+    are compared on the circle."""
     squared = difference(pred, true, angles) ** 2
-    curves = {"state_mse": squared.mean((0, -1))}
+    spread = coordinate_spread(true, angles).to(squared)
+    curves = {"state_mse": (squared / spread**2).mean((0, -1)), "state_mse_raw": squared.mean((0, -1))}
     for name, mask in (families or {}).items():
         curves[f"state_mse_{name}"] = squared[..., mask.to(squared.device)].mean((0, -1))
     if pred_energy is not None and true_energy is not None:
@@ -223,7 +241,7 @@ def baseline_rollouts(true: Tensor, train: Tensor, dt: float) -> dict[str, Tenso
 
 def long_rollout_errors(true: Tensor, pred: Tensor, baselines: dict[str, Tensor],
                         to_common: Callable[[Tensor], Tensor] = lambda s: s,
-                        energy: Callable[[Tensor], Tensor] | None = None, horizon: int = 4,
+                        energy: Callable[[Tensor], Tensor] | None = None,
                         angles: Tensor | None = None, families: dict[str, Tensor] | None = None
                         ) -> tuple[dict[str, float], dict[str, dict[str, Tensor]]]:
     """State and energy MSE against time (Xiao et al. Figs. 3 and 5) of the model's rollouts ``pred`` and
@@ -231,9 +249,9 @@ def long_rollout_errors(true: Tensor, pred: Tensor, baselines: dict[str, Tensor]
 
     States are compared after ``to_common`` (the common chart, whose ``angles`` are compared on the circle); energies (``energy``, None when the
     physics is unknown) in the data chart; ``families`` (``unit_families``) add one state MSE per unit. Returns
-    scalars — ``state_mse`` (over all times) and
-    ``state_mse_final`` (last step), the same for ``energy_mse``, and for the baselines also
-    ``traj_rel_err``, under ``<baseline name>/`` — and the curves {predictor: {"state_mse"[, "energy_mse"]: (T,)}}.
+    scalars — ``state_mse`` (normalised per coordinate, ``mse_curves``; over all times) and ``state_mse_final``
+    (last step), the same for ``energy_mse``, the model's also for ``state_mse_raw`` and each family; a
+    baseline's under ``<baseline name>/`` — and the curves {predictor: {"state_mse", ...: (T,)}}.
     """
     predictions = {"model": pred, **baselines}
     true_c = to_common(true)
@@ -242,8 +260,6 @@ def long_rollout_errors(true: Tensor, pred: Tensor, baselines: dict[str, Tensor]
     for name, p in predictions.items():
         p_c, prefix = to_common(p), "" if name == "model" else f"{name}/"
         curves[name] = mse_curves(p_c, true_c, None if energy is None else energy(p), true_e, angles, families)
-        if name != "model":
-            scalars[f"{prefix}traj_rel_err"] = trajectory_relative_error(p_c, true_c, horizon, angles).mean().item()
         for key, curve in curves[name].items():
             if name != "model" and key.startswith("state_mse_"):
                 continue                    # per-family scalars of the model only; every curve is kept

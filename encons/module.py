@@ -107,7 +107,7 @@ class TrainingModule(pl.LightningModule):
     def training_step(self, batch: Batch, batch_idx: int) -> Tensor:
         size = len(batch["states"])
         loss = self.loss(batch)
-        self.log("train/loss", loss, prog_bar=True, batch_size=size)
+        self.log("train/loss", loss, prog_bar=True, batch_size=size, sync_dist=True)  # every rank's, not rank 0's
         penalty = self.penalty(batch)
         if penalty is not None:
             self.log("train/regulariser", penalty, batch_size=size)
@@ -205,7 +205,7 @@ class TrainingModule(pl.LightningModule):
         if not self.observation.identity:
             return (f"{model} on {self.system.name} ({type(self.observation).__name__}, "
                     f"latent size {2 * self.model.n})")
-        return f"{model} on {self.system.name} ({self.model.chart} chart)"
+        return f"{model} on {self.system.name} (learns in the {self.model.chart} chart)"
 
     def configure_optimizers(self):
         """The ``optimizer`` partial on the parameters, and the ``scheduler`` partial on it (if any).

@@ -23,7 +23,7 @@ def subplots(*grid: int, figsize: tuple[float, float], **kwargs):
 TIME = "time t [s]"
 REL_ERR = "relative error ‖ŝₜ − sₜ‖ / ‖sₜ‖ [–]"
 ENERGY_ERR = "energy error |E(ŝₜ) − E(sₜ)| [J]"
-STATE_MSE = "state MSE of ŝₜ against sₜ [mixed: rad², (rad/s)²]"
+STATE_MSE = "state MSE, each coordinate / its test-set spread [–]"
 ENERGY_MSE = "energy MSE of E(ŝₜ) against E(sₜ) [J²]"
 
 
@@ -79,16 +79,21 @@ def window_offset(true: Tensor, angles: Tensor | None) -> Tensor:
     return torch.where(angles.to(true.device), turns, torch.zeros_like(turns))
 
 
+ROLLOUT_GROUP = 3  # coordinates per rollout panel: a 12-coordinate gyroscope is 4 rows of 3, not 12 lines a panel
+
+
 def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] | None, title: str,
                     units: tuple[str, ...] | None = None, baseline: Tensor | None = None,
                     angles: Tensor | None = None, names: list[str] | None = None,
-                    time_label: str = None) -> dict[str, Figure]:
+                    time_label: str = None, chart: str | None = None) -> dict[str, Figure]:
     """Rollout vs truth (every coordinate, positions and velocities) of three test trajectories — the
     best, median and worst by relative error summed over the rollout, each labelled so — with the
     linear-ODE ``baseline``'s rollout if given; relative error vs time and (if known) energy error vs
-    time. States are in the system's common chart, whose coordinate ``units`` label the axes
-    (default: unitless) and ``names`` the legend (default q₁…, q̇₁…); ``angles`` (bool (D,)) are scored on
-    the circle and drawn offset by the 2πk that puts each window's start in [−π, π) (``window_offset``).
+    time. States are in the system's common chart (``chart``, named in the title), whose coordinate
+    ``units`` label the axes (default: unitless) and ``names`` the legend (default q₁…, q̇₁…); ``angles``
+    (bool (D,)) are scored on the circle and drawn offset by the 2πk that puts each window's start in
+    [−π, π) (``window_offset``). At most ``ROLLOUT_GROUP`` coordinates share a panel (one row of panels per
+    group, positions then velocities); the truth is drawn wide and pale, the model dashed on top of it.
     Figures by file stem, laid out: ``rollout``, ``relative_error``, ``energy_error``."""
     from matplotlib.lines import Line2D
 
@@ -105,30 +110,35 @@ def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor
     picks = dict.fromkeys([order[0], order[len(order) // 2], order[-1]])      # best, median, worst (distinct)
     tags = {order[0]: "best", order[len(order) // 2]: "median", order[-1]: "worst"}
     palette = colours(n)
-    fig, axes = subplots(2, len(picks), figsize=(4.6 * len(picks) + 1.9, 6.5), squeeze=False, sharex=True)
+    groups = [range(g, min(g + ROLLOUT_GROUP, n)) for g in range(0, n, ROLLOUT_GROUP)]
+    fig, axes = subplots(2 * len(groups), len(picks), figsize=(4.6 * len(picks) + 1.9, 2.2 + 2.4 * 2 * len(groups)),
+                         squeeze=False, sharex=True)
     for col, k in enumerate(picks):
-        for row, rate in enumerate((False, True)):
-            ax = axes[row, col]
-            for d in range(n):
-                idx = d + n * rate
-                ax.plot(t, true[k, :, idx], lw=1.5, color=palette[d])
-                ax.plot(t, pred[k, :, idx], "--", color=palette[d], lw=1.2)
-                if baseline is not None:
-                    ax.plot(t, baseline[k, :, idx], ":", color=palette[d], lw=1.0)
-            ax.set_ylabel(f"{'velocity q̇' if rate else 'position q'} {unit_label(units, rate)}")
+        for g, group in enumerate(groups):
+            for rate in (False, True):
+                ax = axes[2 * g + rate, col]
+                for d in group:
+                    idx = d + n * rate
+                    ax.plot(t, true[k, :, idx], lw=2.6, alpha=0.45, color=palette[d], zorder=2)
+                    if baseline is not None:
+                        ax.plot(t, baseline[k, :, idx], ":", color=palette[d], lw=1.0, zorder=2.5)
+                    ax.plot(t, pred[k, :, idx], "--", color=palette[d], lw=1.3, zorder=3)
+                unit = unit_label(units[group.start:group.stop], rate)
+                ax.set_ylabel(f"{'velocity q̇' if rate else 'position q'} {unit}")
         turns = [f"{names[d]} {'−' if turn > 0 else '+'} {abs(turn)}·2π" for d in range(n)
                  if (turn := round(float(shift[k, 0, d]) / (2 * torch.pi)))]
         axes[0, col].set_title(f"test trajectory {k} ({tags[k]} of {len(order)} by relative error)"
                                + (f"\ndrawn as {', '.join(turns)}" if turns else ""), fontsize=9)
-        axes[1, col].set_xlabel(time_label)
+        axes[-1, col].set_xlabel(time_label)
     handles = [Line2D([], [], color=palette[d], lw=2, label=f"{names[d]} [{units[d]}], {names[d + n]} [{units[d]}/s]")
                for d in range(n)]
-    handles += [Line2D([], [], color="k", lw=1.5, label="truth"), Line2D([], [], color="k", ls="--", lw=1.2, label="model")]
+    handles += [Line2D([], [], color="k", lw=2.6, alpha=0.45, label="truth"),
+                Line2D([], [], color="k", ls="--", lw=1.3, label="model")]
     if baseline is not None:
         handles.append(Line2D([], [], color="k", ls=":", lw=1.0, label="linear-ODE baseline"))
-    fig.legend(handles=handles, loc="center right", fontsize=7, title="common chart", title_fontsize=8)
-    fig.suptitle(title)
-    fig.tight_layout(rect=(0, 0, 1 - 1.9 / fig.get_figwidth(), 1))
+    fig.legend(handles=handles, loc="center right", fontsize=7)
+    fig.suptitle(title + (f"\nstates drawn in the {chart} chart (where the metrics compare)" if chart else ""))
+    fig.tight_layout(rect=(0, 0, 1 - 1.9 / fig.get_figwidth(), 1 - 0.25 / fig.get_figheight()))
     figures["rollout"] = fig
 
     fig, ax = subplots(figsize=(6, 4))
@@ -165,7 +175,8 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
     """The papers' comparison plots over a benchmark grid, one panel per system.
 
     Trajectory relative error per model (Zhong et al. Fig. 2: mean and std of its log over test
-    trajectories; diverged trajectories left out), and relative error, absolute energy error and
+    trajectories, diverged trajectories left out; beside it the arithmetic mean the summary table gives),
+    and relative error, absolute energy error and
     pixel MSE (runs on frames) vs time averaged over test trajectories and seeds (Figs. 3–4), and the
     state and energy MSE vs time (Xiao et al. Figs. 3 and 5, the whole curve: a single late-time value
     rewards a model that stops moving over one that drifts in phase), read
@@ -189,6 +200,9 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
         std = np.array([lg[np.isfinite(lg)].std() for lg in logs])
         ax.errorbar(range(len(models)), 10 ** mean, yerr=[10 ** mean - 10 ** (mean - std), 10 ** (mean + std) - 10 ** mean],
                     fmt="o", capsize=3, label="geometric mean over test trajectories and seeds,\nbars: ± 1 std of log₁₀")
+        arithmetic = [np.concatenate(errors[m]).mean() for m in models]   # the summary table's traj_rel_err
+        ax.plot(range(len(models)), arithmetic, "D", color="C3", ms=5, mfc="none",
+                label="arithmetic mean (the table's traj_rel_err)")
         ax.set_xticks(range(len(models)), models, rotation=60, ha="right", rotation_mode="anchor")
         ax.set_yscale("log")
         plain_log_ticks(ax.yaxis)
@@ -325,22 +339,32 @@ def control_success_figure(summary: list[dict], out_dir: Path) -> list[Path]:
 
 
 def _against_n_train(ax, entries: list[dict], key: str, spread) -> set[int]:
-    """One line per model (first-seen order, colour ``C<k>``) of ``key`` against ``n_train`` over ``entries``
-    (summary rows of one system), bars ± ``spread(row)`` (the lower one cut at 95 % of the value, so that
-    it stays on a log axis), on log axes; returns the sizes drawn."""
+    """One line per model (first-seen order, colour ``C<k>``, its own marker and line style) of ``key`` against
+    ``n_train`` over ``entries`` (summary rows of one system), bars ± ``spread(row)`` (the lower one cut at 95 %
+    of the value, so that it stays on a log axis), on log axes; each model's points are shifted by a few
+    percent in n_train (``N_TRAIN_OFFSET``), so that equal values do not hide one line under another.
+    Returns the sizes drawn."""
     sizes = set()
-    for k, model in enumerate(dict.fromkeys(e["model"] for e in entries)):
+    models = list(dict.fromkeys(e["model"] for e in entries))
+    for k, model in enumerate(models):
         rows = sorted((e for e in entries if e["model"] == model and key in e), key=lambda e: e["n_train"])
         if not rows:
             continue
         mean = [e[key] for e in rows]
         bars = [spread(e) for e in rows]
-        ax.errorbar([e["n_train"] for e in rows], mean, yerr=[[min(b, 0.95 * m) for b, m in zip(bars, mean)], bars],
-                    marker="o", capsize=3, color=f"C{k}", label=model)
+        nudge = N_TRAIN_OFFSET ** (k - (len(models) - 1) / 2)
+        ax.errorbar([e["n_train"] * nudge for e in rows], mean,
+                    yerr=[[min(b, 0.95 * m) for b, m in zip(bars, mean)], bars], marker=MARKERS[k % len(MARKERS)],
+                    ls=STYLES[k % len(STYLES)], capsize=3, color=f"C{k % 10}", alpha=0.85, label=model)
         sizes.update(e["n_train"] for e in rows)
     ax.set_yscale("log")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, title=f"points shifted ×{N_TRAIN_OFFSET:g}ᵏ in n_train to stay apart", title_fontsize=7)
     return sizes
+
+
+N_TRAIN_OFFSET = 1.04          # per model, on the log n_train axis
+MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
+STYLES = ("-", "--", "-.", ":")
 
 
 def data_efficiency_figure(summary: list[dict], out_dir: Path) -> list[Path]:
@@ -425,13 +449,14 @@ def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], title: str,
     keys = list(curves["model"])
     mixed = ", ".join(f"({u})²" if "/" in u else f"{u}²" for u in dict.fromkeys(
         [*(units or ("–",)), *(f"{u}/s" for u in (units or ("–",)))]))
-    labels = {"state_mse": f"state MSE, mean over every q and q̇ [mixed: {mixed}]", "energy_mse": "energy MSE [J²]"}
+    labels = {"state_mse": STATE_MSE, "state_mse_raw": f"state MSE, raw mean over every q and q̇ [mixed: {mixed}]",
+              "energy_mse": "energy MSE [J²]"}
     for key in keys:   # one unit family each (metrics.unit_families)
-        if key.startswith("state_mse_"):
+        if key.startswith("state_mse_") and key != "state_mse_raw":
             unit = key.removeprefix("state_mse_").replace("_per_", "/").replace("_", " ")
             labels[key] = f"MSE of the {'rates' if '/' in unit else 'coordinates'} in {unit} [{unit}]²"
-    if any(k.startswith("state_mse_") for k in keys) and sum(k.startswith("state_mse_") for k in keys) == 2:
-        keys.remove("state_mse")     # one unit for q and one for q̇: the two families say it in their units
+    if "state_mse_raw" in keys and sum(k.startswith("state_mse_") for k in keys) > 1:
+        keys.remove("state_mse_raw")     # the unit families say it in their own units
     fig, axes = subplots(1, len(keys), figsize=(5 * len(keys), 4), squeeze=False)
     for ax, key in zip(axes[0], keys):
         model = curves["model"][key][1:]

@@ -45,10 +45,14 @@ def print_summary(title: str, results: dict[str, float], output_dir: Path, note:
     table = Table(title=title)
     table.add_column("metric")
     table.add_column("value", justify="right")
+    windows = results.get("test/windows")
     for key in sorted(results):
         if key.startswith(("val/", "test/", "best/")) or key in ("wall_time_s", "threads", "best_epoch"):
-            table.add_row(key, f"{results[key]:.4g}")
+            count = f" (mean of {windows:.0f} windows)" if key.endswith("/vpt") and windows is not None else ""
+            table.add_row(key, f"{results[key]:.4g}{count}")
     out = Console(record=True) if console else Console(record=True, file=io.StringIO())
+    for line in headline(results):
+        out.print(line, markup=False)
     out.print(table)
     if note:
         out.print(note)
@@ -73,6 +77,43 @@ def recorded(path: str | Path, out: str | Path) -> str:
 def portable_row(row: dict, out: str | Path) -> dict:
     """A result row with its ``run_dir`` recorded relative to ``out`` (``recorded``)."""
     return {**row, "run_dir": recorded(row["run_dir"], out)} if row.get("run_dir") else row
+
+
+FEW_WINDOWS = 5  # fewer test windows than this: a score with no spread worth the name
+
+
+def headline(results: dict[str, float]) -> list[str]:
+    """The lines above a run's table: the model and the baselines over the whole test window
+    (``traj_rel_err_window``, ``state_mse``) with the number of test windows; a flag where the scored horizon
+    (``traj_rel_err``, the papers' T = 4) orders them otherwise; a warning under ``FEW_WINDOWS`` windows."""
+    windows = results.get("test/windows")
+    if windows is None or "test/traj_rel_err_window" not in results:
+        return []
+    names = ["model", *(p.split("/")[1] for p in results if p.startswith("test/baseline_")
+                        and p.endswith("/traj_rel_err_window"))]
+
+    def score(name: str, metric: str) -> float:
+        return results.get(f"test/{'' if name == 'model' else name + '/'}{metric}", math.nan)
+
+    def listed(metric: str) -> str:
+        return ", ".join(f"{name} {score(name, metric):.4g}" for name in names)
+
+    def order(metric: str) -> list[str]:
+        return sorted(names, key=lambda n: (math.isnan(score(n, metric)), score(n, metric)))
+
+    lines = [f"whole test window, mean of {windows:.0f} test window(s): traj_rel_err_window "
+             f"{listed('traj_rel_err_window')}"
+             + (f"; state_mse (per coordinate / its test-set spread) {listed('state_mse')}"
+                if "test/state_mse" in results else "")]
+    whole, horizon = order("traj_rel_err_window"), order("traj_rel_err")
+    if whole != horizon:
+        lines.append(f"note: the scored horizon ranks them differently: traj_rel_err {' < '.join(horizon)}, but over "
+                     f"the whole window {' < '.join(whole)}")
+    if windows < FEW_WINDOWS:
+        lines.append(f"note: {windows:.0f} test window(s) give these scores no spread to speak of (the _std are over "
+                     f"{windows:.0f}; more: data.n_test, or for a recording a longer file, "
+                     f"data.recording.test_stride, a shorter data.test_steps)")
+    return lines
 
 
 def load_rows(out: Path) -> list[dict]:
@@ -192,6 +233,14 @@ HEADLINE = ("wall_time_s", "test/diverged", "test/traj_rel_err", "test/geom_rel_
             "test/control/b_rel_err")
 
 
+def mean_sd(mean: float, sd: float, runs: int) -> str:
+    """A cell "mean ± sd", or the mean alone where it is one run's value (no spread to give) or the spread is
+    below float64 rounding of the mean (identical runs: 8.5e-18 beside 0.1 is no spread)."""
+    if runs <= 1 or not sd > 1e-12 * abs(mean):   # NaN sd: a spread that cannot be told, so none
+        return f"{mean:.3g}"
+    return f"{mean:.3g} ± {sd:.2g}"
+
+
 def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", headline: bool = False) -> str:
     """A Markdown table: model × system rows, metrics as mean ± std, paper values beside (a published value
     named as a metric right after that metric's column, the others at the end); every metric, or with
@@ -213,7 +262,8 @@ def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", head
     for e in summary:
         cells = [e["system"], e["model"], str(e["n_train"]), f"{e['runs'] - e['failed']}/{e['runs']}"]
         values = paper.get(f"{e['system']}/{e['model']}", {}) if not e["data_efficiency"] else {}
-        cells += [(f"{e[m]:.3g} ± {e[m + '_sd']:.2g}" if m in e else "failed" if e["failed"] == e["runs"] else "—")
+        cells += [(mean_sd(e[m], e[m + "_sd"], e["runs"] - e["failed"]) if m in e
+                   else "failed" if e["failed"] == e["runs"] else "—")
                   if m else f"{values[k]:.3g}" if k in values else ""
                   for m, k in columns]  # —: a metric this model does not report (plain_inverse, newton_unconverged)
         cells.append(e.get("optimiser", ""))

@@ -29,6 +29,9 @@ RUN = {
     "ENCONS_TRUSTED_TARGETS='encons_examples.*' PYTHONPATH=. python -m encons.train system=duffing "
     "model=linear_newton 'hydra.searchpath=[file://conf]' debug=fast":
         "tests/test_examples.py::test_the_example_system_and_model_train_through_the_cli_with_debug_fast",
+    "ENCONS_TRUSTED_TARGETS='encons_examples.*' PYTHONPATH=. python -m encons.benchmark "
+    "'hydra.searchpath=[file://conf]' 'systems=[duffing]' 'models=[linear_newton,node]' 'train=[\"debug=fast\"]'":
+        "tests/test_user_model.py::test_a_benchmarks_searchpath_reaches_every_run",
     "python -m encons.train model=node system=mass_spring regulariser=hamiltonian regulariser.weight=1e3 "
     "objective=derivative": "tests/test_lim_kasim_e2e.py::test_regularised_runs_log_their_penalty",
     "python benchmarks/jacobian_speed.py --threads 1": "tests/test_bench_scripts.py::test_benchmark_script_runs_at_smoke_size",

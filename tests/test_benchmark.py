@@ -192,3 +192,32 @@ def test_xiao_profile_at_smoke_size_writes_tables_3_4_and_mse_curves_and_resumes
     capsys.readouterr()
     main(args)
     assert "".join(capsys.readouterr()).count("finished before, skipped") == 16
+
+
+def test_a_cell_gives_no_spread_for_one_run_or_a_spread_below_float_rounding():
+    """Issue 51: a one-run cell printed "± 0", identical seeds "± 8.5e-18"."""
+    from encons.report import markdown
+
+    base = {"system": "pendulum1", "n_train": 800, "data_efficiency": False, "failed": 0, "optimiser": ""}
+    summary = [{**base, "model": "one", "runs": 1, "test/vpt": 0.25, "test/vpt_sd": 0.0},
+               {**base, "model": "same", "runs": 3, "test/vpt": 0.5, "test/vpt_sd": 8.5e-18},
+               {**base, "model": "spread", "runs": 3, "test/vpt": 0.5, "test/vpt_sd": 0.02}]
+    cells = {line.split(" | ")[1]: line.split(" | ")[4] for line in markdown(summary, {}).splitlines()[2:5]}
+    assert cells == {"one": "0.25", "same": "0.5", "spread": "0.5 ± 0.02"}
+
+
+
+def test_train_debug_fast_shrinks_a_profiles_sizes_and_a_users_key_wins():
+    """Issue 51: `profile=lim_kasim 'train=["debug=fast"]'` failed all 14 runs (data.chunk_len=30 beside
+    debug's 10 steps) and a profile's trainer.max_epochs beat debug=fast."""
+    from encons.benchmark import expand
+    from encons.build import compose
+
+    runs = expand(compose(["profile=lim_kasim", 'train=["debug=fast"]'], config_name="benchmark"))
+    for run in runs:
+        cfg = compose(run.overrides)
+        assert cfg.trainer.max_epochs == 2 and cfg.data.chunk_len <= cfg.data.n_steps + 1, run.id
+        assert cfg.objective == "derivative"                       # the profile's other keys stay
+    mine = expand(compose(["profile=lim_kasim", 'train=["debug=fast","trainer.max_epochs=7"]'],
+                          config_name="benchmark"))
+    assert compose(mine[0].overrides).trainer.max_epochs == 7

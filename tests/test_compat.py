@@ -68,6 +68,32 @@ def test_quiet_upstream_drops_lightnings_tips():
     assert not logger.filter(tip) and logger.filter(info)
 
 
+def test_quiet_upstream_keeps_lightnings_device_lines_off_the_console_but_in_the_log_file(tmp_path):
+    import io
+    import logging
+
+    root = logging.getLogger()
+    console, file = logging.StreamHandler(io.StringIO()), logging.FileHandler(tmp_path / "train.log")
+    root.addHandler(console)
+    root.addHandler(file)
+    level, root.level = root.level, logging.INFO
+    try:
+        compat.quiet_upstream()
+        compat.quiet_upstream()                                     # twice: one filter per handler
+        name = "lightning.pytorch.utilities.rank_zero"   # what reaches the root's handlers from Lightning's logger
+        for line in ("GPU available: False, used: False", "TPU available: False, using: 0 TPU cores", "kept"):
+            record = logging.LogRecord(name, logging.INFO, __file__, 0, line, (), None)
+            console.handle(record)
+            file.handle(record)
+    finally:
+        root.removeHandler(console)
+        root.removeHandler(file)
+        file.close()
+        root.setLevel(level)
+    assert console.stream.getvalue() == "kept\n" and len(console.filters) == 1
+    assert "GPU available" in (tmp_path / "train.log").read_text()
+
+
 def test_quiet_upstream_drops_the_dataloader_workers_advice_of_many_core_machines(monkeypatch):
     import warnings
 

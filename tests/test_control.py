@@ -122,7 +122,35 @@ def test_control_command_scores_a_tiny_trained_run(model, system, tmp_path, caps
     for name in ("control_phase", "control_energy_input", "control_success", "control_portrait"):
         assert (out / f"{name}.png").stat().st_size > 10_000
     printed = capsys.readouterr().out
-    assert "success_rate" in printed and "oracle" in printed
+    assert "success_rate [% of starts]" in printed and "oracle" in printed
+
+
+def test_control_prints_success_rate_in_percent_and_effort_with_its_unit():
+    from encons.control import printed_rows
+    from encons.systems.controlled import CartPole, ControlledPendulum
+
+    scores = {"control/success_rate": 0.93, "oracle/success_rate": 1.0, "control/effort": 4.5, "oracle/effort": 3.0}
+    rows = dict(printed_rows(scores, ControlledPendulum()))
+    assert rows["success_rate [% of starts]"] == ["93", "100"]
+    assert rows["effort [∫ u² dt, (N m)² s]"] == ["4.5", "3"] and rows["a_rel_err [–]"] == ["", ""]
+    assert "effort [∫ u² dt, (N)² s]" in dict(printed_rows(scores, CartPole()))
+
+
+@pytest.mark.slow
+def test_the_docs_control_snippet_runs_as_written(tmp_path, monkeypatch):
+    """docs/control.md's Python block, run as written but at debug size (issue 51: it lacked the import and
+    the run)."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).parents[1] / "docs" / "control.md").read_text()
+    block = re.search(r"```python\n(import encons\n.*?)```", text, re.S).group(1)
+    monkeypatch.setenv("ENCONS_ROOT", str(tmp_path))
+    small = block.replace('["model=lnode",', '["debug=fast", "figures=false", "logger=none", "model=lnode",')
+    assert small != block
+    scope: dict = {}
+    exec(compile(small, "docs/control.md", "exec"), scope)
+    assert 0 <= scope["metrics"]["control/success_rate"] <= 1 and scope["metrics"]["oracle/success_rate"] > 0
 
 
 def test_score_control_is_exported_from_encons():

@@ -26,6 +26,9 @@ def test_two_process_ddp_matches_one_process_with_the_whole_batch(train_run, tmp
         assert value == pytest.approx(single[f"test/{key}"], rel=1e-5, abs=1e-8), key  # oracle/*: ~1e-10, float noise
     val = float(re.search(r"best/val/traj_rel_err\s*│\s*([0-9.e+-]+)", proc.stdout).group(1))  # 4 digits
     assert val == pytest.approx(single["best/val/traj_rel_err"], rel=1e-3)
+    last = r"epoch 3 of 3 \(step \d+\): train/loss ([0-9.e+-]+)"   # the mean over both ranks, not rank 0's half
+    logged = float(re.search(last, (tmp_path / "ddp" / "train.log").read_text()).group(1))
+    assert logged == pytest.approx(single["train/loss"], rel=1e-3)
     halves = train_run(RUN + ["data.batch_size=8"], name="two_steps")  # what DDP must not be
     assert ddp["traj_rel_err"] != pytest.approx(halves["test/traj_rel_err"], rel=1e-5)
 

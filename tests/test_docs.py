@@ -89,7 +89,7 @@ def fenced_commands() -> dict[str, str]:
 
 PYTHON_BLOCKS = {
     "import torch, encons": "tests/test_api.py::test_notebook_workflow_round_trips_a_run",
-    "metrics = encons.score_control(run)": "tests/test_control.py::test_score_control_is_exported_from_encons",
+    "import encons": "tests/test_control.py::test_the_docs_control_snippet_runs_as_written",
 }
 
 
@@ -123,3 +123,17 @@ def test_symo_paper_composes_with_debug_fast_and_trains(train_run):
     m = train_run(["model=e2e_symo", "system=cartpole", "experiment=symo_paper", "optimizer.lr=1e-3",
                    "trainer.max_epochs=1", "evaluators.santos.steps=10", "evaluators.santos.n_trajectories=2"])
     assert m["test/traj_rel_err"] > 0
+
+
+def test_the_readme_sweep_folder_is_not_named_after_a_model_it_does_not_run(tmp_path):
+    """Issue 51: `-m model=node,hnn_angle` left multirun/pendulum1-hnn/<ts>/multirun.yaml (the default model's
+    name) beside the jobs' folders; the sweep's folder names no model, each job's folder its own."""
+    from omegaconf import OmegaConf
+
+    from encons.build import compose
+
+    cfg = compose(["model=node", "system=pendulum1"], output_dir=tmp_path)
+    raw = OmegaConf.to_container(cfg.hydra.sweep)   # unresolved: what Hydra resolves once per sweep, once per job
+    assert "name" not in raw["dir"] and "choices" not in raw["dir"], raw
+    assert raw["subdir"] == "${hydra.job.num}-${name}"
+    assert "multirun/" in (ROOT / "README.md").read_text().split("## Where outputs land")[1].split("\n## ")[0]

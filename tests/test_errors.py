@@ -295,3 +295,42 @@ def test_a_missing_study_names_the_stored_ones(tmp_path):
     with pytest.raises(ConfigError, match=r"^study='gone' is not in .*; allowed: kept$"):
         load_study(url, "gone")
     assert load_study(url, "kept").study_name == "kept"
+
+
+@pytest.mark.parametrize("module, args, line", [
+    ("encons.benchmark", ["profile=smoke", "train=[trainer.max_epochs=150]"],
+     "encons: error: train=[trainer.max_epochs=150]: a list element holding '=' needs quotes; allowed: "
+     "'train=[\"trainer.max_epochs=150\"]' (quoted as shown)"),
+    ("encons.train", ["trainer.max_epoch=3"],
+     "encons: error: trainer.max_epoch is not a key of the config, did you mean trainer.max_epochs; allowed: the "
+     "keys `--cfg job` prints, or +trainer.max_epoch=VALUE to add one"),
+    ("encons.train", ["modl.hidden=3"], "encons: error: modl.hidden is not a key of the config, did you mean "
+                                        "model.hidden; allowed:"),
+])
+def test_an_unquoted_list_and_a_misspelt_key_get_a_one_line_hint(tmp_path, monkeypatch, module, args, line):
+    """Issue 51: Hydra's parse error of an unquoted `train=[k=v]` and a key one letter off."""
+    from tests.helpers import in_process
+
+    monkeypatch.chdir(tmp_path)
+    proc = in_process(module, [*args, f"out={tmp_path / 'b'}"] if module == "encons.benchmark" else args, monkeypatch)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].startswith(line), proc.stderr
+
+
+def test_a_ckpt_path_to_a_text_file_is_the_only_line_printed(cli, tmp_path):
+    """Issue 51: the data were simulated (their log lines printed) before the checkpoint was read."""
+    (tmp_path / "notes.txt").write_text("not a checkpoint\n")
+    proc = cli("debug=fast", "model=node", "system=pendulum1", f"ckpt_path={tmp_path / 'notes.txt'}",
+               f"paths.cache_dir={tmp_path / 'cache'}", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
+    assert proc.returncode == 2 and not (tmp_path / "cache").exists()
+    assert (proc.stdout + proc.stderr).strip().splitlines() == [
+        f"encons: error: ckpt_path={str(tmp_path / 'notes.txt')!r} is not a readable checkpoint (RuntimeError); "
+        f"allowed: a .ckpt written by encons"]
+
+
+def test_evaluate_of_a_folder_that_does_not_exist_says_so(tmp_path, monkeypatch):
+    from tests.helpers import in_process
+
+    proc = in_process("encons.evaluate", [str(tmp_path / "nope")], monkeypatch)
+    assert proc.returncode == 2 and proc.stderr.strip() == (f"encons: error: {str(tmp_path / 'nope')!r} does not "
+                                                            f"exist; allowed: a run folder that train wrote, or its .ckpt")

@@ -49,12 +49,19 @@ def test_rollout_figure_one_legend_units_and_a_labelled_choice():
     true = torch.randn(7, 11, 24)
     pred = true + torch.linspace(0.01, 1.0, 7)[:, None, None]       # trajectory 0 best, 6 worst
     figures = plots.rollout_figures(t, pred, true, None, "hnn_angle on gyroscope", units=("rad",) * 12,
-                                    baseline=true * 0.5)
+                                    baseline=true * 0.5, chart="cartesian")
     assert list(figures) == ["rollout", "relative_error"]          # no energies: no energy_error
     fig = described(figures["rollout"])
     assert fig["legends"] == 1 and not any(has_legend for _, _, has_legend, *_ in fig["axes"])
     labels = fig["legend_labels"]
     assert "q₁₂ [rad], q̇₁₂ [rad/s]" in labels and "linear-ODE baseline" in labels and "model" in labels
+    # issue 51: 12 coordinates are 4 rows of 3 per panel (truth, model, baseline each), the model on top
+    assert len(fig["axes"]) == 8 * 3 and all(len(lines) == 9 for *_, lines in fig["axes"])
+    rollout = figures["rollout"]
+    truth, model = rollout.axes[0].get_lines()[:3:2]
+    assert model.get_linestyle() == "--" and model.get_zorder() > truth.get_zorder()
+    assert rollout.legends[0].get_title().get_text() == ""                       # no unexplained "common chart"
+    assert "states drawn in the cartesian chart" in rollout._suptitle.get_text()
     ylabels = {ylabel for ylabel, *_ in fig["axes"]}
     assert ylabels == {"position q [rad]", "velocity q̇ [rad/s]"}
     titles = [title for _, title, *_ in fig["axes"] if title]
@@ -76,7 +83,7 @@ def test_mse_axis_is_not_stretched_by_a_constant_baseline_energy_error():
               "baseline_linear_ode": {"state_mse": rising * 2, "energy_mse": rising * 5}}
     figure = plots.mse_figure(t, curves, "node on pendulum", units=("rad",))["mse_vs_time"]
     (state_label, _, _, state_lim, *_), (_, _, _, energy_lim, _, _, energy_lines) = described(figure)["axes"]
-    assert state_label == "state MSE, mean over every q and q̇ [mixed: rad², (rad/s)²]"
+    assert state_label == "state MSE, each coordinate / its test-set spread [–]"
     assert energy_lim[0] > 1e-5 and energy_lim[1] / energy_lim[0] < 1e5          # not 14 decades
     assert "constant (below the axis: ≤ 1e-14)" in energy_lines
 
@@ -101,13 +108,39 @@ def test_data_efficiency_ticks_are_the_sizes_and_bars_are_drawn(tmp_path, saved)
     assert "bars: ± 1 std over test trajectories" in title
 
 
+def test_data_efficiency_does_not_hide_a_model_under_another(tmp_path, monkeypatch):
+    """Issue 51: two models with equal values drew one line exactly over the other."""
+    kept = {}
+    monkeypatch.setattr(plots, "save_png", lambda fig, path, layout=True: kept.setdefault(path.name, fig) and path)
+    summary = [{"system": "pendulum2", "model": m, "n_train": n, "runs": 1, "test/traj_rel_err": 0.5,
+                "test/traj_rel_err_sd": 0.0, "test/traj_rel_err_std": 0.1} for m in ("hnn", "node") for n in (10, 100)]
+    plots.data_efficiency_figure(summary, tmp_path)
+    hnn, node = (c.lines[0] for c in kept["data_efficiency.png"].axes[0].containers)
+    assert list(hnn.get_xdata()) != list(node.get_xdata()) and hnn.get_marker() != node.get_marker()
+    assert hnn.get_linestyle() != node.get_linestyle()
+
+
+def test_traj_rel_err_figure_draws_the_tables_arithmetic_mean(tmp_path, saved):
+    import numpy as np
+
+    rows = []
+    for model, errors in (("hnn", [[0.1] * 5, [10.0] * 5]), ("node", [[1.0] * 5] * 2)):   # geometric 1, arithmetic 5.05
+        run = tmp_path / model
+        run.mkdir()
+        np.savez(run / "test_curves.npz", rel_err=np.array(errors) / 5, t=np.arange(5) * 0.1)
+        rows.append({"system": "pendulum1", "model": model, "run_dir": str(run)})
+    plots.comparison_figures(rows, [{"system": "pendulum1"}], tmp_path)
+    (*_, lines), = saved["traj_rel_err.png"]["axes"]
+    assert "arithmetic mean (the table's traj_rel_err)" in lines
+
+
 def test_the_run_title_names_the_models_config(tmp_path):
     from encons import api
 
     cfg = api.compose("debug=fast", "model=hnn_angle", "system=pendulum1", output_dir=tmp_path / "run",
                       cache_dir=tmp_path / "cache")
     assert run_config(cfg).model_name == "hnn_angle"
-    assert api.build(cfg)[1].run_title() == "hnn_angle on pendulum1 (angle chart)"   # not the class, HNN
+    assert api.build(cfg)[1].run_title() == "hnn_angle on pendulum1 (learns in the angle chart)"   # not HNN
 
 
 def test_the_rollout_figure_draws_the_linear_ode_baseline_that_was_scored(train_run, monkeypatch):
@@ -133,7 +166,7 @@ def test_mse_per_unit_family_and_named_multi_body_coordinates():
     pred[..., 2] = 1.0                                              # only the m/s entry is off
     curves = metrics.mse_curves(pred, true, families=families)
     assert curves["state_mse_m_per_s"].tolist() == [1.0] * 3 and curves["state_mse_m"].tolist() == [0.0] * 3
-    assert curves["state_mse"].tolist() == [0.25] * 3               # Xiao's mean over every entry, units mixed
+    assert curves["state_mse_raw"].tolist() == [0.25] * 3           # Xiao's mean over every entry, units mixed
     names = plots.coordinate_names(24, CartesianLayout(4, 3, ((0, 1, 2, 3),)))
     assert names[:4] == ["x₁ (body 1)", "y₁ (body 1)", "z₁ (body 1)", "x₂ (body 1)"] and names[12] == "x\u0307₁ (body 1)"
 

@@ -101,9 +101,12 @@ def test_baselines_match_a_hand_computation_on_a_tiny_file(tmp_path, train_run):
     np.savez(tmp_path / "tiny.npz", t=t, states=np.stack([t**2, 2 * t], -1))
     m = train_run(["system=from_file", f"system.path={tmp_path / 'tiny.npz'}", "model=node", "data.n_steps=3",
                    "data.test_steps=3", "data.chunk_len=3", "trainer.max_epochs=1", "horizon=3"])
-    # test: t >= 0.8 * 19.5 = 15.6 -> samples 32..39 -> windows 32..35, 35..38; hand: mean of (s_k − s_0)².
+    # test: t >= 0.8 * 19.5 = 15.6 -> samples 32..39 -> windows 32..35, 35..38; hand: mean of (s_k − s_0)², each
+    # coordinate divided by its spread (standard deviation) over the test windows' samples.
     windows = [np.arange(32, 36), np.arange(35, 39)]
-    hand = np.mean([((t[w] ** 2 - t[w[0]] ** 2) ** 2 + (2 * t[w] - 2 * t[w[0]]) ** 2) / 2 for w in windows], 0)
+    sq, sv = np.std(np.concatenate([t[w] ** 2 for w in windows])), np.std(np.concatenate([2 * t[w] for w in windows]))
+    hand = np.mean([(((t[w] ** 2 - t[w[0]] ** 2) / sq) ** 2 + ((2 * t[w] - 2 * t[w[0]]) / sv) ** 2) / 2
+                    for w in windows], 0)
     assert m["test/baseline_constant/state_mse"] == pytest.approx(hand.mean(), rel=1e-5)
     assert m["test/baseline_constant/state_mse_final"] == pytest.approx(hand[-1], rel=1e-5)
     assert m["test/baseline_linear_ode/state_mse"] < 1e-6 * hand.mean()

@@ -54,3 +54,8 @@ def test_the_committed_example_results_rebuild_with_the_report(tmp_path):
     files = write_report(out)
     assert (out / "summary.md").read_text() == summary
     assert {p.name for p in files} >= {"traj_rel_err.png", "data_efficiency.png", "summary.csv"}
+    # issue 51: every file the README's report command writes is the committed one, so a clone stays clean
+    committed = ROOT / "examples" / "results" / "smoke"
+    changed = [p.name for p in files if p.read_bytes().replace(str(out).encode(), b"examples/results/smoke")
+               != (committed / p.name).read_bytes()]       # results.csv names each run's folder as the README's run
+    assert not changed, f"examples/results/smoke is stale; rebuild it with python -m encons.report: {changed}"

@@ -69,3 +69,22 @@ def test_a_missing_target_gives_one_line(cli, tmp_path):
     proc = cli("model=node", "model._target_=encons.models.node.Nope", "debug=fast", cwd=tmp_path)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and "encons.models.node.Nope" in proc.stderr, proc.stderr
+
+
+def test_a_benchmarks_searchpath_reaches_every_run(user_project, monkeypatch):
+    """Issue 51: `hydra.searchpath=[file://conf]` on the benchmark command must reach its runs (it aborted at the
+    first run of the user's model with "model=linear is unknown")."""
+    import sys
+
+    from encons import benchmark
+    from encons.build import compose
+
+    root, _ = user_project
+    monkeypatch.syspath_prepend(str(root))
+    monkeypatch.setenv("ENCONS_TRUSTED_TARGETS", "mypkg.*")
+    monkeypatch.delitem(sys.modules, "mypkg", raising=False)
+    cfg = compose([f"hydra.searchpath=[file://{root / 'myconf'}]", "models=[node,linear]", "systems=[pendulum1]"],
+                  config_name="benchmark")
+    runs = benchmark.expand(cfg)
+    targets = {compose(r.overrides).model._target_ for r in runs}
+    assert {"encons.models.node.NODE", "mypkg.linear.Linear"} <= targets

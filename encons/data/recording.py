@@ -196,7 +196,17 @@ def _read_text(path: Path, columns: dict | None, delimiter: str | None, comment:
     if as_list.get("u"):
         arrays["u"] = numbers(as_list["u"])
     trial = rows[:, index[as_list["trial"][0]]] if as_list.get("trial") else None
+    if trial is not None and all(_is_number(c) for c in trial):   # 0, 0.0 and 0.0000e+000 name one trial
+        trial = trial.astype(np.float64)
     return arrays, trial
+
+
+def trial_name(label: object) -> str:
+    """A trial label as a reader writes it: a whole number without its decimals (``0``, not
+    ``0.0000000000000000e+000``), any other label as it is."""
+    if isinstance(label, (float, np.floating)) and float(label).is_integer():
+        return str(int(label))
+    return str(label)
 
 
 def _table(path: Path, delimiter: str | None, comment: str | None) -> tuple[list[str] | None, np.ndarray]:
@@ -298,8 +308,9 @@ def load_recording(path: str | Path, n_steps: int, test_steps: int, options: dic
     labels, rows_of = labels[appearance], [rows_of[k] for k in appearance]
     for label, rows in zip(labels, rows_of):
         if len(rows) < 2 or not (np.diff(t[rows]) > 0).all():
-            raise DataError(f"recording {str(path)!r}: 't' is not increasing" + (f" in trial {label}" if trial is not None
-                            else "") + "; allowed: increasing times (per trial), at least 2 samples each")
+            where = f" in trial {trial_name(label)}" if trial is not None else ""
+            raise DataError(f"recording {str(path)!r}: 't' is not increasing{where}; allowed: increasing times "
+                            f"(per trial), at least 2 samples each")
     steps_of = [np.diff(t[rows]) for rows in rows_of]
     steps = np.concatenate(steps_of)
     median = float(np.median(steps))
@@ -336,7 +347,7 @@ def load_recording(path: str | Path, n_steps: int, test_steps: int, options: dic
                 counts[name] += count
         gaps += len(cuts) - 2
         end = t[rows[-1]]
-        lines.append(f"{'trial ' + str(label) + ': ' if trial is not None else ''}t {t0:.6g}..{end:.6g}, "
+        lines.append(f"{'trial ' + trial_name(label) + ': ' if trial is not None else ''}t {t0:.6g}..{end:.6g}, "
                      f"{len(rows)} samples, {len(cuts) - 2} gap(s); train t {t0:.6g}..{edges[0]:.6g}: "
                      f"{counts['train']}, val t {edges[0]:.6g}..{edges[1]:.6g}: {counts['val']}, test t "
                      f"{edges[1]:.6g}..{end:.6g}: {counts['test']} trajectories")

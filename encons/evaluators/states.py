@@ -20,9 +20,11 @@ log = logging.getLogger(__name__)
 
 class States(Evaluator):
     """Test rollouts scored in the system's common chart (``encons.metrics.summarise``: trajectory relative
-    error over the ``horizon`` and, as ``traj_rel_err_window``, over the whole test window, final relative error, Finzi's geometric mean, valid prediction time, energy errors where the physics
-    is known, the divergence fraction), the long-rollout MSE against time with the constant and linear-ODE
-    baselines (``metrics.long_rollout_errors``), the model's solver counters, and, on a system of known
+    error over the ``horizon`` and, as ``traj_rel_err_window``, over the whole test window, final relative
+    error, Finzi's geometric mean, valid prediction time, energy errors where the physics is known, the
+    divergence fraction; ``windows``, the number of test windows those are means over), the constant and
+    linear-ODE baselines scored by the same metrics (``baseline_<name>/...``), the long-rollout MSE against
+    time of all three (``metrics.long_rollout_errors``), the model's solver counters, and, on a system of known
     physics, ``oracle/<metric>``: the true field rolled out by the same evaluation from the same starts in
     the model's chart and scored by the same metrics. Runs whose observations are the states only."""
 
@@ -56,13 +58,15 @@ class States(Evaluator):
         angles = module.compared_angles
         score = dict(horizon=module.horizon, dt=module.dt, vpt_threshold=module.evaluation.vpt_threshold, angles=angles)
         scores = metrics.summarise(pred_c, true_c, *(energies or (None, None)), **score)
-        window = true.shape[1] - 1   # the whole test window, beside the scored horizon (module.horizon)
-        scores["traj_rel_err_window"] = metrics.trajectory_relative_error(pred_c, true_c, window, angles).mean().item()
+        scores["windows"] = float(len(true))
         train = module.trainer.datamodule.states["train"].to(true)
         baselines = metrics.baseline_rollouts(true, train, module.dt)
+        for name, rollout in baselines.items():  # every metric the model gets, on the same windows
+            scored = metrics.summarise(module.to_common(rollout), true_c, energy(rollout) if energy else None,
+                                       energies[1] if energies else None, **score)
+            scores.update({f"{name}/{k}": v for k, v in scored.items()})
         families = metrics.unit_families(system.units(system.common_chart))
-        scalars, curves = metrics.long_rollout_errors(true, pred, baselines, module.to_common, energy, module.horizon,
-                                                      angles, families)
+        scalars, curves = metrics.long_rollout_errors(true, pred, baselines, module.to_common, energy, angles, families)
         scores.update(scalars)
         scores.update(self.diagnostics)  # e.g. SyMo's non-converged root-finds
         if oracle:  # the floor, scored by the same metrics
@@ -90,4 +94,4 @@ class States(Evaluator):
                 **plots.rollout_figures(t.cpu(), pred_c.cpu(), true_c.cpu(),
                                         [e.cpu() for e in energies] if energies else None, title=title,
                                         units=units, baseline=baseline.cpu(), angles=module.compared_angles,
-                                        names=names, time_label=time_label)}
+                                        names=names, time_label=time_label, chart=module.system.common_chart)}

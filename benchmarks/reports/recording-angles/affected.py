@@ -36,7 +36,7 @@ def main(systems: tuple[str, ...] = SYSTEMS) -> None:
         baselines = metrics.baseline_rollouts(true, train, data.dt)
         for mask, label in ((None, "plain"), (angles, "circle")):
             scalars, _ = metrics.long_rollout_errors(true, baselines["baseline_constant"], baselines, energy=None,
-                                                     horizon=module.horizon, angles=mask)
+                                                     angles=mask)
             if mask is None:
                 plain = scalars
         for key in [k for k in scalars if k.startswith("baseline_") and not k.endswith("_final")]:
