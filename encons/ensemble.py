@@ -38,7 +38,7 @@ import lightning.pytorch as pl
 import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from encons import checkpoints
+from encons import attempts, checkpoints
 from encons import stacked as stacking
 from encons.module import takes_total_steps
 from encons.errors import ConfigError, DivergenceError
@@ -62,14 +62,11 @@ def check_seeds(seeds: Any) -> list[int]:
 
 
 def refuse(cfg: DictConfig, request: Request) -> None:
-    """Refuse, in one line each, what an ensemble cannot be: data that differ per seed, DDP, the plain-inverse
-    retry, an explicit ``seed`` beside ``seeds``."""
+    """Refuse, in one line each, what an ensemble cannot be: data that differ per seed, DDP, an explicit ``seed``
+    beside ``seeds`` (and, once its model is known, ``train``: the plain-inverse retry)."""
     if "seed" in request.overridden():
         raise ConfigError(f"seed={cfg.seed} beside seeds={list(cfg.seeds)}: the members' seeds are the list; "
                           f"allowed: one of seed=K or seeds=[...]")
-    if cfg.get("plain_solve"):
-        raise ConfigError("plain_solve=true retrains a run from scratch when the plain inverse diverges, which "
-                          "one member of an ensemble cannot do alone; allowed: plain_solve=false with seeds")
     devices, strategy = cfg.trainer.get("devices", 1), str(cfg.trainer.get("strategy", "auto"))
     if (isinstance(devices, int) and devices > 1) or devices in ("auto", -1) or "ddp" in strategy:
         raise ConfigError(f"trainer.devices={devices} trainer.strategy={strategy} with seeds: an ensemble trains "
@@ -504,6 +501,23 @@ def member_folders(path: Path) -> tuple[list[int], list[Path]] | None:
     return [int(s) for s in listed["seeds"]], [path / p for p in listed["members"]]
 
 
+#: The headline metrics of an ensemble's spread line, the first present
+HEADLINE = ("test/traj_rel_err", "test/geom_rel_err", "test/accel_mse", "test/state_mse", "val/loss")
+
+
+def spread_line(metrics: dict[str, float], members: int) -> str:
+    """The headline metric as mean ± sample std over the members (mean alone where one member remains or the
+    spread is below float rounding of the mean)."""
+    key = next((k for k in HEADLINE if k in metrics), None)
+    if key is None:
+        return f"mean over {members} members"
+    mean, sd = metrics[key], metrics.get(f"{key}_sd", 0.0)
+    if members < 2 or sd <= 1e-12 * abs(mean):
+        return f"{key.removeprefix('test/')} {mean:.4g} (mean over {members} member{'s' * (members != 1)}, no spread)"
+    return (f"{key.removeprefix('test/')} {mean:.4g} ± {sd:.2g} (mean ± sample std over {members} members, "
+            f"min {metrics[key + '_min']:.4g}, max {metrics[key + '_max']:.4g})")
+
+
 def summarise(per_member: dict[int, dict[str, float]]) -> dict[str, float]:
     """Mean, sample std (``_sd``), ``_min`` and ``_max`` over members of every metric they share."""
     out: dict[str, float] = {}
@@ -534,6 +548,9 @@ def train(cfg: DictConfig, summary: bool, request: Request, run_type: type,
     seeds = check_seeds(cfg.seeds)
     refuse(cfg, request)
     checked = validate(cfg, request)  # the one validation pass: the members differ from it in seed and folders only
+    if cfg.get("plain_solve") and attempts.has_guard(checked.model):
+        raise ConfigError("plain_solve=true retrains a run from scratch when the plain inverse diverges, which "
+                          "one member of an ensemble cannot do alone; allowed: plain_solve=false with seeds")
     run_dir = Path(cfg.paths.output_dir)
     dirs = [member_dir(s) if member_dir else run_dir / f"seed{s}" for s in seeds]
     configs = [member_config(cfg, s, d) for s, d in zip(seeds, dirs)]
@@ -625,6 +642,18 @@ def _loop(cfg: DictConfig, members: list, seeds: list[int], why: str) -> Ensembl
     return module
 
 
+def _ensemble_figures(members: list, seeds: list[int], folder: Path) -> None:
+    """Each evaluator's figures of the members' spread (``Evaluator.ensemble_figures``), in the ensemble's
+    ``figures/``."""
+    from encons.plots import save_png
+
+    first = members[0]
+    for name, evaluator in first.evaluators.items():
+        figures = evaluator.ensemble_figures(first, [m.evaluators[name] for m in members], seeds)
+        for stem, fig in figures.items():
+            save_png(fig, folder / f"{stem}.png", layout=False)
+
+
 def _clip(cfg: DictConfig) -> tuple[float | None, str | None]:
     return cfg.trainer.get("gradient_clip_val"), cfg.trainer.get("gradient_clip_algorithm")
 
@@ -666,11 +695,14 @@ def _test_members(cfg, checked, module, data, configs, saved, dirs, keeper, trai
         runs.append(run_type(member, data, saved[i], d, tested, results))
     metrics = summarise(per_member)
     run_dir = Path(cfg.paths.output_dir)
+    tested = [module.members[i] for i in range(len(seeds)) if seeds[i] in per_member]
+    if cfg.test and cfg.get("figures", True) and len(tested) > 1:
+        _ensemble_figures(tested, [s for s in seeds if s in per_member], run_dir / "figures")
     tests = summarise({s: {k.removeprefix("test/"): v for k, v in r.items() if k.startswith("test/")}
                        for s, r in per_member.items()})
     write_json(run_dir / "test_metrics.json", {**tests, "members": len(seeds), "diverged": len(diverged)})
     metrics["members"], metrics["diverged"] = float(len(seeds)), float(len(diverged))
-    note = (f"ensemble of seeds {seeds} ({module.path}); mean over {len(per_member)} members, _sd: sample std, "
+    note = (f"{spread_line(metrics, len(per_member))}; ensemble of seeds {seeds} ({module.path}); _sd: sample std, "
             f"_min/_max; member folders: {', '.join(str(d) for d in dirs)}"
             + "".join(f"; seed {s} diverged: {w}" for s, w in diverged.items()))
     shown = {k: v for k, v in metrics.items() if not k.endswith(("_min", "_max"))}

@@ -154,6 +154,65 @@ def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor
     return figures
 
 
+def ensemble_figures(t: Tensor, preds: Tensor, true: Tensor, title: str, seeds: list[int],
+                     units: tuple[str, ...] | None = None, angles: Tensor | None = None,
+                     names: list[str] | None = None, time_label: str | None = None) -> dict[str, Figure]:
+    """A seed ensemble's spread where a reader looks: ``ensemble_rollout``, the members' rollouts ``preds``
+    (K, N, T, D) of the test trajectory whose error (of the members' mean) is the median, as their mean (dashed)
+    inside the band of the members' min–max, beside the truth (wide, pale), every coordinate, at most
+    ``ROLLOUT_GROUP`` a panel; ``ensemble_relative_error``, each member's median relative error over the test
+    trajectories against time, and their mean."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    time_label = time_label or TIME
+    names = names or coordinate_names(true.shape[-1])
+    n = true.shape[-1] // 2
+    units = tuple(units) if units is not None else ("–",) * n
+    shift = window_offset(true, angles)
+    preds, true = preds - shift, true - shift
+    errors = torch.stack([metrics.relative_error(p, true, angles) for p in preds])  # (K, N, T)
+    score = errors.mean(0).nan_to_num(float("inf")).sum(-1)
+    k = int(torch.argsort(score)[len(score) // 2])
+    mean, lo, hi = preds[:, k].mean(0), preds[:, k].amin(0), preds[:, k].amax(0)
+    palette = colours(n)
+    groups = [range(g, min(g + ROLLOUT_GROUP, n)) for g in range(0, n, ROLLOUT_GROUP)]
+    fig, axes = subplots(2 * len(groups), 1, figsize=(7.5, 2.2 + 2.4 * 2 * len(groups)), squeeze=False, sharex=True)
+    for g, group in enumerate(groups):
+        for rate in (False, True):
+            ax = axes[2 * g + rate, 0]
+            for d in group:
+                idx = d + n * rate
+                ax.plot(t, true[k, :, idx], lw=2.6, alpha=0.45, color=palette[d], zorder=2)
+                ax.fill_between(t, lo[:, idx], hi[:, idx], color=palette[d], alpha=0.2, lw=0, zorder=1)
+                ax.plot(t, mean[:, idx], "--", color=palette[d], lw=1.3, zorder=3)
+            ax.set_ylabel(f"{'velocity q̇' if rate else 'position q'} {unit_label(units[group.start:group.stop], rate)}")
+    axes[-1, 0].set_xlabel(time_label)
+    handles = [Line2D([], [], color=palette[d], lw=2, label=f"{names[d]} [{units[d]}], {names[d + n]} [{units[d]}/s]")
+               for d in range(n)]
+    handles += [Line2D([], [], color="k", lw=2.6, alpha=0.45, label="truth"),
+                Line2D([], [], color="k", ls="--", lw=1.3, label=f"mean of {len(seeds)} members"),
+                Patch(color="k", alpha=0.2, label="members' min–max")]
+    fig.legend(handles=handles, loc="center right", fontsize=7)
+    fig.suptitle(f"{title} × seeds {', '.join(map(str, seeds))}\ntest trajectory {k} (median of {len(score)} by "
+                 f"the members' mean relative error)", fontsize=9)
+    fig.tight_layout(rect=(0, 0, 1 - 2.2 / fig.get_figwidth(), 1 - 0.3 / fig.get_figheight()))
+    figures = {"ensemble_rollout": fig}
+
+    fig, ax = subplots(figsize=(6, 4))
+    medians = errors[..., 1:].double().median(1).values  # (K, T - 1)
+    for seed, curve in zip(seeds, medians):
+        ax.plot(t[1:], curve, lw=0.9, alpha=0.6, label=f"seed {seed}")
+    ax.plot(t[1:], medians.mean(0), "k--", lw=1.5, label="mean of the members")
+    ax.set_yscale("log")
+    ax.set_xlabel(time_label)
+    ax.set_ylabel(REL_ERR)
+    ax.set_title(f"{title}\nmedian over test trajectories, per member", fontsize=9)
+    ax.legend(fontsize=7)
+    figures["ensemble_relative_error"] = laid_out(fig)
+    return figures
+
+
 def plain_log_ticks(axis, values=None) -> None:
     """Readable ticks on a log ``axis``: at ``values`` if given, else at 1, 2 and 5 per decade (1 only
     over more than three decades; evenly spaced within one), as plain numbers (0.05, 200), no minor labels."""

@@ -122,6 +122,7 @@ def test_bad_seeds_are_one_line(tmp_path, run, bad, says):
     (["trainer=ddp", "trainer.devices=2"], "allowed: trainer.devices=1"),
     (["seed=3"], "allowed: one of seed=K or seeds"),
     (["ckpt_path=x.ckpt"], "ckpt_path=.x.ckpt. does not exist"),
+    (["model=lnn", "plain_solve=true"], "allowed: plain_solve=false with seeds"),  # a model with the plain retry
 ])
 def test_what_an_ensemble_cannot_be_is_refused(tmp_path, run, extra, says):
     with pytest.raises(ConfigError, match=says):

@@ -72,6 +72,11 @@ class Evaluator(ABC):
         (a run with an output folder, its global-zero process). Default: none."""
         return {}
 
+    def ensemble_figures(self, module: Learner, members: list[Evaluator], seeds: list[int]) -> dict[str, Figure]:
+        """Figures of a seed ensemble (``encons.ensemble``), from its ``members``' evaluators of this name after
+        each member's test (``module``: the first member): where the members' spread shows. Default: none."""
+        return {}
+
 
 def gathered(module: Learner, batches: list[tuple[Tensor, ...]]) -> list[Tensor]:
     """The kept per-batch tensors concatenated along the batch; under DDP, every process's share

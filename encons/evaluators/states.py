@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING
 
+import torch
 from matplotlib.figure import Figure
 from torch import Tensor
 
@@ -95,3 +96,15 @@ class States(Evaluator):
                                         [e.cpu() for e in energies] if energies else None, title=title,
                                         units=units, baseline=baseline.cpu(), angles=module.compared_angles,
                                         names=names, time_label=time_label, chart=module.system.common_chart)}
+
+    def ensemble_figures(self, module: Learner, members: list[Evaluator], seeds: list[int]) -> dict[str, Figure]:
+        """``ensemble_rollout`` and ``ensemble_relative_error`` (``encons.plots.ensemble_figures``) of the members'
+        test rollouts (the same windows for every member)."""
+        t, _, true_c, *_ = self.drawn
+        preds = torch.stack([m.drawn[1] for m in members]).cpu()
+        names = plots.coordinate_names(true_c.shape[-1], module.system.layout if module.system.common_chart == "cartesian"
+                                       else None)
+        return plots.ensemble_figures(t.cpu(), preds, true_c.cpu(), module.run_title(), seeds,
+                                      units=module.system.units(module.system.common_chart),
+                                      angles=module.compared_angles, names=names,
+                                      time_label=plots.TIME if module.system.known_physics else plots.DATA_TIME)
