@@ -223,3 +223,29 @@ def test_a_members_best_checkpoint_is_refused_for_resuming_in_one_line(tmp_path,
         run("seed0", ["model=node", "system=pendulum1", "seed=0", f"ckpt_path={best}"])
     with pytest.raises(ConfigError, match="is not a seed ensemble's checkpoint"):
         run("ens2", ["model=node", "system=pendulum1", "seeds=[0,1]", f"ckpt_path={best}"])
+
+
+def test_the_spread_line_names_mean_sd_min_max_and_no_spread_where_there_is_none():
+    metrics = ensemble.summarise({0: {"test/traj_rel_err": 0.5}, 1: {"test/traj_rel_err": 0.7}})
+    assert ensemble.spread_line(metrics, 2) == ("traj_rel_err 0.6 ± 0.14 (mean ± sample std over 2 members, "
+                                                "min 0.5, max 0.7)")
+    assert ensemble.spread_line(ensemble.summarise({0: {"test/traj_rel_err": 0.5}}), 1) == \
+        "traj_rel_err 0.5 (mean over 1 member, no spread)"
+    same = ensemble.summarise({0: {"test/geom_rel_err": 0.1 + 1e-17}, 1: {"test/geom_rel_err": 0.1}})
+    assert "no spread" in ensemble.spread_line(same, 2)
+
+
+def test_ensemble_figures_draw_the_members_band_around_their_mean():
+    from encons import plots
+
+    t = torch.linspace(0, 1, 11)
+    true = torch.stack([torch.sin(t), torch.cos(t)], -1).expand(5, 11, 2)
+    preds = torch.stack([true + 0.01 * k for k in range(3)])  # member k off by 0.01 k
+    figures = plots.ensemble_figures(t, preds, true, "node on pendulum1", [0, 1, 2], units=("rad",))
+    assert set(figures) == {"ensemble_rollout", "ensemble_relative_error"}
+    ax = figures["ensemble_rollout"].axes[0]
+    band = ax.collections[0].get_paths()[0].vertices[:, 1]
+    assert band.min() == pytest.approx(float(true[0, :, 0].min()), abs=1e-6)            # member 0: the lower edge
+    assert band.max() == pytest.approx(float(true[0, :, 0].max()) + 0.02, abs=1e-6)     # member 2: the upper edge
+    assert "mean of 3 members" in [t.get_text() for t in figures["ensemble_rollout"].legends[0].get_texts()]
+    assert len(figures["ensemble_relative_error"].axes[0].lines) == 4                    # 3 members and their mean
