@@ -368,7 +368,7 @@ def score_control(run, starts: int = 100, seed: int = 0, duration: float | None 
     table = Table(title=f"control: {run.config.name}, {starts} starts (seed {seed}), {float(outcome.t[-1]):g} s, "
                         f"control period {run.module.dt} s")
     for column in ("metric", "from the learned model", "from the true model (oracle)"):
-        table.add_column(column, justify="left" if column == "metric" else "right")
+        table.add_column(column, justify="left" if column == "metric" else "right", no_wrap=column == "metric")
     for label, cells in printed_rows(outcome.metrics, system):
         table.add_row(label, *cells)
     console = Console()
