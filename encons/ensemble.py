@@ -658,7 +658,8 @@ def _clip(cfg: DictConfig) -> tuple[float | None, str | None]:
     return cfg.trainer.get("gradient_clip_val"), cfg.trainer.get("gradient_clip_algorithm")
 
 
-def _test_members(cfg, checked, module, data, configs, saved, dirs, keeper, trainer, started, summary, run_type) -> Ensemble:
+def _test_members(cfg, checked, module, data, configs, saved, dirs, keeper, trainer, started, summary,
+                  run_type) -> Ensemble:
     """Test each member that did not diverge on its best checkpoint (else its last weights), as its separate
     run would; write the ensemble's ``test_metrics.json`` and summary."""
     from encons.build import build_trainer

@@ -186,7 +186,8 @@ def ensemble_figures(t: Tensor, preds: Tensor, true: Tensor, title: str, seeds: 
                 ax.plot(t, true[k, :, idx], lw=2.6, alpha=0.45, color=palette[d], zorder=2)
                 ax.fill_between(t, lo[:, idx], hi[:, idx], color=palette[d], alpha=0.2, lw=0, zorder=1)
                 ax.plot(t, mean[:, idx], "--", color=palette[d], lw=1.3, zorder=3)
-            ax.set_ylabel(f"{'velocity q̇' if rate else 'position q'} {unit_label(units[group.start:group.stop], rate)}")
+            unit = unit_label(units[group.start:group.stop], rate)
+            ax.set_ylabel(f"{'velocity q̇' if rate else 'position q'} {unit}")
     axes[-1, 0].set_xlabel(time_label)
     handles = [Line2D([], [], color=palette[d], lw=2, label=f"{names[d]} [{units[d]}], {names[d + n]} [{units[d]}/s]")
                for d in range(n)]

@@ -1,22 +1,27 @@
 """The stacked path of a seed ensemble (``encons.ensemble``): K members' networks as one model.
 
-``StackedModel`` holds the members' parameters stacked along a leading member axis
-(``torch.func.stack_module_state``) and evaluates the field of all members in one call: ``vmap`` over the
-member axis of ``functional_call`` on one template of the model. The member axis is folded into the batch
-axis (member-major: rows ``k·N … (k+1)·N − 1`` are member ``k``'s copy of the batch), so the integrator, the
-objective and the rollout code run once, unchanged, on K·N windows; each objective means its terms by
-``TrainingModule.reduce``, which ``StackedTraining`` takes per member, giving the K losses whose sum's
-gradient is each member's own. One optimiser over the stacked parameters is K optimisers when it acts
-elementwise (Adam, AdamW, SGD): ``StackedEnsemble`` checks this by name. Gradient clipping is per member (a
-norm over one member's slices); a schedule on a member's own metric (``ReduceLROnPlateau``) is one scheduler
-per member, whose learning-rate factor scales that member's step. Validation, checkpoints and tests use the
-members' own modules, into which the stacked weights are copied before each validation and at the end.
+``StackedModel`` evaluates every member in one call, two ways. With the ensemble dimension (``dimension_model``:
+a model whose parameters all live in ``nn.Linear`` layers) a copy of the model has each layer replaced by an
+``EnsembleLinear`` of the members' layers, and the model's own code runs once on rows (K, N, ...) whose leading
+axis is the member axis: its field, ``to_internal``/``from_internal``, SyMo's ``residual``, a discrete model's
+``rollout`` (E2E-SyMo's Newton iterations, each sample of each member converging on its own), a regulariser's
+Jacobians. Otherwise ``vmap`` over the member axis of ``functional_call`` on one template of the model
+(``torch.func.stack_module_state``), for CHNN/CLNN (their masses), the INN (its coupling scales) and NSF (a
+per-sample field); ``vmap`` cannot pass a branch on values, so a discrete model's rollout needs the dimension.
 
-``why_not`` names why a run cannot take this path (then the loop path trains it): a discrete model
-(SyMo/E2E-SyMo: Newton iterations), a regulariser (Jacobians of one sample's field), an observation model,
-a learned chart map (INN), a per-rollout cache (``rollout_scope``: CHNN, CLNN), a non-elementwise
-optimiser, ``compile``, or a first batch on which the stacked losses differ from the members' own or cannot
-be computed under ``vmap`` (data-dependent branches: LNN/GLNN's ``guarded_solve``).
+Outside the model the member axis is folded into the batch axis (member-major: rows ``k·N … (k+1)·N − 1`` are
+member ``k``'s copy of the batch), so the integrator, the objective and the rollout code run once, unchanged, on
+K·N windows; each objective means its terms by ``TrainingModule.reduce``, which ``StackedTraining`` takes per
+member, giving the K losses whose sum's gradient is each member's own. One optimiser over the stacked
+parameters is K optimisers when it acts elementwise (Adam, AdamW, SGD): ``why_not`` checks this by name.
+Gradient clipping is per member (a norm over one member's slices); a schedule on a member's own metric
+(``ReduceLROnPlateau``) is one scheduler per member, whose learning-rate factor scales that member's step.
+Validation, checkpoints and tests use the members' own modules, into which the stacked weights are copied
+before each validation and at the end.
+
+``why_not`` names what no stacked way takes (an observation model's encoder, a non-elementwise optimiser,
+``compile``); ``probe`` checks on the first batch that the stacked losses equal the members' own;
+``step_times`` measures whether the stacked step is faster than the loop's (``encons.ensemble`` picks by it).
 """
 
 from __future__ import annotations
@@ -37,10 +42,6 @@ from encons.models.networks import EnsembleLinear
 from encons.module import TrainingModule
 
 ELEMENTWISE = ("Adam", "AdamW", "SGD", "RMSprop", "Adamax")  # optimisers whose step acts on each element alone
-
-
-#: the methods of a model that act on its parameters per batch row, called per member on the folded rows
-PER_MEMBER = ("to_internal", "from_internal", "residual")
 
 
 def dimension_model(models: Sequence[DynamicsModel]) -> nn.Module | None:
@@ -81,14 +82,14 @@ class _Call(nn.Module):
 class StackedModel(nn.Module):
     """K copies of one ``DynamicsModel`` with their parameters stacked (``weights``: member axis first).
 
-    Its ``forward(t, z, u)`` and the ``PER_MEMBER`` methods take tensors whose leading axis is the member axis
-    folded into the batch (member-major: rows ``k·N … (k+1)·N − 1`` are member ``k``'s) and return the same
-    layout: each member's own call on its rows, as ``vmap`` over the member axis of ``functional_call`` on one
-    template of the model (or, where every weight is an ``nn.Linear`` and the model does nothing outside its
-    field, an ensemble dimension written into the layers: ``EnsembleLinear``, measured faster than ``vmap``).
-    ``rollout_scope`` is empty: a model's per-rollout cache (CHNN/CLNN's inverse masses) is the template's, so
-    each field evaluation computes it from the member's weights instead. ``penalty`` gives a regulariser per
-    member."""
+    Its ``forward(t, z, u)``, ``to_internal``, ``from_internal``, ``residual`` and ``rollout`` take tensors whose
+    leading axis is the member axis folded into the batch (member-major: rows ``k·N … (k+1)·N − 1`` are member
+    ``k``'s) and return the same layout: each member's own call on its rows, by the ensemble dimension in the
+    layers (``dimension``, where ``dimension_model`` allows it: measured faster than ``vmap``), else by ``vmap``
+    over the member axis of ``functional_call`` on one template. ``rollout_scope`` is empty: a model's
+    per-rollout cache (CHNN/CLNN's inverse masses) is the template's, so each field evaluation computes it from
+    the member's weights instead. ``penalty`` gives a regulariser per member.
+    """
 
     def __init__(self, models: Sequence[DynamicsModel], dimension: bool = True):
         super().__init__()
@@ -96,8 +97,8 @@ class StackedModel(nn.Module):
         self.dimension = dimension_model(models) if dimension else None
         if self.dimension is not None:
             self.names, self.buffer_names = [], []
-            self.weights = nn.ParameterList([w for layer in self.dimension.modules() if isinstance(layer, EnsembleLinear)
-                                             for w in (layer.weight, layer.bias) if w is not None])
+            layers = [layer for layer in self.dimension.modules() if isinstance(layer, EnsembleLinear)]
+            self.weights = nn.ParameterList([w for layer in layers for w in (layer.weight, layer.bias) if w is not None])
             self.__dict__["template"] = self.dimension
             return
         params, buffers = stack_module_state(list(models))
@@ -247,7 +248,6 @@ def optimizer(partial: Any, params: list[Tensor]) -> torch.optim.Optimizer:
 def why_not(cfg: Any, members: Sequence[TrainingModule]) -> str | None:
     """Why the members cannot train stacked (None: they can), from the model, objective and settings alone."""
     member = members[0]
-    model, name = member.model, member.model_name or type(member.model).__name__
     if not member.observation.identity:
         return f"observation={type(member.observation).__name__} trains an encoder beside the model"
     if cfg.get("compile"):

@@ -212,7 +212,7 @@ class MLPTape:
 
     def __init__(self, net: nn.Sequential, x: Tensor):
         self.linears = [layer for layer in net if isinstance(layer, LINEAR)]
-        self.first = self.linears[0].weight.transpose(-1, -2).contiguous()  # W_1ᵀ (d, width), row-major (``narrow_in``)
+        self.first = self.linears[0].weight.transpose(-1, -2).contiguous()  # W_1ᵀ (d, width), row-major
         self.slopes: list[tuple[Tensor, Callable[[], Tensor]]] = []
         self.adjoints: list[Tensor] = []
         a = x
