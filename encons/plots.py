@@ -82,6 +82,42 @@ def window_offset(true: Tensor, angles: Tensor | None) -> Tensor:
 ROLLOUT_GROUP = 3  # coordinates per rollout panel: a 12-coordinate gyroscope is 4 rows of 3, not 12 lines a panel
 
 
+def _state_grid(true: Tensor, units: tuple[str, ...] | None, names: list[str] | None, angles: Tensor | None):
+    """What a figure of state panels needs: n, the coordinate ``names`` and ``units`` (defaults: q₁…, unitless),
+    the per-window 2πk ``shift`` (``window_offset``), a colour per coordinate and the coordinate groups of a panel."""
+    n = true.shape[-1] // 2
+    groups = [range(g, min(g + ROLLOUT_GROUP, n)) for g in range(0, n, ROLLOUT_GROUP)]
+    return (n, names or coordinate_names(true.shape[-1]), tuple(units) if units is not None else ("–",) * n,
+            window_offset(true, angles), colours(n), groups)
+
+
+def _state_panels(axes, t: Tensor, true: Tensor, pred: Tensor, n: int, units: tuple[str, ...], palette: list,
+                  groups: list[range], baseline: Tensor | None = None, band: tuple[Tensor, Tensor] | None = None) -> None:
+    """One column of state panels (``axes``: one per group, positions then velocities) of one trajectory (T, D):
+    the truth wide and pale, the ``baseline`` dotted, the ``band`` (low, high) shaded, the model dashed on top."""
+    for g, group in enumerate(groups):
+        for rate in (False, True):
+            ax = axes[2 * g + rate]
+            for d in group:
+                idx = d + n * rate
+                ax.plot(t, true[:, idx], lw=2.6, alpha=0.45, color=palette[d], zorder=2)
+                if band is not None:
+                    ax.fill_between(t, band[0][:, idx], band[1][:, idx], color=palette[d], alpha=0.2, lw=0, zorder=1)
+                if baseline is not None:
+                    ax.plot(t, baseline[:, idx], ":", color=palette[d], lw=1.0, zorder=2.5)
+                ax.plot(t, pred[:, idx], "--", color=palette[d], lw=1.3, zorder=3)
+            unit = unit_label(units[group.start:group.stop], rate)
+            ax.set_ylabel(f"{'velocity q̇' if rate else 'position q'} {unit}")
+
+
+def _coordinate_handles(names: list[str], units: tuple[str, ...], n: int, palette: list) -> list:
+    """Legend entries: a colour per coordinate (its position and velocity) and the wide pale truth."""
+    from matplotlib.lines import Line2D
+
+    return [Line2D([], [], color=palette[d], lw=2, label=f"{names[d]} [{units[d]}], {names[d + n]} [{units[d]}/s]")
+            for d in range(n)] + [Line2D([], [], color="k", lw=2.6, alpha=0.45, label="truth")]
+
+
 def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] | None, title: str,
                     units: tuple[str, ...] | None = None, baseline: Tensor | None = None,
                     angles: Tensor | None = None, names: list[str] | None = None,
@@ -99,41 +135,24 @@ def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor
 
     figures = {}
     time_label = time_label or TIME
-    names = names or coordinate_names(true.shape[-1])
-    n = true.shape[-1] // 2
-    units = tuple(units) if units is not None else ("–",) * n
-    shift = window_offset(true, angles)
+    n, names, units, shift, palette, groups = _state_grid(true, units, names, angles)
     pred, true = pred - shift, true - shift
     baseline = None if baseline is None else baseline - shift
     score = metrics.relative_error(pred, true, angles).nan_to_num(float("inf")).sum(-1)
     order = torch.argsort(score).tolist()
     picks = dict.fromkeys([order[0], order[len(order) // 2], order[-1]])      # best, median, worst (distinct)
     tags = {order[0]: "best", order[len(order) // 2]: "median", order[-1]: "worst"}
-    palette = colours(n)
-    groups = [range(g, min(g + ROLLOUT_GROUP, n)) for g in range(0, n, ROLLOUT_GROUP)]
     fig, axes = subplots(2 * len(groups), len(picks), figsize=(4.6 * len(picks) + 1.9, 2.2 + 2.4 * 2 * len(groups)),
                          squeeze=False, sharex=True)
     for col, k in enumerate(picks):
-        for g, group in enumerate(groups):
-            for rate in (False, True):
-                ax = axes[2 * g + rate, col]
-                for d in group:
-                    idx = d + n * rate
-                    ax.plot(t, true[k, :, idx], lw=2.6, alpha=0.45, color=palette[d], zorder=2)
-                    if baseline is not None:
-                        ax.plot(t, baseline[k, :, idx], ":", color=palette[d], lw=1.0, zorder=2.5)
-                    ax.plot(t, pred[k, :, idx], "--", color=palette[d], lw=1.3, zorder=3)
-                unit = unit_label(units[group.start:group.stop], rate)
-                ax.set_ylabel(f"{'velocity q̇' if rate else 'position q'} {unit}")
+        _state_panels(axes[:, col], t, true[k], pred[k], n, units, palette, groups,
+                      baseline=None if baseline is None else baseline[k])
         turns = [f"{names[d]} {'−' if turn > 0 else '+'} {abs(turn)}·2π" for d in range(n)
                  if (turn := round(float(shift[k, 0, d]) / (2 * torch.pi)))]
         axes[0, col].set_title(f"test trajectory {k} ({tags[k]} of {len(order)} by relative error)"
                                + (f"\ndrawn as {', '.join(turns)}" if turns else ""), fontsize=9)
         axes[-1, col].set_xlabel(time_label)
-    handles = [Line2D([], [], color=palette[d], lw=2, label=f"{names[d]} [{units[d]}], {names[d + n]} [{units[d]}/s]")
-               for d in range(n)]
-    handles += [Line2D([], [], color="k", lw=2.6, alpha=0.45, label="truth"),
-                Line2D([], [], color="k", ls="--", lw=1.3, label="model")]
+    handles = _coordinate_handles(names, units, n, palette) + [Line2D([], [], color="k", ls="--", lw=1.3, label="model")]
     if baseline is not None:
         handles.append(Line2D([], [], color="k", ls=":", lw=1.0, label="linear-ODE baseline"))
     fig.legend(handles=handles, loc="center right", fontsize=7)
@@ -166,34 +185,18 @@ def ensemble_figures(t: Tensor, preds: Tensor, true: Tensor, title: str, seeds: 
     from matplotlib.patches import Patch
 
     time_label = time_label or TIME
-    names = names or coordinate_names(true.shape[-1])
-    n = true.shape[-1] // 2
-    units = tuple(units) if units is not None else ("–",) * n
-    shift = window_offset(true, angles)
+    n, names, units, shift, palette, groups = _state_grid(true, units, names, angles)
     preds, true = preds - shift, true - shift
     errors = torch.stack([metrics.relative_error(p, true, angles) for p in preds])  # (K, N, T)
     score = errors.mean(0).nan_to_num(float("inf")).sum(-1)
     k = int(torch.argsort(score)[len(score) // 2])
-    mean, lo, hi = preds[:, k].mean(0), preds[:, k].amin(0), preds[:, k].amax(0)
-    palette = colours(n)
-    groups = [range(g, min(g + ROLLOUT_GROUP, n)) for g in range(0, n, ROLLOUT_GROUP)]
     fig, axes = subplots(2 * len(groups), 1, figsize=(7.5, 2.2 + 2.4 * 2 * len(groups)), squeeze=False, sharex=True)
-    for g, group in enumerate(groups):
-        for rate in (False, True):
-            ax = axes[2 * g + rate, 0]
-            for d in group:
-                idx = d + n * rate
-                ax.plot(t, true[k, :, idx], lw=2.6, alpha=0.45, color=palette[d], zorder=2)
-                ax.fill_between(t, lo[:, idx], hi[:, idx], color=palette[d], alpha=0.2, lw=0, zorder=1)
-                ax.plot(t, mean[:, idx], "--", color=palette[d], lw=1.3, zorder=3)
-            unit = unit_label(units[group.start:group.stop], rate)
-            ax.set_ylabel(f"{'velocity q̇' if rate else 'position q'} {unit}")
+    _state_panels(axes[:, 0], t, true[k], preds[:, k].mean(0), n, units, palette, groups,
+                  band=(preds[:, k].amin(0), preds[:, k].amax(0)))
     axes[-1, 0].set_xlabel(time_label)
-    handles = [Line2D([], [], color=palette[d], lw=2, label=f"{names[d]} [{units[d]}], {names[d + n]} [{units[d]}/s]")
-               for d in range(n)]
-    handles += [Line2D([], [], color="k", lw=2.6, alpha=0.45, label="truth"),
-                Line2D([], [], color="k", ls="--", lw=1.3, label=f"mean of {len(seeds)} members"),
-                Patch(color="k", alpha=0.2, label="members' min–max")]
+    handles = _coordinate_handles(names, units, n, palette) + [
+        Line2D([], [], color="k", ls="--", lw=1.3, label=f"mean of {len(seeds)} members"),
+        Patch(color="k", alpha=0.2, label="members' min–max")]
     fig.legend(handles=handles, loc="center right", fontsize=7)
     fig.suptitle(f"{title} × seeds {', '.join(map(str, seeds))}\ntest trajectory {k} (median of {len(score)} by "
                  f"the members' mean relative error)", fontsize=9)
