@@ -92,7 +92,8 @@ def _state_grid(true: Tensor, units: tuple[str, ...] | None, names: list[str] | 
 
 
 def _state_panels(axes, t: Tensor, true: Tensor, pred: Tensor, n: int, units: tuple[str, ...], palette: list,
-                  groups: list[range], baseline: Tensor | None = None, band: tuple[Tensor, Tensor] | None = None) -> None:
+                  groups: list[range], baseline: Tensor | None = None,
+                  band: tuple[Tensor, Tensor] | None = None) -> None:
     """One column of state panels (``axes``: one per group, positions then velocities) of one trajectory (T, D):
     the truth wide and pale, the ``baseline`` dotted, the ``band`` (low, high) shaded, the model dashed on top."""
     for g, group in enumerate(groups):
@@ -152,7 +153,8 @@ def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor
         axes[0, col].set_title(f"test trajectory {k} ({tags[k]} of {len(order)} by relative error)"
                                + (f"\ndrawn as {', '.join(turns)}" if turns else ""), fontsize=9)
         axes[-1, col].set_xlabel(time_label)
-    handles = _coordinate_handles(names, units, n, palette) + [Line2D([], [], color="k", ls="--", lw=1.3, label="model")]
+    handles = _coordinate_handles(names, units, n, palette)
+    handles.append(Line2D([], [], color="k", ls="--", lw=1.3, label="model"))
     if baseline is not None:
         handles.append(Line2D([], [], color="k", ls=":", lw=1.0, label="linear-ODE baseline"))
     fig.legend(handles=handles, loc="center right", fontsize=7)
