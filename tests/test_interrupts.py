@@ -67,3 +67,29 @@ def test_sigterm_during_fit_exits_non_zero_prints_the_resume_command_and_resumin
     assert torch.load(run / "checkpoints" / "last.ckpt", weights_only=True, map_location="cpu")["epoch"] == 29
     assert json.loads((run / "test_metrics.json").read_text())["traj_rel_err"] > 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cache", "run"]          # no second run folder
+
+
+@pytest.mark.slow
+def test_an_ensemble_killed_mid_epoch_loses_at_most_that_epoch(tmp_path):
+    """kill -9 (no signal handler runs): the ensemble's last.ckpt holds the last whole epoch, and the resume
+    command continues from the epoch after it, in the same folder, to the end."""
+    run = tmp_path / "run"
+    args = ["model=node", "system=pendulum1", "debug=fast", "figures=false", "trainer.max_epochs=30",
+            "seeds=[0,1]", f"hydra.run.dir={run}", f"paths.cache_dir={tmp_path / 'cache'}"]
+    env = {**os.environ, "ENCONS_ROOT": str(tmp_path)}
+    proc = subprocess.Popen([sys.executable, "-m", "encons.train", *args], cwd=tmp_path, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    _wait_for(run / "train.log", "epoch 4 of 30", proc)
+    proc.kill()
+    proc.wait(timeout=60)
+    stopped = torch.load(run / "checkpoints" / "last.ckpt", weights_only=True, map_location="cpu")["epoch"]
+    assert 3 <= stopped < 29 and not (run / "test_metrics.json").exists()
+    resumed = subprocess.run([sys.executable, "-m", "encons.train", *args,
+                              f"ckpt_path={run / 'checkpoints' / 'last.ckpt'}"], cwd=tmp_path, env=env,
+                             capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    log = (run / "train.log").read_text()
+    assert f"resumed from {run / 'checkpoints' / 'last.ckpt'}" in log
+    after = log[log.index("resumed from"):]
+    assert f"epoch {stopped + 2} of 30" in after and f"epoch {stopped + 1} of 30" not in after  # lost no whole epoch
+    assert "epoch 30 of 30" in after and json.loads((run / "test_metrics.json").read_text())["members"] == 2
