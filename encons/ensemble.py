@@ -63,7 +63,7 @@ def check_seeds(seeds: Any) -> list[int]:
 
 def refuse(cfg: DictConfig, request: Request) -> None:
     """Refuse, in one line each, what an ensemble cannot be: data that differ per seed, DDP, an explicit ``seed``
-    beside ``seeds`` (and, once its model is known, ``train``: the plain-inverse retry)."""
+    beside ``seeds``. (``train`` refuses the plain-inverse retry once the config is checked: it needs the model.)"""
     if "seed" in request.overridden():
         raise ConfigError(f"seed={cfg.seed} beside seeds={list(cfg.seeds)}: the members' seeds are the list; "
                           f"allowed: one of seed=K or seeds=[...]")
