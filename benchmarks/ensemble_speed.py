@@ -76,25 +76,19 @@ def members(cell: list[str], k: int, cache: str) -> tuple[list, dict]:
     return mods, batch
 
 
-def training_loss(member, batch: dict):
-    """A member's training loss as its ``training_step`` forms it: its objective plus its regulariser's penalty."""
-    penalty = member.penalty(batch)
-    return member.loss(batch) if penalty is None else member.loss(batch) + penalty
-
-
 def separate_step(mods: list, opts: list, batch: dict) -> None:
     for m, opt in zip(mods, opts):
         opt.zero_grad(set_to_none=True)
-        training_loss(m, batch).backward()
+        m.training_loss(batch).backward()
         opt.step()
 
 
 def ensemble_step(module, opt, batch: dict) -> None:
     opt.zero_grad(set_to_none=True)
     if isinstance(module, ensemble.StackedEnsemble):
-        sum(x for x in module.stacked.member_losses(batch) if x is not None).sum().backward()
+        module.stacked.training_loss(batch).sum().backward()
     else:
-        sum(training_loss(m, batch) for m in module.members).backward()
+        sum(m.training_loss(batch) for m in module.members).backward()
     opt.step()
 
 

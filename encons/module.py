@@ -129,6 +129,11 @@ class TrainingModule(pl.LightningModule):
         u = None if u is None else u[:, : points.shape[1]].flatten(0, 1)
         return self.regularise(points.flatten(0, 1), u)
 
+    def training_loss(self, batch: Batch) -> Tensor:
+        """What a training step minimises: the objective plus the regulariser's penalty, if any."""
+        penalty = self.penalty(batch)
+        return self.loss(batch) if penalty is None else self.loss(batch) + penalty
+
     def regularise(self, points: Tensor, u: Tensor | None) -> Tensor:
         """The regulariser on the model at ``points`` (B, 2n) under inputs ``u`` (B, m) or None."""
         return self.regulariser(self.model, points, u)

@@ -232,6 +232,11 @@ class StackedTraining(TrainingModule):
         folded = {key: v.repeat(k, *[1] * (v.dim() - 1)) for key, v in batch.items() if isinstance(v, Tensor)}
         return self.loss(folded), self.penalty(batch)
 
+    def training_loss(self, batch: dict) -> Tensor:
+        """The K members' training losses (K,): each objective plus its penalty."""
+        objective, penalty = self.member_losses(batch)
+        return objective if penalty is None else objective + penalty
+
 
 def optimizer(partial: Any, params: list[Tensor]) -> torch.optim.Optimizer:
     """The members' optimiser over the stacked weights, by its fused kernel where it has one (one pass over each
@@ -263,13 +268,11 @@ def step_times(stacked: StackedTraining, members: Sequence[TrainingModule], batc
     """Seconds of one forward and backward of the members' training losses on ``batch``: stacked, and member by
     member (the loop path), the faster of ``repeats`` after a warm-up; the gradients are cleared after."""
     def step_stacked() -> None:
-        objective, penalty = stacked.member_losses(batch)
-        (objective if penalty is None else objective + penalty).sum().backward()
+        stacked.training_loss(batch).sum().backward()
 
     def step_loop() -> None:
         for m in members:
-            penalty = m.penalty(batch)
-            (m.loss(batch) if penalty is None else m.loss(batch) + penalty).backward()
+            m.training_loss(batch).backward()
 
     best = []
     for step, modules in ((step_stacked, [stacked]), (step_loop, members)):
@@ -288,11 +291,10 @@ def probe(stacked: StackedTraining, members: Sequence[TrainingModule], batch: di
     """None when the stacked losses on ``batch`` equal each member's own (relative ``rtol``), else why not
     (the first line of the error ``vmap`` raised, e.g. at a data-dependent branch)."""
     try:
-        objective, penalty = stacked.member_losses(batch)
-        got = (objective if penalty is None else objective + penalty).detach()
+        got = stacked.training_loss(batch).detach()
     except Exception as err:  # noqa: BLE001 - any failure of the stacked forward sends the run down the loop path
         return f"the stacked field failed ({type(err).__name__}: {str(err).splitlines()[0]})"
-    want = torch.stack([(m.loss(batch) + (0 if (p := m.penalty(batch)) is None else p)).detach() for m in members])
+    want = torch.stack([m.training_loss(batch).detach() for m in members])
     diff = ((got - want).abs() / want.abs().clamp_min(1e-12)).max()
     if not bool(diff <= rtol):
         return f"the stacked losses differ from the members' own by {float(diff):.2g} (relative) on the first batch"

@@ -44,11 +44,6 @@ def _members(model, system, extra, cache, tmp_path, k=2):
     return built[0][0], [m for _, m in built]
 
 
-def _loss(member, batch):
-    penalty = member.penalty(batch)
-    return member.loss(batch) if penalty is None else member.loss(batch) + penalty
-
-
 @pytest.mark.parametrize("model, system, extra, way", FAMILIES, ids=lambda v: v if isinstance(v, str) else None)
 def test_stacked_steps_equal_each_members_own(tmp_path, cache, model, system, extra, way):
     """Four batches, three AdamW steps between them: the stacked losses equal the members' separate ones (relative
@@ -66,12 +61,11 @@ def test_stacked_steps_equal_each_members_own(tmp_path, cache, model, system, ex
     batches = itertools.cycle(list(data.train_dataloader()))
     for _ in range(4):
         batch = next(batches)
-        objective, penalty = module.stacked.member_losses(batch)
-        losses = objective if penalty is None else objective + penalty
+        losses = module.stacked.training_loss(batch)
         want = []
         for twin, o in zip(twins, opts):
             o.zero_grad()
-            loss = _loss(twin, batch)
+            loss = twin.training_loss(batch)
             loss.backward()
             o.step()
             want.append(loss.detach())
