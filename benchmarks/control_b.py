@@ -4,8 +4,8 @@
 
 Each argument ``name=o1;o2;...`` trains ``model=lnode system=cartpole`` (plus the overrides, separated by ";")
 and appends one JSON line: the relative errors of the linearisation at upright (A, B: the LQR's model,
-``encons.control.linearise``) of the trained model and of its initialisation, ∂θ̈/∂u at upright, the
-training wall time and the closed-loop success rate on 40 seeded starts (``encons.control.compare``).
+``encons.tools.control.linearise``) of the trained model and of its initialisation, ∂θ̈/∂u at upright, the
+training wall time and the closed-loop success rate on 40 seeded starts (``encons.tools.control.compare``).
 """
 
 from __future__ import annotations
@@ -19,7 +19,9 @@ from pathlib import Path
 
 import torch
 
-from encons import api, control
+from encons.entry import api
+
+from encons.tools import control
 
 
 def linear_errors(model, system) -> dict[str, float]:
@@ -39,7 +41,7 @@ def main() -> None:
             cfg = api.compose("logger=none", "trainer.enable_progress_bar=false", "~evaluators/santos",
                               "model=lnode", "system=cartpole", "data.n_test=16", *extra, output_dir=Path(tmp) / "run",
                               cache_dir=Path(tmp) / "cache")
-            from encons.build import build
+            from encons.training.build import build
             _, module = build(cfg)
             init_model, system = copy.deepcopy(module.model), module.system
             started = time.perf_counter()

@@ -3,11 +3,11 @@
     python benchmarks/control_b_curve.py OUT.jsonl STEPS [name=o1;o2;... ...]
 
 Each setting is composed like ``python -m encons.train model=lnode system=cartpole <overrides>`` and built
-by ``encons.build.build`` (the same data, model, objective and optimiser as a run); then the module's own
+by ``encons.training.build.build`` (the same data, model, objective and optimiser as a run); then the module's own
 training loss (``TrainingModule.loss``) is minimised for STEPS optimiser steps over the training windows
 (epochs drawn by the data module's sampler, no validation or checkpoints: the last weights). At steps
 0, 100, 300, 1000, 3000, ... ≤ STEPS it appends one JSON line per setting with a_rel_err, b_rel_err (the
-linearisation at upright that the LQR is built from, ``encons.control.linearise``) and ∂θ̈/∂u at upright,
+linearisation at upright that the LQR is built from, ``encons.tools.control.linearise``) and ∂θ̈/∂u at upright,
 and the learned M(q) at upright beside the true one; after the last step one more line (``"final": true``)
 with the swing-up controller's success rate on 40 seeded starts (``swing_up``).
 """
@@ -22,8 +22,10 @@ from pathlib import Path
 
 import torch
 
-from encons import api, control
-from encons.build import build
+from encons.entry import api
+
+from encons.tools import control
+from encons.training.build import build
 
 
 def errors(model, system) -> dict[str, float]:
@@ -37,8 +39,8 @@ def errors(model, system) -> dict[str, float]:
 
 
 def swing_up(model, system, h: float, starts: int = 40) -> dict[str, float]:
-    """The swing-up controller built from ``model`` on the true system: ``encons.control.score`` of its closed
-    loop from ``starts`` seeded (0) starts of the system's ``Settings``, as ``encons.control.compare`` runs it."""
+    """The swing-up controller built from ``model`` on the true system: ``encons.tools.control.score`` of its closed
+    loop from ``starts`` seeded (0) starts of the system's ``Settings``, as ``encons.tools.control.compare`` runs it."""
     settings = control.SETTINGS[type(system)]
     plant = control.learned_plant(model, system, "model")
     states, inputs = control.closed_loop(system, control.SwingUp(plant, system, h), settings.starts(starts, 0), h,

@@ -1,10 +1,10 @@
-"""Throughput of a seed ensemble (``encons.ensemble``) against the same members trained as separate models.
+"""Throughput of a seed ensemble (``encons.training.ensemble``) against the same members trained as separate models.
 
-Per cell, K members are built as the runs ``seed=0..K-1`` would be (``encons.build``); one training step
+Per cell, K members are built as the runs ``seed=0..K-1`` would be (``encons.training.build``); one training step
 is what the ensemble does per batch without Lightning around it: the members' losses on one batch, one
 backward, one optimiser step. "separate": each member alone (its own loss, backward and AdamW step), K of
 them in turn: K separate runs in one process, without their K-fold Lightning overhead (which an ensemble
-saves too, so the ratio is a lower bound of a whole run's). "ensemble": the path ``encons.ensemble`` takes for
+saves too, so the ratio is a lower bound of a whole run's). "ensemble": the path ``encons.training.ensemble`` takes for
 the cell (``stacked``: one vmapped forward/backward and one AdamW over stacked weights; ``loop``: the members'
 losses in turn, one backward). Reported: member-steps per CPU second and the ratio ensemble / separate at K
 members, fastest of ``--repeats`` interleaved rounds of ``--steps`` steps, one thread (process CPU time, so
@@ -30,8 +30,12 @@ from pathlib import Path
 
 import torch
 
-from encons import api, ensemble, stacked, threads
-from encons.build import build
+from encons.entry import api
+
+from encons.training import ensemble, stacked
+
+from encons.infra import threads
+from encons.training.build import build
 
 SMALL_DATA = ["data.n_val=2", "data.n_test=2", "logger=none"]
 #: The papers' cells (conf/profile), one family each where it is used: the profile's protocol for that model.
@@ -158,7 +162,7 @@ def measure(name: str, cell: list[str], ks: list[int], steps: int, repeats: int,
 def mlp_rows(ks: list[int], steps: int, repeats: int, width: int = 200, rows: int = 30, dim: int = 2) -> list[dict]:
     """Forward + backward of the lim_kasim network (2 × ``width`` softplus MLP on ``rows`` states of ``dim``) for K
     members three ways: K separate nets in turn; ``vmap`` of ``functional_call`` over stacked weights (what
-    ``encons.stacked`` does); an ensemble dimension written into the layers (``baddbmm`` on (K, in, out) weights)."""
+    ``encons.training.stacked`` does); an ensemble dimension written into the layers (``baddbmm`` on (K, in, out) weights)."""
     from torch.func import functional_call, stack_module_state, vmap
 
     from encons.models.networks import mlp
@@ -199,7 +203,7 @@ def mlp_rows(ks: list[int], steps: int, repeats: int, width: int = 200, rows: in
 
 
 class _Data:
-    """The one batch ``encons.ensemble._module``'s probe reads, as a data module would serve it."""
+    """The one batch ``encons.training.ensemble._module``'s probe reads, as a data module would serve it."""
 
     def __init__(self, batch: dict):
         self.batch = batch

@@ -1,5 +1,5 @@
 """The evaluation's own floor: the true field of each system, rolled out from simulated test starts by
-candidate test integrators (``encons.evaluation.Evaluation``), scored by geom_rel_err in the common chart.
+candidate test integrators (``encons.numerics.evaluation.Evaluation``), scored by geom_rel_err in the common chart.
 
     python benchmarks/evaluation_floor.py gyroscope,pendulum2 [N_TRAJECTORIES] [--long] [--threads 1]
 
@@ -15,10 +15,14 @@ import time
 
 import torch
 
-from encons import api, metrics, threads
-from encons.build import build_system
+from encons.entry import api
+
+from encons.numerics import metrics
+
+from encons.infra import threads
+from encons.training.build import build_system
 from encons.data.simulate import sample_trajectories
-from encons.evaluation import Evaluation
+from encons.numerics.evaluation import Evaluation
 
 CANDIDATES = {"rk4 x1": Evaluation(method="rk4"), "rk4 x16": Evaluation(method="rk4", substeps=16),
               "dopri5 1e-10 (default)": Evaluation()}

@@ -1,7 +1,7 @@
 """Speed of the field Jacobians behind Lim & Kasim's regularisers: vectorised vs a Python loop.
 
 Per call, for a batch of states through a d → d Softplus MLP field: ``vmap(jacrev)`` and
-``vmap(jacfwd)`` (``encons.regularisers.field_jacobian``) against one batched
+``vmap(jacfwd)`` (``encons.numerics.regularisers.field_jacobian``) against one batched
 ``autograd.grad(create_graph=True)`` per output dimension (the authors' ``compute_jacobian``).
 Columns: the Jacobian alone, and the whole training use (C_H of eq. (4), batch mean, backward
 to the parameters). The fastest of ``--repeats`` calls is reported in process CPU time, which
@@ -19,9 +19,9 @@ from typing import Callable
 import torch
 from torch import Tensor, nn
 
-from encons import threads
+from encons.infra import threads
 from encons.models.networks import mlp
-from encons.regularisers import field_jacobian, hamiltonian_violation
+from encons.numerics.regularisers import field_jacobian, hamiltonian_violation
 
 
 def loop_jacobian(field: nn.Module, z: Tensor) -> Tensor:
@@ -56,7 +56,7 @@ def main() -> None:
     parser.add_argument("--hidden", type=int, default=200)
     parser.add_argument("--depth", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=10)
-    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.threads' policy)")
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.infra.threads' policy)")
     args = parser.parse_args()
     threads.apply(args.threads)
     torch.manual_seed(0)

@@ -23,7 +23,7 @@ import time
 
 import torch
 
-from encons import api
+from encons.entry import api
 
 RUNS = [("pixel_pendulum", "node", []), ("pixel_pendulum", "hnn", []), ("pixel_pendulum", "nsf", []),
         ("pixel_pendulum", "node", ["regulariser=hamiltonian", "regulariser.weight=500"]),
@@ -45,7 +45,7 @@ def fastest(fn, steps: int) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--steps", type=int, default=5)
-    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.threads' policy)")
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.infra.threads' policy)")
     parser.add_argument("--videos", type=int, default=None)
     parser.add_argument("--frames", type=int, default=None)
     args = parser.parse_args()

@@ -1,9 +1,9 @@
 """What each benchmark profile costs, measured: a few epochs of one cell per family of each profile.
 
-Each cell is the profile's own run (``encons.benchmark.expand``, seed 0) with ``trainer.max_epochs`` set to
+Each cell is the profile's own run (``encons.tools.benchmark.expand``, seed 0) with ``trainer.max_epochs`` set to
 ``--epochs`` and ``test=false``, trained in this process, one after the other, one thread. Its epochs' cost
 split (train / validation / checkpoint seconds) comes from the run's ``costs.json``
-(``encons.callbacks.CostLine``); the per-epoch figures are means over epochs 2.. (the first pays one-off
+(``encons.training.callbacks.CostLine``); the per-epoch figures are means over epochs 2.. (the first pays one-off
 warm-ups). The full-protocol cost of a cell is that epoch × the profile's ``trainer.max_epochs`` (testing and
 data simulation not counted); a profile's full cost is the mean measured cell's full cost × the number of runs
 the profile has (seeds included), since only some of its cells are measured.
@@ -42,8 +42,8 @@ FIELDS = ["tag", "profile", "cell", "epochs", "train_s", "validation_s", "checkp
 def profile_runs(profile: str):
     from hydra import compose, initialize_config_dir
 
-    from encons.benchmark import expand
-    from encons.paths import config_dir
+    from encons.tools.benchmark import expand
+    from encons.infra.paths import config_dir
 
     with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
         cfg = compose("benchmark", [f"profile={profile}", "out=/tmp/unused"])
@@ -51,8 +51,8 @@ def profile_runs(profile: str):
 
 
 def measure(profile: str, cell: str, epochs: int, extra: list[str], cache: str) -> dict:
-    from encons import runs
-    from encons.build import compose
+    from encons.training import runs
+    from encons.training.build import compose
 
     planned = profile_runs(profile)
     system, label = cell.split("/", 1)
@@ -111,7 +111,7 @@ def main() -> None:
 
 
 def write(out: Path, rows: list[dict], args) -> None:
-    from encons.io import atomic_open, write_text
+    from encons.infra.io import atomic_open, write_text
 
     out.mkdir(parents=True, exist_ok=True)
     with atomic_open(out / "costs.csv", "w", newline="") as f:
@@ -124,7 +124,7 @@ def write(out: Path, rows: list[dict], args) -> None:
              f"Written by `{' '.join(['python', *sys.argv])}` at commit {commit}, "
              f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, one thread, `nice -n 10`, "
              f"load average at the end {os.getloadavg()[0]:.1f} on 2 shared cores (each row's load in the run log). "
-             "Seconds per epoch are means over epochs 2..N of the run's `costs.json` (`encons.callbacks.CostLine`); "
+             "Seconds per epoch are means over epochs 2..N of the run's `costs.json` (`encons.training.callbacks.CostLine`); "
              "full = epoch × the profile's `trainer.max_epochs` (no test, no data simulation). "
              "`before`: the profile as on main before validation.* (every epoch, the rollout criterion); "
              "`after`: with the profile's `validation.*`.", "",

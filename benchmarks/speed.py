@@ -40,17 +40,17 @@ from typing import Callable
 import torch
 from torch import Tensor
 
-from encons import threads
-from encons.api import catalogue, compose
-from encons.build import build_model, build_system
+from encons.infra import threads
+from encons.entry.api import catalogue, compose
+from encons.training.build import build_model, build_system
 from encons.data.simulate import sample_trajectories, simulate
-from encons.errors import ConfigError
-from encons.integrators import Integrator
+from encons.infra.errors import ConfigError
+from encons.numerics.integrators import Integrator
 from encons.models.base import DynamicsModel
 from encons.models.constrained import CHNN, CLNN
 from encons.models.lnn import LNN, LNNStructure, guarded_solve
 from encons.models.networks import mlp
-from encons.module import TrainingModule
+from encons.training.module import TrainingModule
 from encons.systems.base import System, point_mass_matrix, split_state
 
 FIELDS = ["system", "model", "order", "wall_ms", "cpu_ms", "steps_per_s", "peak_mb", "ratio_floor",
@@ -250,7 +250,7 @@ def main() -> None:
     parser.add_argument("--chunk", type=int, default=5)
     parser.add_argument("--hidden", type=int, default=256)
     parser.add_argument("--depth", type=int, default=3)
-    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.threads' policy)")
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.infra.threads' policy)")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/speed.csv"))
     args = parser.parse_args()
     threads.apply(args.threads)
@@ -306,7 +306,7 @@ def main() -> None:
                 row.update(naive_cpu_ms=naive_cpu, speedup_vs_naive=naive_cpu / cpu)
             if model_name in args.compile:
                 compiled = copy.deepcopy(model)
-                compiled.compile()  # what compile=true does (encons.build.build_model)
+                compiled.compile()  # what compile=true does (encons.training.build.build_model)
                 compiled_step = stepper(compiled, list(compiled.parameters()), system, batch, dt)
                 start = time.perf_counter()
                 compiled_step()  # compiles

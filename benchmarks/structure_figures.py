@@ -1,4 +1,4 @@
-"""Issue 40's figures: target lookups (``encons.trust.locate``) of one ``debug=fast`` run of
+"""Issue 40's figures: target lookups (``encons.config.trust.locate``) of one ``debug=fast`` run of
 ``model=hnn system=pendulum1`` from the Python API (composing not counted), the calls into
 build/config/trust from other modules on that run, import cycles between encons modules (every import
 counted, by ``tests/test_structure.py``'s own graph), and the test metrics of three configs (the
@@ -15,14 +15,14 @@ import sys
 import tempfile
 from pathlib import Path
 
-WATCHED = ("encons.build", "encons.config", "encons.trust")
+WATCHED = ("encons.training.build", "encons.config.check", "encons.config.trust")
 CONFIGS = [("model=hnn", "system=pendulum1"), ("model=chnn", "system=gyroscope"),
            ("model=glnn", "system=damped_oscillator")]
 
 
 def run(overrides, tmp: Path, count: bool):
     import encons
-    from encons import trust
+    from encons.config import trust
 
     calls: collections.Counter = collections.Counter()
     stops: list[str] = []

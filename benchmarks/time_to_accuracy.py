@@ -3,7 +3,7 @@ for the flagship (CHNN on the gyroscope) and one model per family (``make bench`
 
 What a user waits for, so schedule and speed changes are judged by it rather than by time per step.
 Each run is ``encons.train``'s default for its model and system (data, optimiser, schedule, threads
-by ``encons.threads``) with ``trainer.max_epochs`` as the budget. The clock starts when ``fit``
+by ``encons.infra.threads``) with ``trainer.max_epochs`` as the budget. The clock starts when ``fit``
 starts (data generation is reported beside it) and stops at the first validation whose
 ``val/traj_rel_err`` (clean held-out trajectories, the test metric's definition) is at or below the
 row's target; training stops there, and the test set scores those weights (``test traj_rel_err``).
@@ -26,8 +26,8 @@ from pathlib import Path
 import lightning.pytorch as pl
 import torch
 
-from encons import api
-from encons.compat import quiet_upstream
+from encons.entry import api
+from encons.infra.compat import quiet_upstream
 
 #: model/system -> target val/traj_rel_err: the flagship, then one model per family on pendulum2
 #: (about twice what each reached in 100 default epochs, sweeps/README.md)
@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--runs", nargs="+", default=list(RUNS), choices=list(RUNS), metavar="MODEL/SYSTEM")
     parser.add_argument("--max-epochs", type=int, default=100, help="budget per run")
-    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.threads' policy)")
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.infra.threads' policy)")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/time_to_accuracy.csv"))
     parser.add_argument("overrides", nargs="*", help="train overrides for every run, e.g. data.n_train=200")
     args = parser.parse_args(argv)

@@ -1,6 +1,6 @@
 """encons: physics-structured neural networks that learn dynamics from trajectories.
 
-The public surface (``encons.api``), imported on first use so ``import encons`` stays light::
+The public surface (``encons.entry.api``), imported on first use so ``import encons`` stays light::
 
     cfg = encons.compose("model=hnn_angle", "system=pendulum1")   # overrides as on the CLI
     data, module = encons.build(cfg)   # the objects, without training (a notebook)
@@ -13,7 +13,7 @@ The public surface (``encons.api``), imported on first use so ``import encons`` 
 
 from importlib import metadata
 
-__all__ = ["Run", "build", "catalogue", "compose", "evaluate", "load", "rollout", "score_control", "train"]
+__all__ = ["Ensemble", "Run", "build", "catalogue", "compose", "evaluate", "load", "rollout", "score_control", "train"]
 
 try:
     __version__ = metadata.version("encons")
@@ -23,11 +23,11 @@ except metadata.PackageNotFoundError:  # a source tree that is not installed
 
 def __getattr__(name: str):
     if name == "score_control":
-        from encons.control import score_control
+        from encons.tools.control import score_control
 
         return score_control
     if name in __all__:
-        from encons import api
+        from encons.entry import api
 
         return getattr(api, name)
     raise AttributeError(f"module 'encons' has no attribute {name!r}")

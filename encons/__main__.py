@@ -1,7 +1,7 @@
-"""``python -m encons <command> [arguments]``: the one entry (``encons.cli.main``); commands: train,
+"""``python -m encons <command> [arguments]``: the one entry (``encons.entry.cli.main``); commands: train,
 evaluate, benchmark, report, sweep, control."""
 
-from encons.cli import main
+from encons.entry.cli import main
 
 if __name__ == "__main__":
     main()

@@ -1,16 +1,13 @@
-"""``python -m encons.evaluate RUN_DIR|CKPT [ckpt=best|last|PATH] [overrides]``: an alias of
-``python -m encons evaluate``.
+"""``python -m encons.evaluate RUN_DIR|CKPT [ckpt=best|last|PATH] [overrides]``: the command ``python -m encons evaluate``, nothing else.
 
-Imported (``import encons.evaluate``), this module is bound over the API's ``encons.evaluate``; it is
-then callable as that function (``encons.aliases.callable_module``), so ``encons.evaluate(run)`` still works.
+The Python name ``encons.evaluate`` is the API's function (:func:`encons.entry.api.evaluate`), so importing this file is refused with that name (a name is a module or a function, never both).
 """
 
 import sys
 
-from encons import api, cli
-from encons.aliases import callable_module
+if __name__ != "__main__":
+    raise ImportError("encons.evaluate is the API's function, not a module: call encons.evaluate(run); `python -m encons.evaluate` is the command")
 
-if __name__ == "__main__":
-    cli.main(["evaluate", *sys.argv[1:]])
-else:
-    callable_module(__name__, api.evaluate)
+from encons.entry.cli import main  # noqa: E402 - only when run as the command
+
+main(["evaluate", *sys.argv[1:]])

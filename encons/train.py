@@ -1,15 +1,13 @@
-"""``python -m encons.train model=<model> system=<system> [overrides]``: an alias of ``python -m encons train``.
+"""``python -m encons.train model=<model> system=<system> [overrides]``: the command ``python -m encons train``, nothing else.
 
-Imported (``import encons.train``), this module is bound over the API's ``encons.train``; it is then
-callable as that function (``encons.aliases.callable_module``), so ``encons.train(cfg)`` still trains.
+The Python name ``encons.train`` is the API's function (:func:`encons.entry.api.train`), so importing this file is refused with that name (a name is a module or a function, never both).
 """
 
 import sys
 
-from encons import api, cli
-from encons.aliases import callable_module
+if __name__ != "__main__":
+    raise ImportError("encons.train is the API's function, not a module: call encons.train(cfg); `python -m encons.train` is the command")
 
-if __name__ == "__main__":
-    cli.main(["train", *sys.argv[1:]])
-else:
-    callable_module(__name__, api.train)
+from encons.entry.cli import main  # noqa: E402 - only when run as the command
+
+main(["train", *sys.argv[1:]])

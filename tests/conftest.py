@@ -43,7 +43,7 @@ def isolated_env(tmp_path_factory, monkeypatch):
 def cli(monkeypatch):
     """``encons.train``'s CLI in this process: ``cli(*args, cwd=...)`` -> (exit code, stdout, stderr).
 
-    The same ``encons.cli.train()`` as ``python -m encons.train`` (Hydra, the one-line errors, exit 2) without a
+    The same ``encons.entry.cli.train()`` as ``python -m encons.train`` (Hydra, the one-line errors, exit 2) without a
     new interpreter importing Lightning for each case; ``tests.helpers.run_cli`` runs a real process."""
     from tests.helpers import in_process
 
@@ -57,10 +57,10 @@ def cli(monkeypatch):
 
 @pytest.fixture
 def train_run(tmp_path):
-    """Run ``encons.api.train`` on a tiny config: ``train_run(["model=hnn", ...])`` -> metrics. Without figures
+    """Run ``encons.entry.api.train`` on a tiny config: ``train_run(["model=hnn", ...])`` -> metrics. Without figures
     unless ``figures`` (drawing them is ~2.6 s of a 3.4 s tiny run, benchmarks/reports/figures; the tests of
     figures ask for them)."""
-    from encons import api
+    from encons.entry import api
 
     def run(overrides: list[str], name: str = "run", fast: bool = True, figures: bool = False) -> dict[str, float]:
         cfg = api.compose(*(["debug=fast"] if fast else []), f"figures={str(figures).lower()}", *overrides,

@@ -16,7 +16,7 @@ from hydra.core.global_hydra import GlobalHydra
 
 from omegaconf import OmegaConf
 
-from encons import api
+from encons.entry import api
 
 
 #: Santos et al. §7's integration (500 steps × 16 starts: minutes) at a size a tiny run can afford.
@@ -30,13 +30,13 @@ def run_cli(*args: str, cwd: Path | None = None, env: dict | None = None) -> sub
 
 
 def in_process(module: str, argv: list[str], monkeypatch) -> SimpleNamespace:
-    """``python -m module ARGV`` run in this process through its ``encons.cli`` function -> exit code,
+    """``python -m module ARGV`` run in this process through its ``encons.entry.cli`` function -> exit code,
     stdout and stderr. Output goes to buffers that stay open: loggers set up during the call (Hydra's,
     Optuna's) may keep them."""
-    from encons import cli
+    from encons.entry import cli
 
-    entry = {"encons.train": cli.train, "encons.evaluate": cli.evaluate, "encons.benchmark": cli.benchmark,
-             "encons.report": cli.report, "encons.sweep": cli.sweep_report}[module]
+    entry = {"encons.train": cli.train, "encons.evaluate": cli.evaluate, "encons.tools.benchmark": cli.benchmark,
+             "encons.tools.report": cli.report, "encons.tools.sweep": cli.sweep_report}[module]
     monkeypatch.setattr(sys, "argv", [module, *argv])
     root = logging.getLogger()
     handlers, level = root.handlers[:], root.level  # Hydra's job logging replaces them

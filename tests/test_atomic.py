@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from encons import io as atomic
-from encons.errors import EnconsError, WriteError
+from encons.infra import io as atomic
+from encons.infra.errors import EnconsError, WriteError
 
 
 class _FillingFile:
@@ -42,7 +42,7 @@ class _FillingFile:
 
 @pytest.fixture
 def full_disk(monkeypatch):
-    """``full_disk(room, suffix="", after=0)``: from now on, each file ``encons.io`` writes whose name ends
+    """``full_disk(room, suffix="", after=0)``: from now on, each file ``encons.infra.io`` writes whose name ends
     with ``suffix``, after the first ``after`` of them, fills after ``room`` bytes."""
     real, mkstemp = os.fdopen, atomic.tempfile.mkstemp
 
@@ -69,23 +69,23 @@ def full_disk(monkeypatch):
 
 
 def _checkpoint(path, epoch):
-    from encons.lightning_io import AtomicCheckpointIO
+    from encons.infra.lightning_io import AtomicCheckpointIO
 
     AtomicCheckpointIO().save_checkpoint({"epoch": epoch, "state_dict": {"w": torch.full((2000,), float(epoch))}}, path)
 
 
 def _report(path, value):
-    from encons.report import write_csv
+    from encons.tools.report import write_csv
 
     write_csv(path, [{"model": "hnn", "test/traj_rel_err": value}] * 200)
 
 
 def _figure(path, value):
-    from encons import plots
+    from encons.evaluators import figures
 
-    fig, ax = plots.subplots(figsize=(2, 2))
+    fig, ax = figures.subplots(figsize=(2, 2))
     ax.plot(np.arange(100) * value)
-    plots.save_png(fig, path)
+    figures.save_png(fig, path)
 
 
 WRITERS = {  # name: (file, write(path, version), read(path) -> what a reader sees)
@@ -135,7 +135,7 @@ def test_a_read_only_folder_is_one_line(tmp_path, monkeypatch):
 
 
 def test_the_csv_logger_keeps_its_last_whole_table_when_the_disk_fills(tmp_path, full_disk):
-    from encons.lightning_io import CSVLogger
+    from encons.infra.lightning_io import CSVLogger
 
     logger = CSVLogger(tmp_path, name="csv")
     logger.log_hyperparams({"model": {"hidden": 16}})
@@ -152,7 +152,7 @@ def test_the_csv_logger_keeps_its_last_whole_table_when_the_disk_fills(tmp_path,
 
 
 def test_a_disk_that_fills_during_training_keeps_the_last_good_checkpoints(tmp_path, full_disk):
-    from encons import api
+    from encons.entry import api
 
     cfg = api.compose("debug=fast", "trainer.max_epochs=3", output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
     full_disk(room=20_000, suffix=".ckpt", after=2)  # epoch 0 writes best and last; epoch 1's first write fills it
@@ -169,7 +169,9 @@ def test_a_disk_that_fills_during_training_keeps_the_last_good_checkpoints(tmp_p
 def test_resume_skips_a_damaged_last_checkpoint_with_one_warning(tmp_path, caplog):
     import shutil
 
-    from encons import api, checkpoints
+    from encons.entry import api
+
+    from encons.infra import checkpoints
 
     def compose(name, *overrides):
         return api.compose("debug=fast", "trainer.max_epochs=1", *overrides, output_dir=tmp_path / "runs" / name,

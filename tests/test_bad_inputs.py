@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from encons.errors import EnconsError
+from encons.infra.errors import EnconsError
 from tests.helpers import in_process
 
 # placeholders: {tmp} this test's folder, {file} a plain file in it, {empty} an empty folder in it,
@@ -89,20 +89,20 @@ OTHER = [  # (module, argv, text the error line must hold)
     ("encons.evaluate", ["{run}", "data.test_steps=-1"], "data.test_steps=-1"),
     ("encons.evaluate", ["{run}", "horizon=0"], "horizon=0"),
     ("encons.evaluate", ["{bad_ckpt}"], "bad.ckpt"),
-    ("encons.benchmark", ["profile=nope"], "profile=nope"),
-    ("encons.benchmark", ["seeds=[]", "out={tmp}/bench"], "seeds=[]"),
-    ("encons.benchmark", ["seeds=[-1]", "out={tmp}/bench"], "seeds=[-1]"),
-    ("encons.benchmark", ['train=["trainer.max_epochs=-1"]', "out={tmp}/bench"], "trainer.max_epochs=-1"),
-    ("encons.benchmark", ["out={file}"], "out="),
-    ("encons.benchmark", ["n_train=[0]", "out={tmp}/bench"], "n_train=0"),
-    ("encons.benchmark", ["threads=0", "out={tmp}/bench"], "threads=0"),
-    ("encons.report", ["{file}"], "file.txt"),
-    ("encons.report", ["{empty}"], "empty"),
-    ("encons.report", ["{tmp}/nope"], "nope"),
-    ("encons.report", ["{rows}"], "result.json"),
-    ("encons.benchmark", ["models=[nope]", "out={tmp}/bench"], "model=nope"),
-    ("encons.sweep", ["sqlite:///{tmp}/nope/x.db", "study"], "sweeps.storage="),
-    ("encons.sweep", ["sqlite:///{tmp}/x.db", "study"], "study='study'"),
+    ("encons.tools.benchmark", ["profile=nope"], "profile=nope"),
+    ("encons.tools.benchmark", ["seeds=[]", "out={tmp}/bench"], "seeds=[]"),
+    ("encons.tools.benchmark", ["seeds=[-1]", "out={tmp}/bench"], "seeds=[-1]"),
+    ("encons.tools.benchmark", ['train=["trainer.max_epochs=-1"]', "out={tmp}/bench"], "trainer.max_epochs=-1"),
+    ("encons.tools.benchmark", ["out={file}"], "out="),
+    ("encons.tools.benchmark", ["n_train=[0]", "out={tmp}/bench"], "n_train=0"),
+    ("encons.tools.benchmark", ["threads=0", "out={tmp}/bench"], "threads=0"),
+    ("encons.tools.report", ["{file}"], "file.txt"),
+    ("encons.tools.report", ["{empty}"], "empty"),
+    ("encons.tools.report", ["{tmp}/nope"], "nope"),
+    ("encons.tools.report", ["{rows}"], "result.json"),
+    ("encons.tools.benchmark", ["models=[nope]", "out={tmp}/bench"], "model=nope"),
+    ("encons.tools.sweep", ["sqlite:///{tmp}/nope/x.db", "study"], "sweeps.storage="),
+    ("encons.tools.sweep", ["sqlite:///{tmp}/x.db", "study"], "study='study'"),
 ]
 
 
@@ -113,7 +113,7 @@ def _cases(cases, ids):
 @pytest.fixture(scope="module")
 def finished_run(tmp_path_factory):
     """A tiny finished training run (shared by the cases that need one)."""
-    from encons import api
+    from encons.entry import api
 
     root = tmp_path_factory.mktemp("finished")
     cfg = api.compose("debug=fast", "trainer.max_epochs=1", output_dir=root / "run", cache_dir=root / "cache")
@@ -155,7 +155,7 @@ def test_other_cli(places, tmp_path, monkeypatch, module, argv, key):
 
 
 def _api_cases():
-    from encons import api
+    from encons.entry import api
 
     return {
         "train a list": (lambda p: api.train(["model=nope"]), "model=nope"),

@@ -1,5 +1,5 @@
 """The benchmark runner: profile=smoke writes every table and figure, a rerun skips finished runs,
-and ``encons.report`` rebuilds the report from the runs alone."""
+and ``encons.tools.report`` rebuilds the report from the runs alone."""
 
 from __future__ import annotations
 
@@ -10,13 +10,13 @@ from pathlib import Path
 
 import pytest
 
-from encons import trust
-from encons.benchmark import expand, optimiser
-from encons.build import compose
-from encons.cli import benchmark as main
-from encons.errors import ConfigError
-from encons.paths import config_dir
-from encons.report import write_report
+from encons.config import trust
+from encons.tools.benchmark import expand, optimiser
+from encons.training.build import compose
+from encons.entry.cli import benchmark as main
+from encons.infra.errors import ConfigError
+from encons.infra.paths import config_dir
+from encons.tools.report import write_report
 
 FIGURES = ("traj_rel_err.png", "rel_err_vs_time.png", "energy_err_vs_time.png", "energy_rmse.png",
            "data_efficiency.png")
@@ -196,7 +196,7 @@ def test_xiao_profile_at_smoke_size_writes_tables_3_4_and_mse_curves_and_resumes
 
 def test_a_cell_gives_no_spread_for_one_run_or_a_spread_below_float_rounding():
     """Issue 51: a one-run cell printed "± 0", identical seeds "± 8.5e-18"."""
-    from encons.report import markdown
+    from encons.tools.report import markdown
 
     base = {"system": "pendulum1", "n_train": 800, "data_efficiency": False, "failed": 0, "optimiser": ""}
     summary = [{**base, "model": "one", "runs": 1, "test/vpt": 0.25, "test/vpt_sd": 0.0},
@@ -210,8 +210,8 @@ def test_a_cell_gives_no_spread_for_one_run_or_a_spread_below_float_rounding():
 def test_train_debug_fast_shrinks_a_profiles_sizes_and_a_users_key_wins():
     """Issue 51: `profile=lim_kasim 'train=["debug=fast"]'` failed all 14 runs (data.chunk_len=30 beside
     debug's 10 steps) and a profile's trainer.max_epochs beat debug=fast."""
-    from encons.benchmark import expand
-    from encons.build import compose
+    from encons.tools.benchmark import expand
+    from encons.training.build import compose
 
     runs = expand(compose(["profile=lim_kasim", 'train=["debug=fast"]'], config_name="benchmark"))
     for run in runs:

@@ -1,4 +1,4 @@
-"""Every declared bound is enforced by the one checker (``encons.bounds``): for every option of
+"""Every declared bound is enforced by the one checker (``encons.infra.bounds``): for every option of
 ``conf/`` whose target declares ranges, a value just outside each range is refused in one line
 naming the user's config path, and the value on the boundary's inside passes."""
 
@@ -9,10 +9,12 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf, open_dict
 
-from encons import bounds, trust
-from encons.build import Request, check, compose
-from encons.errors import ConfigError
-from encons.paths import config_dir
+from encons.infra import bounds
+
+from encons.config import trust
+from encons.training.build import Request, check, compose
+from encons.infra.errors import ConfigError
+from encons.infra.paths import config_dir
 
 GROUPS = {"model": "model", "system": "system", "integrator": "integrator", "regulariser": "regulariser",
           "observation": "observation"}

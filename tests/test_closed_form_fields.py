@@ -12,7 +12,7 @@ import pytest
 import torch
 from torch.func import grad, hessian, jacfwd, jacrev, jvp, vmap
 
-from encons.batching import batched_grad
+from encons.infra.batching import batched_grad
 from encons.models.constrained import CHNN, CLNN
 from encons.models.hnn import HNN, HNNStructure
 from encons.models.lnn import LNN, LNNStructure, euler_lagrange_terms, lagrangian_derivatives

@@ -1,4 +1,4 @@
-"""One test per upstream workaround in ``encons.compat``: an upgrade that breaks one fails here."""
+"""One test per upstream workaround in ``encons.infra.compat``: an upgrade that breaks one fails here."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from encons import compat
+from encons.infra import compat
 
 
 def test_torchdiffeq_methods_and_which_are_fixed_step():

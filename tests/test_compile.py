@@ -6,12 +6,12 @@ from __future__ import annotations
 import pytest
 import torch
 
-from encons.build import compose
-from encons.errors import ConfigError
+from encons.training.build import compose
+from encons.infra.errors import ConfigError
 
 
 def built(tmp_path, *overrides: str):
-    from encons.api import build
+    from encons.entry.api import build
 
     return build(compose(["debug=fast", "model.hidden=32", *overrides], tmp_path / "run", tmp_path / "cache"))
 

@@ -1,4 +1,4 @@
-"""Controllers from learned models (``encons.control``): the oracle swings up, the LQR is the Riccati
+"""Controllers from learned models (``encons.tools.control``): the oracle swings up, the LQR is the Riccati
 solution of the true linearisation, models without an energy are refused, and one command scores a run."""
 
 from __future__ import annotations
@@ -11,8 +11,10 @@ import scipy.linalg
 import scipy.signal
 import torch
 
-from encons import cli, control
-from encons.errors import ConfigError
+from encons.entry import cli
+
+from encons.tools import control
+from encons.infra.errors import ConfigError
 from encons.models.hnn import HNNStructure
 from encons.models.lnode import forced_euler_lagrange
 from encons.models.node import NODE
@@ -105,8 +107,8 @@ FAST = ["debug=fast", "figures=false", "logger=none", "trainer.enable_progress_b
 @pytest.mark.slow
 @pytest.mark.parametrize("model,system", [("lnode", "pendulum_control"), ("symo", "cartpole"), ("hnn_structure", "cartpole")])
 def test_control_command_scores_a_tiny_trained_run(model, system, tmp_path, capsys):
-    """Train a debug-size model, then ``python -m encons.control RUN`` (``encons.cli.control``): metrics, figures."""
-    from encons import api
+    """Train a debug-size model, then ``python -m encons.control RUN`` (``encons.entry.cli.control``): metrics, figures."""
+    from encons.entry import api
 
     api.train(api.compose(*FAST, f"model={model}", f"system={system}", output_dir=tmp_path / "run",
                           cache_dir=tmp_path / "cache"))
@@ -126,7 +128,7 @@ def test_control_command_scores_a_tiny_trained_run(model, system, tmp_path, caps
 
 
 def test_control_prints_success_rate_in_percent_and_effort_with_its_unit():
-    from encons.control import printed_rows
+    from encons.tools.control import printed_rows
     from encons.systems.controlled import CartPole, ControlledPendulum
 
     scores = {"control/success_rate": 0.93, "oracle/success_rate": 1.0, "control/effort": 4.5, "oracle/effort": 3.0}
@@ -160,14 +162,14 @@ def test_score_control_is_exported_from_encons():
 
 
 def test_control_command_refuses_a_node_run_and_a_bad_option_in_one_line(tmp_path, capsys):
-    from encons import api
+    from encons.entry import api
 
     api.train(api.compose(*FAST, "model=node", "system=pendulum_control", output_dir=tmp_path / "run",
                           cache_dir=tmp_path / "cache"))
     capsys.readouterr()
     for args, expected in (([str(tmp_path / "run")], "encons: error: model._target_=encons.models.node.NODE gives no energy"),
                            ([str(tmp_path / "run"), "starts=many"], "encons: error: starts=many is not an integer"),
-                           ([str(tmp_path / "run"), "steps=3"], "encons: error: steps=3 is not an option of encons.control")):
+                           ([str(tmp_path / "run"), "steps=3"], "encons: error: steps=3 is not an option of encons.tools.control")):
         with pytest.raises(SystemExit) as stop:
             cli.control(args)
         assert stop.value.code == 2
@@ -176,8 +178,8 @@ def test_control_command_refuses_a_node_run_and_a_bad_option_in_one_line(tmp_pat
 
 
 def test_control_profile_lists_the_energy_models_with_inputs_on_both_systems_per_n_train():
-    from encons.benchmark import expand
-    from encons.build import compose
+    from encons.tools.benchmark import expand
+    from encons.training.build import compose
 
     cfg = compose(["profile=control"], config_name="benchmark")
     runs = expand(cfg)
@@ -196,7 +198,7 @@ def test_control_profile_lists_the_energy_models_with_inputs_on_both_systems_per
 
 @pytest.mark.slow
 def test_control_profile_reports_the_controller_beside_the_oracle(tmp_path):
-    from encons.cli import benchmark as main
+    from encons.entry.cli import benchmark as main
 
     out = tmp_path / "bench"
     main(["profile=control", "seeds=[0]", "n_train=[8]", "n_train_models=[lnode]", "n_train_system=[pendulum_control]",

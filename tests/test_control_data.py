@@ -7,9 +7,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from encons import api
-from encons.build import build
-from encons.errors import ConfigError
+from encons.entry import api
+from encons.training.build import build
+from encons.infra.errors import ConfigError
 from encons.systems.controlled import CartPole, ControlledPendulum
 
 FAST = ["debug=fast", "logger=none", "trainer.enable_progress_bar=false", "~evaluators/santos", "model=lnode"]

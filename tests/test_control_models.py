@@ -9,12 +9,12 @@ import torch
 from torch import nn
 from torch.func import jvp, vjp
 
-from encons import control
-from encons.errors import ConfigError
+from encons.tools import control
+from encons.infra.errors import ConfigError
 from encons.models.hnn import HNNStructure
 from encons.models.lnn import LNNStructure
 from encons.models.lnode import LNode, forced_euler_lagrange
-from encons.models.networks import AngleEmbedding, embed_angles
+from encons.models.parts import AngleEmbedding, embed_angles
 from encons.models.symo import SyMo
 from encons.systems.controlled import CartPole, ControlledPendulum
 
@@ -141,8 +141,8 @@ def test_a_debug_sized_cartpole_lnode_with_per_step_inputs_and_learned_g_cuts_b_
     input matrix g(q), the run's own loss and optimiser (lr 3e-3) for 60 epochs (120 steps): b_rel_err falls to a
     third of its initial value or less (measured 1.02 → 0.26; 0.04 after 120 epochs, the decrease is not
     monotone at this lr; benchmarks/reports/control-b: with the known B it stays near 0.7 at 300 steps)."""
-    from encons import api
-    from encons.build import build
+    from encons.entry import api
+    from encons.training.build import build
 
     cfg = api.compose("debug=fast", "logger=none", "model=lnode", "system=cartpole", "system.inputs=steps",
                       "model.input_matrix=learned", "optimizer.lr=3e-3", output_dir=tmp_path / "run",

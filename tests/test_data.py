@@ -9,7 +9,7 @@ import torch
 from encons.data import store
 from encons.data.datamodule import TrajectoryDataModule, WindowSampler
 from encons.data.simulate import simulate
-from encons.errors import ConfigError, DataError
+from encons.infra.errors import ConfigError, DataError
 from encons.systems.pendulum import NPendulum
 
 SMALL = dict(n_train=12, n_val=3, n_test=4, n_steps=20, batch_size=5)

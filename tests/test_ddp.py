@@ -42,7 +42,7 @@ STEPS = 2  # DDP reports a parameter that got no gradient at the forward after t
 
 
 def _module(model: str, system: str, root):
-    from encons.build import build, compose
+    from encons.training.build import build, compose
 
     cfg = compose([f"model={model}", f"system={system}", "debug=fast", "logger=none", "data.batch_size=8"],
                   output_dir=root / f"{model}-{system}", cache_dir=root / "cache")

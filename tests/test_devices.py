@@ -18,9 +18,9 @@ import pytest
 import torch
 from torchdiffeq._impl.odeint import SOLVERS
 
-import encons.integrators
-from encons import api
-from encons.errors import ConfigError
+import encons.numerics.integrators
+from encons.entry import api
+from encons.infra.errors import ConfigError
 from tests.helpers import simulated_systems
 
 FLAGSHIP = "gyroscope"
@@ -74,8 +74,8 @@ def cache(tmp_path_factory):
 
 @pytest.mark.parametrize("system", META_SYSTEMS)
 def test_training_step_on_meta(system, cache, monkeypatch):
-    monkeypatch.setattr(encons.integrators, "odeint", meta_odeint)
-    monkeypatch.setattr(encons.integrators.Integrator, "options", lambda self, t: {"method": self.method})
+    monkeypatch.setattr(encons.numerics.integrators, "odeint", meta_odeint)
+    monkeypatch.setattr(encons.numerics.integrators.Integrator, "options", lambda self, t: {"method": self.method})
     stepped = []
     for model, data, module in built_pairs(system, cache, "meta"):
         batch = {k: v.to("meta") for k, v in next(iter(data.train_dataloader())).items()}

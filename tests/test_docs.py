@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from encons import docs
+from encons.tools import docs
 from tests import doc_commands
 
 ROOT = Path(__file__).parents[1]
@@ -38,7 +38,7 @@ def test_a_changed_report_value_fails_naming_the_file_and_the_table(tmp_path):
 
 
 def test_a_marker_naming_a_missing_column_is_one_line(tmp_path):
-    from encons.errors import ConfigError
+    from encons.infra.errors import ConfigError
 
     with pytest.raises(ConfigError, match=r"columns=\['nope'\] not in benchmarks/reports/finzi-2000/summary.csv"):
         docs.table("benchmarks/reports/finzi-2000/summary.csv | system, nope", ROOT)
@@ -130,7 +130,7 @@ def test_the_readme_sweep_folder_is_not_named_after_a_model_it_does_not_run(tmp_
     name) beside the jobs' folders; the sweep's folder names no model, each job's folder its own."""
     from omegaconf import OmegaConf
 
-    from encons.build import compose
+    from encons.training.build import compose
 
     cfg = compose(["model=node", "system=pendulum1"], output_dir=tmp_path)
     raw = OmegaConf.to_container(cfg.hydra.sweep)   # unresolved: what Hydra resolves once per sweep, once per job

@@ -1,4 +1,4 @@
-"""Seed ensembles (``seeds=[...]``, ``encons.ensemble``): each member is the separate run of its seed."""
+"""Seed ensembles (``seeds=[...]``, ``encons.training.ensemble``): each member is the separate run of its seed."""
 
 from __future__ import annotations
 
@@ -9,8 +9,10 @@ import math
 import pytest
 import torch
 
-from encons import api, ensemble
-from encons.errors import ConfigError
+from encons.entry import api
+
+from encons.training import ensemble
+from encons.infra.errors import ConfigError
 from tests.helpers import SANTOS_TINY
 
 TINY = ["debug=fast", "logger=csv", "trainer.enable_progress_bar=false", "trainer.enable_model_summary=false",
@@ -131,7 +133,7 @@ def test_what_an_ensemble_cannot_be_is_refused(tmp_path, run, extra, says):
 
 @pytest.mark.slow
 def test_a_profile_folds_its_seeds_into_one_ensemble_per_cell(tmp_path, cache):
-    from encons.cli import benchmark
+    from encons.entry.cli import benchmark
 
     out = tmp_path / "bench"
     benchmark(["profile=smoke", "seeds=[0,1]", "models=[node]", "n_train=[]", f"out={out}", f"cache_dir={cache}",
@@ -177,7 +179,7 @@ def _stop_after_epoch(monkeypatch, epoch, stacked=None):
 def test_an_ensemble_stopped_by_sigterm_resumes_to_the_uninterrupted_result(tmp_path, run, monkeypatch, stacked):
     """Stopped after epoch 2 of 4: Interrupted with the resume line, last.ckpt at epoch 2; resumed from it, every
     member ends where the uninterrupted ensemble's does (its optimiser, schedule and best checkpoint came back)."""
-    from encons.errors import Interrupted
+    from encons.infra.errors import Interrupted
 
     ovr = ["model=node", "system=pendulum1", "seeds=[0,1]", "trainer.max_epochs=4", "scheduler=plateau",
            "scheduler.patience=0"]
@@ -200,7 +202,7 @@ def test_an_ensemble_stopped_by_sigterm_resumes_to_the_uninterrupted_result(tmp_
 
 @pytest.mark.slow
 def test_a_benchmark_rerun_resumes_an_interrupted_ensemble(tmp_path, cache, monkeypatch, capsys):
-    from encons.cli import benchmark
+    from encons.entry.cli import benchmark
 
     args = ["profile=smoke", "seeds=[0,1]", "models=[node]", "n_train=[]", f"out={tmp_path / 'bench'}",
             f"cache_dir={cache}", 'train=["evaluation.method=rk4","data.n_test=2","trainer.max_epochs=4"]']
@@ -236,12 +238,12 @@ def test_the_spread_line_names_mean_sd_min_max_and_no_spread_where_there_is_none
 
 
 def test_ensemble_figures_draw_the_members_band_around_their_mean():
-    from encons import plots
+    from encons.evaluators import figures
 
     t = torch.linspace(0, 1, 11)
     true = torch.stack([torch.sin(t), torch.cos(t)], -1).expand(5, 11, 2)
     preds = torch.stack([true + 0.01 * k for k in range(3)])  # member k off by 0.01 k
-    figures = plots.ensemble_figures(t, preds, true, "node on pendulum1", [0, 1, 2], units=("rad",))
+    figures = figures.ensemble_figures(t, preds, true, "node on pendulum1", [0, 1, 2], units=("rad",))
     assert set(figures) == {"ensemble_rollout", "ensemble_relative_error"}
     ax = figures["ensemble_rollout"].axes[0]
     band = ax.collections[0].get_paths()[0].vertices[:, 1]

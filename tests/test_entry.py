@@ -15,7 +15,7 @@ import pytest
 from optuna.trial import TrialState
 
 import encons
-from encons import api, cli
+from encons.entry import api, cli
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,12 +43,12 @@ def test_every_name_of_encons_all_resolves():
 
 
 def test_importing_the_modules_named_like_api_functions_leaves_the_functions_callable():
-    """``encons.build``, ``encons.train`` and ``encons.evaluate`` are also modules; imported, each is callable
+    """``encons.training.build``, ``encons.train`` and ``encons.evaluate`` are also modules; imported, each is callable
     as the API's function of that name."""
     for name in ("build", "train", "evaluate"):
         module = importlib.import_module(f"encons.{name}")
         assert getattr(encons, name) is module and type(module).__call__ is getattr(api, name)
-    assert encons.build.build is api.build and encons.build.compose   # still the module too
+    assert encons.training.build.build is api.build and encons.training.build.compose   # still the module too
 
 
 def test_python_m_encons_names_its_commands_and_refuses_another(capsys):
@@ -72,7 +72,7 @@ def _python_m(*args: str, cwd: Path, env: dict | None = None) -> subprocess.Comp
 def test_a_command_and_its_alias_do_the_same(tmp_path):
     """``python -m encons report DIR`` and ``python -m encons.report DIR``: the same one line and exit 2."""
     missing = str(tmp_path / "nothing")
-    runs = [_python_m(*entry, missing, cwd=tmp_path) for entry in (["encons", "report"], ["encons.report"])]
+    runs = [_python_m(*entry, missing, cwd=tmp_path) for entry in (["encons", "report"], ["encons.tools.report"])]
     assert [r.returncode for r in runs] == [2, 2]
     assert runs[0].stderr.strip().splitlines()[-1] == runs[1].stderr.strip().splitlines()[-1]
     assert runs[0].stderr.strip().splitlines()[-1].startswith("encons: error: ")

@@ -13,16 +13,16 @@ import numpy as np
 import pytest
 import torch
 
-from encons import io as atomic
-from encons.build import compose
+from encons.infra import io as atomic
+from encons.training.build import compose
 from encons.data import store
-from encons.errors import ConfigError, DataError, EnconsError
+from encons.infra.errors import ConfigError, DataError, EnconsError
 
 from tests.helpers import run_cli
 
 
 def build_with(tmp_path, *overrides: str):
-    from encons.api import build
+    from encons.entry.api import build
 
     return build(compose(["debug=fast", *overrides], tmp_path / "run", tmp_path / "cache"))
 
@@ -96,8 +96,8 @@ def test_a_file_without_training_trajectories_is_refused(tmp_path):
 
 # class 4: checkpoints
 def test_divergence_without_a_checkpoint_says_so(train_run, monkeypatch):
-    from encons.errors import DivergenceError
-    from encons.module import TrainingModule
+    from encons.infra.errors import DivergenceError
+    from encons.training.module import TrainingModule
 
     loss = TrainingModule.loss
     monkeypatch.setattr(TrainingModule, "loss", lambda self, batch: loss(self, batch) * float("nan"))
@@ -137,7 +137,7 @@ def test_a_file_where_a_folder_belongs_is_one_line(tmp_path, where):
     blocker.parent.mkdir(parents=True, exist_ok=True)
     blocker.write_text("not a folder")
     with pytest.raises(ConfigError, match="is a file, not a folder; allowed"):
-        from encons.api import build
+        from encons.entry.api import build
 
         build(compose(["debug=fast"], out, cache))
 
@@ -190,7 +190,7 @@ def test_cli_ends_with_the_one_line(cli, tmp_path, args, key):
 @pytest.mark.slow
 def test_a_real_cli_process_exits_2_with_the_one_line_last(tmp_path):
     """A sweep whose trials fail in a real interpreter (Hydra's and Optuna's logging live): exit 2, the line
-    last. The single-run path is the in-process cases above (the same ``encons.cli.train``)."""
+    last. The single-run path is the in-process cases above (the same ``encons.entry.cli.train``)."""
     proc = run_cli("debug=fast", "-m", "sweeps=optuna", "hydra.sweeper.n_trials=2", "data.n_train=-1",
                    "optimizer.lr=tag(log,interval(1e-4,1e-2))", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path,
                    env={"ENCONS_ROOT": str(tmp_path)})
@@ -207,7 +207,7 @@ def test_a_sweep_dir_without_sweeps_dir_creates_the_study_folder(cli, tmp_path):
     assert (tmp_path / "new" / "study" / "optuna.db").is_file()
 
 
-# ranges: declared beside each parameter (encons.bounds), every value finite
+# ranges: declared beside each parameter (encons.infra.bounds), every value finite
 @pytest.mark.parametrize("overrides, key", [
     (["seed=-1"], "seed=-1"),
     (["seed=4294967296"], "seed=4294967296"),
@@ -229,7 +229,7 @@ def test_values_out_of_range_are_one_line(tmp_path, overrides, key):
     assert refused(tmp_path, overrides, key, ConfigError).startswith(key)
 
 
-# class 1 for the trainer, loggers and callbacks (built by encons.api.build_trainer)
+# class 1 for the trainer, loggers and callbacks (built by encons.entry.api.build_trainer)
 @pytest.mark.parametrize("overrides, key", [
     (["trainer.accelerator=tpu"], "trainer.accelerator=tpu"),
     (["trainer.devices=abc"], "trainer.devices=abc"),
@@ -240,7 +240,7 @@ def test_values_out_of_range_are_one_line(tmp_path, overrides, key):
     (["logger=csv", "+logger.csv.bogus=1"], "logger.csv"),
 ])
 def test_trainer_logger_and_callback_errors_are_one_line(tmp_path, overrides, key):
-    from encons.api import build_trainer
+    from encons.entry.api import build_trainer
 
     with pytest.raises(ConfigError) as err:
         build_trainer(compose(["debug=fast", *overrides], tmp_path / "run", tmp_path / "cache"))
@@ -266,7 +266,7 @@ def test_an_unlogged_optimized_metric_names_the_logged_ones(train_run):
 def test_sweeper_keys_are_one_line(tmp_path):
     from omegaconf import OmegaConf
 
-    from encons.sweep import OptunaSweeper
+    from encons.tools.sweep import OptunaSweeper
 
     def sweeper(sampler=None, **keys):
         args = dict(direction="minimize", storage=None, study_name="s", n_trials=1, n_jobs=1,
@@ -287,7 +287,7 @@ def test_sweeper_keys_are_one_line(tmp_path):
 def test_a_missing_study_names_the_stored_ones(tmp_path):
     import optuna
 
-    from encons.sweep import load_study
+    from encons.tools.sweep import load_study
 
     url = f"sqlite:///{tmp_path / 'db' / 'optuna.db'}"
     (tmp_path / "db").mkdir()
@@ -298,7 +298,7 @@ def test_a_missing_study_names_the_stored_ones(tmp_path):
 
 
 @pytest.mark.parametrize("module, args, line", [
-    ("encons.benchmark", ["profile=smoke", "train=[trainer.max_epochs=150]"],
+    ("encons.tools.benchmark", ["profile=smoke", "train=[trainer.max_epochs=150]"],
      "encons: error: train=[trainer.max_epochs=150]: a list element holding '=' needs quotes; allowed: "
      "'train=[\"trainer.max_epochs=150\"]' (quoted as shown)"),
     ("encons.train", ["trainer.max_epoch=3"],
@@ -312,7 +312,7 @@ def test_an_unquoted_list_and_a_misspelt_key_get_a_one_line_hint(tmp_path, monke
     from tests.helpers import in_process
 
     monkeypatch.chdir(tmp_path)
-    proc = in_process(module, [*args, f"out={tmp_path / 'b'}"] if module == "encons.benchmark" else args, monkeypatch)
+    proc = in_process(module, [*args, f"out={tmp_path / 'b'}"] if module == "encons.tools.benchmark" else args, monkeypatch)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert proc.stderr.strip().splitlines()[-1].startswith(line), proc.stderr
 

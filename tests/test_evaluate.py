@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from encons import api
-from encons.errors import ConfigError
+from encons.entry import api
+from encons.infra.errors import ConfigError
 
 RUN = ["model=hnn_angle", "system=pendulum1", "trainer.max_epochs=3"]
 

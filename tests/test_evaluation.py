@@ -1,4 +1,4 @@
-"""The evaluation measures the model, not the harness (``encons.evaluation``): its default integrator
+"""The evaluation measures the model, not the harness (``encons.numerics.evaluation``): its default integrator
 puts the true field's own error far below the errors it ranks, and models are scored beside that floor."""
 
 from __future__ import annotations
@@ -6,11 +6,13 @@ from __future__ import annotations
 import pytest
 import torch
 
-from encons import api, metrics
-from encons.build import build_system
+from encons.entry import api
+
+from encons.numerics import metrics
+from encons.training.build import build_system
 from encons.data.simulate import sample_trajectories
-from encons.evaluation import Evaluation, TrueField
-from encons.integrators import Integrator, rollout
+from encons.numerics.evaluation import Evaluation, TrueField
+from encons.numerics.integrators import Integrator, rollout
 from tests.helpers import simulated_systems
 
 #: Systems scored on states (a pixel system is scored on frames: no state oracle).

@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 
 import encons
-from encons.build import compose
-from encons.errors import ConfigError
+from encons.training.build import compose
+from encons.infra.errors import ConfigError
 
 
 def test_a_users_optimizer_and_scheduler_from_a_searchpath_yaml_train(tmp_path):
@@ -47,9 +47,9 @@ def test_santos_one_step_targets_are_every_state_from_two_on_for_any_history(his
 
 
 def test_every_objective_a_model_declares_is_registered():
-    from encons.build import catalogue
-    from encons.objectives import OBJECTIVES
-    from encons.trust import locate
+    from encons.training.build import catalogue
+    from encons.training.objectives import OBJECTIVES
+    from encons.config.trust import locate
 
     declared = {o for name in catalogue("model")
                 for o in locate(compose([f"model={name}"], ".").model._target_).objectives}
@@ -58,8 +58,8 @@ def test_every_objective_a_model_declares_is_registered():
 
 @pytest.fixture
 def written(monkeypatch):
-    """Every path encons writes through ``encons.io`` (every writer does), in order."""
-    from encons import io
+    """Every path encons writes through ``encons.infra.io`` (every writer does), in order."""
+    from encons.infra import io
 
     paths = []
     real = io.atomic_open
@@ -140,7 +140,7 @@ def test_an_evaluator_that_does_not_apply_is_refused_in_one_line(tmp_path, chose
                          output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
     with pytest.raises(ConfigError, match=rf"^evaluators.{chosen} does not apply to observation=Autoencoder .*; "
                                           r"allowed: evaluators=\[pixels\]$"):
-        encons.api.build(cfg)
+        encons.entry.api.build(cfg)
 
 
 def test_two_evaluators_giving_one_metric_name_are_refused(tmp_path):
@@ -154,7 +154,7 @@ def test_two_evaluators_giving_one_metric_name_are_refused(tmp_path):
 
     cfg = encons.compose("debug=fast", "logger=none", "model=node", "system=pendulum1",
                          output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
-    data, module = encons.api.build(cfg)
+    data, module = encons.entry.api.build(cfg)
     module.evaluators["twice"] = Twice()
     trainer = pl.Trainer(logger=False, enable_progress_bar=False, enable_checkpointing=False)
     with pytest.raises(ConfigError, match=r"^evaluators.twice gives the metric 'traj_rel_err' another evaluator"):

@@ -7,8 +7,11 @@ from __future__ import annotations
 import pytest
 import torch
 
-from encons import metrics, plots
-from encons.build import run_config
+from encons.evaluators import figures as run_figures
+from encons.tools import figures as cross_figures
+
+from encons.numerics import metrics
+from encons.training.build import run_config
 from encons.systems.controlled import CartPole
 from encons.systems.mass_spring import MassSpring
 from encons.systems.pendulum import NPendulum
@@ -26,29 +29,30 @@ def described(fig) -> dict:
 
 @pytest.fixture
 def saved(monkeypatch):
-    """The figures ``plots`` saves, by file name, described before they are closed."""
+    """The figures ``save_png`` saves, by file name, described before they are closed."""
     figures = {}
-    original = plots.save_png
+    original = run_figures.save_png
 
     def keep(fig, path, layout=True):
         path = original(fig, path, layout)
         figures[path.name] = described(fig)
         return path
 
-    monkeypatch.setattr(plots, "save_png", keep)
+    for module in (run_figures, cross_figures):
+        monkeypatch.setattr(module, "save_png", keep)
     return figures
 
 
 def test_colours_are_distinct_for_twelve_and_more_coordinates():
     for k in (3, 12, 20, 30):
-        assert len({tuple(round(c, 3) for c in colour) for colour in plots.colours(k)}) == k
+        assert len({tuple(round(c, 3) for c in colour) for colour in run_figures.colours(k)}) == k
 
 
 def test_rollout_figure_one_legend_units_and_a_labelled_choice():
     t = torch.arange(11) * 0.1
     true = torch.randn(7, 11, 24)
     pred = true + torch.linspace(0.01, 1.0, 7)[:, None, None]       # trajectory 0 best, 6 worst
-    figures = plots.rollout_figures(t, pred, true, None, "hnn_angle on gyroscope", units=("rad",) * 12,
+    figures = run_figures.rollout_figures(t, pred, true, None, "hnn_angle on gyroscope", units=("rad",) * 12,
                                     baseline=true * 0.5, chart="cartesian")
     assert list(figures) == ["rollout", "relative_error"]          # no energies: no energy_error
     fig = described(figures["rollout"])
@@ -72,7 +76,7 @@ def test_rollout_figure_one_legend_units_and_a_labelled_choice():
 def test_units_come_from_the_system():
     assert NPendulum(2).units("angle") == ("rad", "rad") and NPendulum(2).units("cartesian") == ("m",) * 4
     assert CartPole().units("angle") == ("m", "rad") and MassSpring().units("angle") == ("m",)
-    assert plots.unit_label(("m", "rad")) == "[see legend]" and plots.unit_label(("rad",), rate=True) == "[rad/s]"
+    assert run_figures.unit_label(("m", "rad")) == "[see legend]" and run_figures.unit_label(("rad",), rate=True) == "[rad/s]"
 
 
 def test_mse_axis_is_not_stretched_by_a_constant_baseline_energy_error():
@@ -81,7 +85,7 @@ def test_mse_axis_is_not_stretched_by_a_constant_baseline_energy_error():
     curves = {"model": {"state_mse": rising, "energy_mse": rising},
               "baseline_constant": {"state_mse": rising * 3, "energy_mse": torch.full((21,), 1e-14)},
               "baseline_linear_ode": {"state_mse": rising * 2, "energy_mse": rising * 5}}
-    figure = plots.mse_figure(t, curves, "node on pendulum", units=("rad",))["mse_vs_time"]
+    figure = run_figures.mse_figure(t, curves, "node on pendulum", units=("rad",))["mse_vs_time"]
     (state_label, _, _, state_lim, *_), (_, _, _, energy_lim, _, _, energy_lines) = described(figure)["axes"]
     assert state_label == "state MSE, each coordinate / its test-set spread [–]"
     assert energy_lim[0] > 1e-5 and energy_lim[1] / energy_lim[0] < 1e5          # not 14 decades
@@ -93,16 +97,16 @@ def test_an_mse_curve_that_runs_away_to_the_float_limit_is_drawn_at_the_ceiling(
     runaway = torch.logspace(-3, 308, 21, dtype=torch.float64)  # a rollout's MSE reaching 1e308: the axis top once overflowed
     runaway[-1] = float("inf")
     curves = {"model": {"state_mse": runaway}, "baseline_constant": {"state_mse": torch.logspace(-3, 0, 21)}}
-    figure = plots.mse_figure(t, curves, "lnn on pendulum4", units=("rad",))["mse_vs_time"]
+    figure = run_figures.mse_figure(t, curves, "lnn on pendulum4", units=("rad",))["mse_vs_time"]
     (_, _, _, limits, *_), = described(figure)["axes"]
-    assert limits[1] == pytest.approx(2 * plots.CEILING) and limits[0] == pytest.approx(10 ** (311 / 20 - 3) / 2)
+    assert limits[1] == pytest.approx(2 * run_figures.CEILING) and limits[0] == pytest.approx(10 ** (311 / 20 - 3) / 2)
 
 
 def test_data_efficiency_ticks_are_the_sizes_and_bars_are_drawn(tmp_path, saved):
     summary = [{"system": "pendulum2", "model": m, "n_train": n, "runs": 1, "test/traj_rel_err": e,
                 "test/traj_rel_err_sd": 0.0, "test/traj_rel_err_std": e / 2}
                for m in ("hnn", "node") for n, e in ((10, 1.28), (100, 0.5), (1000, 0.2))]
-    plots.data_efficiency_figure(summary, tmp_path)
+    cross_figures.data_efficiency_figure(summary, tmp_path)
     (_, title, _, _, yticks, xticks, _), = saved["data_efficiency.png"]["axes"]
     assert [x for x in xticks if x] == ["10", "100", "1000"] and "×" not in "".join(yticks)
     assert "bars: ± 1 std over test trajectories" in title
@@ -111,10 +115,11 @@ def test_data_efficiency_ticks_are_the_sizes_and_bars_are_drawn(tmp_path, saved)
 def test_data_efficiency_does_not_hide_a_model_under_another(tmp_path, monkeypatch):
     """Issue 51: two models with equal values drew one line exactly over the other."""
     kept = {}
-    monkeypatch.setattr(plots, "save_png", lambda fig, path, layout=True: kept.setdefault(path.name, fig) and path)
+    for module in (run_figures, cross_figures):
+        monkeypatch.setattr(module, "save_png", lambda fig, path, layout=True: kept.setdefault(path.name, fig) and path)
     summary = [{"system": "pendulum2", "model": m, "n_train": n, "runs": 1, "test/traj_rel_err": 0.5,
                 "test/traj_rel_err_sd": 0.0, "test/traj_rel_err_std": 0.1} for m in ("hnn", "node") for n in (10, 100)]
-    plots.data_efficiency_figure(summary, tmp_path)
+    cross_figures.data_efficiency_figure(summary, tmp_path)
     hnn, node = (c.lines[0] for c in kept["data_efficiency.png"].axes[0].containers)
     assert list(hnn.get_xdata()) != list(node.get_xdata()) and hnn.get_marker() != node.get_marker()
     assert hnn.get_linestyle() != node.get_linestyle()
@@ -129,13 +134,13 @@ def test_traj_rel_err_figure_draws_the_tables_arithmetic_mean(tmp_path, saved):
         run.mkdir()
         np.savez(run / "test_curves.npz", rel_err=np.array(errors) / 5, t=np.arange(5) * 0.1)
         rows.append({"system": "pendulum1", "model": model, "run_dir": str(run)})
-    plots.comparison_figures(rows, [{"system": "pendulum1"}], tmp_path)
+    cross_figures.comparison_figures(rows, [{"system": "pendulum1"}], tmp_path)
     (*_, lines), = saved["traj_rel_err.png"]["axes"]
     assert "arithmetic mean (the table's traj_rel_err)" in lines
 
 
 def test_the_run_title_names_the_models_config(tmp_path):
-    from encons import api
+    from encons.entry import api
 
     cfg = api.compose("debug=fast", "model=hnn_angle", "system=pendulum1", output_dir=tmp_path / "run",
                       cache_dir=tmp_path / "cache")
@@ -145,12 +150,12 @@ def test_the_run_title_names_the_models_config(tmp_path):
 
 def test_the_rollout_figure_draws_the_linear_ode_baseline_that_was_scored(train_run, monkeypatch):
     """One least-squares fit and one rollout of the linear-ODE baseline per test: the figure's is the scored one."""
-    from encons import metrics
+    from encons.numerics import metrics
 
     fits, drawn = [], []
-    fit, figures = metrics.fit_linear_ode, plots.rollout_figures
+    fit, figures = metrics.fit_linear_ode, run_figures.rollout_figures
     monkeypatch.setattr(metrics, "fit_linear_ode", lambda *a, **k: fits.append(1) or fit(*a, **k))
-    monkeypatch.setattr(plots, "rollout_figures", lambda *a, **k: drawn.append(k["baseline"]) or figures(*a, **k))
+    monkeypatch.setattr(run_figures, "rollout_figures", lambda *a, **k: drawn.append(k["baseline"]) or figures(*a, **k))
     train_run(["model=node", "system=pendulum1"], figures=True)
     assert len(fits) == 1 and len(drawn) == 1 and torch.isfinite(drawn[0]).all()
 
@@ -167,7 +172,7 @@ def test_mse_per_unit_family_and_named_multi_body_coordinates():
     curves = metrics.mse_curves(pred, true, families=families)
     assert curves["state_mse_m_per_s"].tolist() == [1.0] * 3 and curves["state_mse_m"].tolist() == [0.0] * 3
     assert curves["state_mse_raw"].tolist() == [0.25] * 3           # Xiao's mean over every entry, units mixed
-    names = plots.coordinate_names(24, CartesianLayout(4, 3, ((0, 1, 2, 3),)))
+    names = run_figures.coordinate_names(24, CartesianLayout(4, 3, ((0, 1, 2, 3),)))
     assert names[:4] == ["x₁ (body 1)", "y₁ (body 1)", "z₁ (body 1)", "x₂ (body 1)"] and names[12] == "x\u0307₁ (body 1)"
 
 
@@ -175,7 +180,7 @@ def test_rollout_figures_draw_an_unwrapped_angle_at_its_window_start_on_the_circ
     t = torch.arange(11) * 0.1
     true = torch.stack([torch.linspace(0.5, 1.5, 11) - 4 * torch.pi, torch.ones(11)], -1).expand(3, 11, 2).clone()
     pred = true + 0.01 * torch.arange(3)[:, None, None]
-    figure = plots.rollout_figures(t, pred, true, None, "node on from_file", units=("rad",),
+    figure = run_figures.rollout_figures(t, pred, true, None, "node on from_file", units=("rad",),
                                    angles=torch.tensor([True, False]))["rollout"]
     position = figure.axes[0]
     assert "drawn as q₁ + 2·2π" in position.get_title()

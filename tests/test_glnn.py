@@ -123,8 +123,8 @@ def test_trains_end_to_end(train_run, model, system):
 
 def _evaluated(tmp_path, system: str, model_of) -> dict[str, float]:
     """The test metrics of ``model_of(system)`` put into a tiny run of ``system`` (second_order built, then swapped)."""
-    from encons import api
-    from encons.runs import Run
+    from encons.entry import api
+    from encons.training.runs import Run
 
     cfg = api.compose("debug=fast", f"system={system}", "model=second_order", "data.n_test=3", "data.n_steps=20",
                       "data.test_steps=40", output_dir=tmp_path / system, cache_dir=tmp_path / "cache")
@@ -155,7 +155,7 @@ def test_accel_mse_of_zero_acceleration_is_the_mean_square_of_the_true_q_ddot(tm
         return model
 
     metrics = _evaluated(tmp_path, "damped_oscillator", zero)
-    from encons import api
+    from encons.entry import api
 
     cfg = api.compose("debug=fast", "system=damped_oscillator", "model=second_order", "data.n_test=3",
                       "data.n_steps=20", "data.test_steps=40", cache_dir=tmp_path / "cache")

@@ -11,10 +11,10 @@ import pytest
 import scipy.linalg
 import torch
 
-from encons import metrics
+from encons.numerics import metrics
 from encons.data.datamodule import TrajectoryDataModule
 from encons.data.recording import load_recording, unwrap, wrap, write_example
-from encons.errors import ConfigError, DataError
+from encons.infra.errors import ConfigError, DataError
 from encons.systems.dissipative import DampedOscillator
 from encons.data.from_file import FileSystem
 

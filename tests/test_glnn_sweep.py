@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from encons.report import write_sweep_report
+from encons.tools.report import write_sweep_report
 
 
 @pytest.mark.slow

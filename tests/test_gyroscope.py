@@ -10,7 +10,7 @@ import torch
 from torch.func import grad, hessian, jvp, vmap
 
 from encons.data.simulate import sample_trajectories, simulate
-from encons.errors import ConfigError
+from encons.infra.errors import ConfigError
 from encons.systems.constrained import constraint_jacobians
 from encons.systems.gyroscope import Gyroscope
 

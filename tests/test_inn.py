@@ -7,10 +7,10 @@ from torch import Tensor, nn
 from torch.func import grad, jacrev, vmap
 from torchdiffeq import odeint
 
-from encons.integrators import Integrator, rollout, state_derivative
+from encons.numerics.integrators import Integrator, rollout, state_derivative
 from encons.models.inn import INNNODE, InvertibleNet
 from encons.models.nsf import NSF
-from encons.regularisers import Hamiltonian, field_jacobian, hamiltonian_violation
+from encons.numerics.regularisers import Hamiltonian, field_jacobian, hamiltonian_violation
 from encons.systems.base import split_state
 from encons.systems.mass_spring import MassSpring
 from encons.systems.pendulum import NPendulum

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from encons.integrators import FIXED_STEP, Integrator, rollout
+from encons.numerics.integrators import FIXED_STEP, Integrator, rollout
 from encons.models.base import DynamicsModel
 from encons.systems.pendulum import NPendulum
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import lightning.pytorch as pl
 
-from encons import api
+from encons.entry import api
 
 
 class ValHistory(pl.Callback):

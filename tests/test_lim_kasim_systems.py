@@ -10,7 +10,7 @@ from hydra.utils import instantiate
 from torch.func import jvp
 from torchdiffeq import odeint
 
-from encons.build import compose
+from encons.training.build import compose
 from encons.data import store
 from encons.data.datamodule import TrajectoryDataModule
 from encons.data.simulate import simulate

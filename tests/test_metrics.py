@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 import torch
-from encons import metrics
+from encons.numerics import metrics
 
 
 def test_relative_and_trajectory_error_by_hand():
@@ -56,7 +56,7 @@ def test_energy_rmse_against_the_true_energy_at_each_time():
 
 
 def _state_metrics():
-    """Every function of ``encons.metrics`` that scores predicted states against true ones (pred…, true…)."""
+    """Every function of ``encons.numerics.metrics`` that scores predicted states against true ones (pred…, true…)."""
     import inspect
 
     found = {}

@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from encons.data.simulate import simulate
-from encons.errors import ConfigError
-from encons.integrators import Integrator, rollout, state_derivative
+from encons.infra.errors import ConfigError
+from encons.numerics.integrators import Integrator, rollout, state_derivative
 from encons.models.base import DynamicsModel
 from encons.models.hnn import HNN
 from encons.models.node import NODE

@@ -17,9 +17,9 @@ import pytest
 import torch
 from torch.func import jvp
 
-from encons.batching import batched_grad
-from encons.errors import ConfigError
-from encons.integrators import Integrator, rollout, state_derivative
+from encons.infra.batching import batched_grad
+from encons.infra.errors import ConfigError
+from encons.numerics.integrators import Integrator, rollout, state_derivative
 from encons.models.constrained import CHNN, CLNN, CartesianModel
 from encons.models.hnn import HNN, HNNStructure
 from encons.models.lnn import LNN, LNNStructure, euler_lagrange_terms, lagrangian_derivatives

@@ -23,7 +23,7 @@ def test_wheel_ships_configs_and_finds_them(tmp_path):
     assert any(n.startswith("encons/conf/sweeps/") and n.endswith(".yaml") for n in names)
     zipfile.ZipFile(wheel).extractall(tmp_path / "site")
     probe = ("import sys; sys.path.insert(0, sys.argv[1]);"
-             "from encons.build import compose;"
+             "from encons.training.build import compose;"
              "cfg = compose(['model=hnn', 'system=pendulum1'], sys.argv[2]);"
              "import encons; print(encons.__file__, cfg.model._target_)")
     out = subprocess.run([sys.executable, "-c", probe, str(tmp_path / "site"), str(tmp_path / "run")],

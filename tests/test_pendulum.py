@@ -9,7 +9,7 @@ import torch
 from torch.func import hessian
 
 from encons.data.simulate import simulate
-from encons.errors import ConfigError
+from encons.infra.errors import ConfigError
 from encons.systems.constrained import constraint_jacobians
 from encons.systems.pendulum import NPendulum
 

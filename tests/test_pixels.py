@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from encons import api
+from encons.entry import api
 from encons.data import store
 from encons.data.simulate import sample_trajectories
-from encons.errors import ConfigError, DataError
+from encons.infra.errors import ConfigError, DataError
 from encons.models.observation import Autoencoder
 from encons.systems.damped_pendulum import DampedPendulum
 from encons.systems.pendulum import NPendulum

@@ -1,4 +1,4 @@
-"""``experiment=paper``'s solve (``encons.attempts``): the plain inverse Hessian of Cranmer et al. / Xiao et al.
+"""``experiment=paper``'s solve (``encons.training.attempts``): the plain inverse Hessian of Cranmer et al. / Xiao et al.
 (``model.guard=0``) unless that training diverges, then again from scratch at the model's guard; the run
 says which. And the presets of ``experiment=paper`` and ``debug=fast`` composed together."""
 
@@ -11,11 +11,13 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from encons import api, attempts, runs
-from encons.benchmark import resume_or_clear
-from encons.build import Request, catalogue, compose
-from encons.config import apply_presets
-from encons.errors import DivergenceError
+from encons.entry import api
+
+from encons.training import attempts, runs
+from encons.tools.benchmark import resume_or_clear
+from encons.training.build import Request, catalogue, compose
+from encons.config.check import apply_presets
+from encons.infra.errors import DivergenceError
 from encons.models.lnn import LNN
 
 PAPER = ["experiment=paper", "debug=fast", "system=pendulum1"]
@@ -39,10 +41,10 @@ def test_experiment_paper_with_debug_fast_composes_both():
 @pytest.mark.parametrize("presets", [{"debug": ["model.hidden"], "experiment": ["model.activation"]},
                                      ["model.hidden", "model.activation"]])  # the list of a config saved before
 def test_every_groups_presets_are_dropped_where_the_constructor_lacks_them(presets):
-    cfg = OmegaConf.create({"model": {"_target_": "encons.evaluation.Evaluation", "hidden": 3, "activation": "tanh",
+    cfg = OmegaConf.create({"model": {"_target_": "encons.numerics.evaluation.Evaluation", "hidden": 3, "activation": "tanh",
                                       "substeps": 2}, "preset_keys": presets})
     apply_presets(cfg, Request())
-    assert OmegaConf.to_container(cfg.model) == {"_target_": "encons.evaluation.Evaluation", "substeps": 2}
+    assert OmegaConf.to_container(cfg.model) == {"_target_": "encons.numerics.evaluation.Evaluation", "substeps": 2}
 
 
 def test_only_models_with_a_guard_get_the_plain_attempt_first():
@@ -114,7 +116,7 @@ def test_a_paper_run_that_does_not_diverge_keeps_the_plain_inverse(tmp_path, cap
 
 def test_a_table_marks_a_metric_a_model_does_not_report_apart_from_a_failed_run():
     """plain_inverse exists for lnn rows only: an hnn row shows – there, a row whose runs all failed 'failed'."""
-    from encons.report import markdown
+    from encons.tools.report import markdown
 
     base = {"system": "pendulum2", "n_train": 800, "data_efficiency": False, "runs": 1, "optimiser": ""}
     summary = [{**base, "model": "lnn", "failed": 0, "test/traj_rel_err": 1.0, "test/traj_rel_err_sd": 0.0,

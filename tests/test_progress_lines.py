@@ -17,7 +17,7 @@ def test_a_run_writes_one_line_per_epoch_to_train_log_and_a_non_terminal_console
 
 
 def test_benchmark_progress_goes_to_stdout(tmp_path, capsys):
-    from encons.progress import Progress
+    from encons.infra.progress import Progress
 
     progress = Progress(2, "benchmark run")
     progress.start("a")

@@ -38,7 +38,7 @@ def test_the_docs_state_measured_durations_with_their_load():
     rows = [line.split("|")[1:5] for line in section.splitlines() if line.startswith("| python") or line.startswith("| the")]
     assert len(rows) >= 8 and all(re.fullmatch(r" [\d.]+ ", cell) for _, *cells in rows for cell in cells), rows
     for command in ("debug=fast", "system=pendulum2", "model=chnn system=gyroscope", "encons.evaluate",
-                    "profile=smoke", "encons.report", "-m model=node"):
+                    "profile=smoke", "encons.tools.report", "-m model=node"):
         assert command in section, command
     for command in ("make install", "make test-fast", "make test"):
         assert command in section, command
@@ -47,7 +47,7 @@ def test_the_docs_state_measured_durations_with_their_load():
 def test_the_committed_example_results_rebuild_with_the_report(tmp_path):
     import shutil
 
-    from encons.report import write_report
+    from encons.tools.report import write_report
 
     out = tmp_path / "smoke"
     shutil.copytree(ROOT / "examples" / "results" / "smoke", out)
@@ -59,7 +59,7 @@ def test_the_committed_example_results_rebuild_with_the_report(tmp_path):
     # issue 51: every file the README's report command writes is the committed one, so a clone stays clean; the
     # command itself, in a fresh process as a user runs it (matplotlib's text rendering keeps process-wide state,
     # so figures drawn after other tests' in one worker can differ in a few pixels)
-    subprocess.run([sys.executable, "-m", "encons.report", str(out)], check=True, capture_output=True, timeout=300)
+    subprocess.run([sys.executable, "-m", "encons.tools.report", str(out)], check=True, capture_output=True, timeout=300)
     committed = ROOT / "examples" / "results" / "smoke"
     changed = [p.name for p in files if p.read_bytes().replace(str(out).encode(), b"examples/results/smoke")
                != (committed / p.name).read_bytes()]       # results.csv names each run's folder as the README's run

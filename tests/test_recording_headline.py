@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from encons import metrics
-from encons.report import headline, print_summary
+from encons.numerics import metrics
+from encons.training.summary import headline, print_summary
 
 
 def _pendulum_text(path, trial: str = "0.0000000000000000e+000"):

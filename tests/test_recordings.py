@@ -14,7 +14,7 @@ import torch
 
 from encons.data.datamodule import TrajectoryDataModule
 from encons.data.recording import load_recording
-from encons.errors import ConfigError, DataError
+from encons.infra.errors import ConfigError, DataError
 from encons.data.from_file import FileSystem
 
 DT = 0.01
@@ -59,7 +59,7 @@ def test_two_trial_csv_with_jittered_stamps_keeps_trials_apart_and_splits_each_b
 
 
 def test_the_cli_trains_on_a_csv_recording_for_a_budget_in_steps(tmp_path, caplog):
-    from encons import api
+    from encons.entry import api
 
     path = two_trial_csv(tmp_path / "rig.csv")
     cfg = api.compose("debug=fast", "system=from_file", f"system.path={path}", "model=node", "data.n_steps=10",
@@ -139,7 +139,7 @@ MATLAB = ["data.recording.comment='%'", "data.recording.columns={t: time, q: [th
 
 
 def test_a_matlab_style_file_with_a_percent_header_trains(tmp_path, capsys):
-    from encons import api
+    from encons.entry import api
 
     path = matlab_style(tmp_path / "lab.txt")
     with pytest.raises(DataError, match=r"line 1 \('% time theta omega'\) has 4 cell\(s\) where the table's other "
@@ -180,8 +180,8 @@ def test_a_boolean_option_refuses_a_word(tmp_path, monkeypatch):
 
 
 def test_an_angle_shifted_by_2pi_gives_the_same_constant_baseline_metrics(tmp_path):
-    from encons import api
-    from encons.runs import evaluate
+    from encons.entry import api
+    from encons.training.runs import evaluate
 
     plain, shifted = matlab_style(tmp_path / "plain.txt"), matlab_style(tmp_path / "shifted.txt", shift=2 * math.pi)
     common = ["debug=fast", "system=from_file", "model=node", "data.n_steps=10", "data.test_steps=20", *MATLAB,

@@ -9,11 +9,11 @@ import torch
 from torch import Tensor, nn
 from torch.func import grad
 
-from encons.batching import batched
-from encons.errors import ConfigError
+from encons.infra.batching import batched
+from encons.infra.errors import ConfigError
 from encons.models.networks import mlp
 from encons.models.node import NODE
-from encons.regularisers import (Dissipative, Hamiltonian, dissipative_violation, field_jacobian, from_paper_weight,
+from encons.numerics.regularisers import (Dissipative, Hamiltonian, dissipative_violation, field_jacobian, from_paper_weight,
                                  hamiltonian_violation)
 from encons.systems.base import split_state
 from encons.systems.mass_spring import MassSpring

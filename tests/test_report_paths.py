@@ -1,5 +1,5 @@
 """Reports record paths relative to their ``out`` (or a folder outside it by its name), never the machine's
-absolute folder: the writer (``encons.report.recorded``), the rows and ``benchmark.yaml`` it writes, and the
+absolute folder: the writer (``encons.tools.report.recorded``), the rows and ``benchmark.yaml`` it writes, and the
 committed reports rewritten through it."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import json
 import re
 from pathlib import Path
 
-from encons.benchmark import recorded_config
-from encons.report import recorded, write_report
+from encons.tools.benchmark import recorded_config
+from encons.tools.report import recorded, write_report
 
 ROOT = Path(__file__).parents[1]
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from encons.errors import DivergenceError
-from encons.module import TrainingModule
+from encons.infra.errors import DivergenceError
+from encons.training.module import TrainingModule
 
 RUN = ["model=hnn", "system=pendulum1", "trainer.max_epochs=4"]
 

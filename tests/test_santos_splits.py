@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import torch
 
-from encons import api
+from encons.entry import api
 from tests.helpers import SANTOS_TINY
 
 

@@ -11,10 +11,10 @@ import torch
 from omegaconf import open_dict
 from torch import Tensor, nn
 
-from encons.build import compose
+from encons.training.build import compose
 from encons.data import store
-from encons.errors import ConfigError, DataError
-from encons.integrators import Integrator, rollout
+from encons.infra.errors import ConfigError, DataError
+from encons.numerics.integrators import Integrator, rollout
 from encons.models.base import DiscreteModel, DynamicsModel
 from encons.systems.base import System, split_state
 
@@ -151,7 +151,7 @@ def toy_config(tmp_path, model: str, *overrides: str):
 
 
 def test_controlled_data_reach_training_rollouts_and_regularisers(tmp_path):
-    from encons.api import build, train
+    from encons.entry.api import build, train
 
     data, module = build(toy_config(tmp_path, "node"))
     batch = next(iter(data.train_dataloader()))
@@ -167,7 +167,7 @@ def test_controlled_data_reach_training_rollouts_and_regularisers(tmp_path):
 
 
 def test_a_discrete_model_learns_its_force_from_the_residual(tmp_path):
-    from encons.api import build
+    from encons.entry.api import build
 
     cfg = toy_config(tmp_path, "VerletStepper", "data.noise=0", "data.n_train=64", "data.dt=0.05")
     data, module = build(cfg)
@@ -194,14 +194,14 @@ def test_a_discrete_model_learns_its_force_from_the_residual(tmp_path):
     ("TrueField", ["objective=residual"], "objective=residual does not apply"),
 ])
 def test_what_a_model_does_not_support_is_one_error_naming_the_key(tmp_path, model, overrides, match):
-    from encons.api import build
+    from encons.entry.api import build
 
     with pytest.raises(ConfigError, match=match):
         build(toy_config(tmp_path, model, *overrides))
 
 
 def test_a_controlled_system_refuses_a_model_without_inputs(tmp_path):
-    from encons.api import build
+    from encons.entry.api import build
 
     cfg = toy_config(tmp_path, "node")
     with open_dict(cfg):

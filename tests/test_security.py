@@ -10,9 +10,13 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from encons import api, benchmark, checkpoints
-from encons.build import build, compose, run_config
-from encons.errors import ConfigError
+from encons.entry import api
+
+from encons.tools import benchmark
+
+from encons.infra import checkpoints
+from encons.training.build import build, compose, run_config
+from encons.infra.errors import ConfigError
 
 
 class WritesMarker:
@@ -137,8 +141,8 @@ def test_a_searchpath_config_cannot_widen_trust(tmp_path, evil_module, cli):
 
 
 @pytest.mark.parametrize("target, why", [
-    ("encons.trust.os.system", "os is a module reached by attribute"),
-    ("encons.build.Path", "not encons's"),
+    ("encons.config.trust.os.system", "os is a module reached by attribute"),
+    ("encons.training.build.Path", "not encons's"),
 ])
 def test_an_alias_of_a_trusted_name_is_refused(tmp_path, target, why):
     with pytest.raises(ConfigError) as err:

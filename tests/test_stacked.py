@@ -1,4 +1,4 @@
-"""The stacked path of a seed ensemble (``encons.stacked``), family by family: K members' training steps as one
+"""The stacked path of a seed ensemble (``encons.training.stacked``), family by family: K members' training steps as one
 (the ensemble dimension in the layers, or vmap over the member axis) equal each member's own step."""
 
 from __future__ import annotations
@@ -8,8 +8,10 @@ import itertools
 import pytest
 import torch
 
-from encons import api, ensemble, stacked
-from encons.build import build
+from encons.entry import api
+
+from encons.training import ensemble, stacked
+from encons.training.build import build
 
 #: one model of every family the papers use, at its usual system, and the stacked way it takes
 FAMILIES = [

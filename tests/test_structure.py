@@ -12,29 +12,24 @@ from pathlib import Path
 import pytest
 
 import encons
-from encons.build import build_model, build_system, compose
-from encons.config import Request
-from encons.errors import ConfigError
+from encons.training.build import build_model, build_system, compose
+from encons.config.check import Request
+from encons.infra.errors import ConfigError
 
-#: Lowest first. A module may import from its own layer and those before it, never from a later one; every
-#: import counts. docs/architecture.md says what each layer is for.
+#: Lowest first: one package per layer (docs/architecture.md draws them). A module may import from its own package
+#: and those before it, never from a later one; every import counts.
 LAYERS = [
-    ["errors", "bounds", "paths", "compat", "aliases", "trust", "batching", "progress", "io", "checkpoints",
-     "lightning_io", "threads", "help", "schedules", "docs"],                      # foundations: no physics, no training
-    ["systems"],                                                            # the true physics
-    ["models"],                                                             # networks with physical structure
-    ["integrators"],
-    ["data"],
-    ["regularisers", "metrics", "evaluation"],
-    ["plots"],
-    ["learner", "config"],              # the Learner protocol; the one validation pass (Request, Checked)
-    ["evaluators", "objectives", "attempts", "callbacks"],                  # what reads a Learner; the attempt policy
-    ["module"],                                                             # the LightningModule (a Learner)
-    ["build", "stacked", "fitting"],                                                              # checked config -> objects
-    ["runs", "ensemble", "report", "sweep", "control", "benchmark"],                    # a run's life; the commands' libraries
-    ["api", "__init__"],                                                    # the Python API
-    ["cli"],                                                                # the one entry room: argv of every command
-    ["__main__", "train", "evaluate"],                                      # python -m encons [command] and its aliases
+    ["infra"],         # errors, declared bounds, paths, atomic files, checkpoints, threads, progress, compat
+    ["systems"],       # the true physics
+    ["models"],        # networks with physical structure
+    ["numerics"],      # rollouts, the evaluation pipeline, metrics, regularisers, the Learner protocol
+    ["data"],          # trajectories: simulated, recorded, from files
+    ["evaluators"],    # what reads a Learner: test metrics and one run's figures
+    ["config"],        # the one validation pass (Request, Checked) and target trust
+    ["training"],      # the LightningModule, objectives, callbacks, builders, runs and ensembles
+    ["tools"],         # the commands' libraries: benchmark, sweep, report, docs, control
+    ["entry"],         # the Python API, the one room for every command's argv, --help
+    ["__init__", "__main__", "train", "evaluate", "benchmark", "report", "sweep", "control"],  # encons, commands
 ]
 PACKAGE = Path(encons.__file__).parent
 
@@ -134,15 +129,15 @@ def test_no_module_imports_from_a_layer_above_it():
 
 def test_the_layer_check_sees_a_back_arrow_also_under_type_checking(tmp_path):
     bad = tmp_path / "bad.py"
-    bad.write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from encons.report import write_report\n")
+    bad.write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from encons.tools.report import write_report\n")
     assert layer(next(iter(encons_imports(bad)))) > layer("systems")
 
 
 def test_objectives_and_evaluators_see_the_learner_not_the_training_module():
     graph = import_graph(PACKAGE)
-    readers = ["objectives", *(m for m in graph if m.startswith("evaluators"))]
-    assert all("module" not in graph[m] for m in readers)
-    assert "learner" in graph["objectives"] and "learner" in graph["evaluators.base"]
+    readers = ["training.objectives", *(m for m in graph if m.startswith("evaluators"))]
+    assert all("training.module" not in graph[m] for m in readers)
+    assert "numerics.learner" in graph["training.objectives"] and "numerics.learner" in graph["evaluators.base"]
 
 
 def test_models_take_system_helpers_from_the_seam_not_from_another_model():

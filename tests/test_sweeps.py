@@ -16,7 +16,7 @@ import yaml
 from optuna.trial import TrialState
 
 from tests.helpers import run_cli
-from encons.build import compose
+from encons.training.build import compose
 
 TINY = ["system=pendulum1", "debug=fast", "test=false"]
 NODE = ["model=node", *TINY]
@@ -129,7 +129,7 @@ def test_shared_schedule_trains_every_model_under_the_swept_optimiser(tmp_path, 
                             "node-none-lr0.003-ep1"]
     for name, c in runs.items():  # CHNN's own adamw_peak at 1e-2 is overridden like every model's optimiser
         assert c["optimizer"]["_target_"] == "torch.optim.AdamW" and c["optimizer"]["lr"] == 3e-3
-        assert c["scheduler"].get("_target_") == ("encons.schedules.WarmupCosine" if "cosine" in name else None)
+        assert c["scheduler"].get("_target_") == ("encons.training.schedules.WarmupCosine" if "cosine" in name else None)
         assert c["system"]["n_links"] == 2 and c["trainer"]["max_epochs"] == 1 and c["evaluation"]["method"] == "rk4"
         assert "traj_rel_err" in yaml.safe_load((folder / name / "test_metrics.json").read_text())
 

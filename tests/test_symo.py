@@ -278,7 +278,7 @@ def test_newton_speedups_leave_roots_losses_and_gradients_unchanged(tol):
     """float32, as trained: E2E-SyMo's one-step loss, its gradients, the rollout and the non-converged
     count are bit-identical to the reference Newton — at the §7 training tolerance and at one float32
     cannot reach (every sample stalls), where the stall exit must also save iterations."""
-    from encons.module import TrainingModule
+    from encons.training.module import TrainingModule
 
     system = CartPole()
     s0, u = draw(system, 6, seed=3)

@@ -8,7 +8,7 @@ import math
 import pytest
 import torch
 
-from encons.errors import ConfigError
+from encons.infra.errors import ConfigError
 from tests.helpers import SANTOS_TINY
 
 SANTOS_KEYS = ("mse_train", "mse_test", "mse_integration", "energy_mse_integration")
@@ -37,8 +37,8 @@ def test_model_trains_end_to_end_with_the_section_7_metrics(train_run, model, sy
     (["model=hnn", "system=cartpole"], "cannot take control inputs"),
 ])
 def test_incompatible_santos_configs_are_one_line_errors(tmp_path, overrides, match):
-    from encons.build import compose
-    from encons.api import build
+    from encons.training.build import compose
+    from encons.entry.api import build
 
     with pytest.raises(ConfigError, match=match):
         build(compose(["debug=fast", "system=pendulum_control", *overrides], tmp_path / "run", tmp_path / "c"))
@@ -47,8 +47,8 @@ def test_incompatible_santos_configs_are_one_line_errors(tmp_path, overrides, ma
 def test_symo_learns_the_true_inertia_of_the_pendulum(tmp_path):
     """From 32 noiseless trajectories, the DEL residual (eq. (15)) fixes M = m l²/3 (the known
     controls set the scale of L); 400 Adam steps on whole trajectories bring M(q) within 1e-3."""
-    from encons.build import compose
-    from encons.api import build
+    from encons.training.build import compose
+    from encons.entry.api import build
 
     torch.manual_seed(0)
     cfg = compose(["model=symo", "system=pendulum_control", "logger=none", "data.n_train=32",
@@ -71,7 +71,7 @@ def test_symo_learns_the_true_inertia_of_the_pendulum(tmp_path):
 def test_onestep_objective_is_the_mse_of_each_state_from_the_true_states_before_it(tmp_path, model):
     """Santos et al. §7's loss: every state of a window predicted from the ``history`` true states before
     it (NODE: one, E2E-SyMo: two), squared error averaged over predictions and coordinates."""
-    from encons import api
+    from encons.entry import api
 
     torch.manual_seed(0)
     cfg = api.compose(f"model={model}", "system=pendulum_control", "experiment=symo_paper", "logger=none",

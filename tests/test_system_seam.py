@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from encons.data.from_file import FileSystem
-from encons.errors import PhysicsError
+from encons.infra.errors import PhysicsError
 from encons.systems.base import PointSystem
 from encons.systems.latent import LatentSystem
 from encons.systems.mass_spring import MassSpring

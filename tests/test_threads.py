@@ -1,4 +1,4 @@
-"""The thread policy (``encons.threads``): the default a run takes, what wins over it, and how the
+"""The thread policy (``encons.infra.threads``): the default a run takes, what wins over it, and how the
 CLI, the API, parallel sweeps and the benchmark reach it. The environment is per process, so the
 runs that start without a thread setting are subprocesses."""
 
@@ -11,18 +11,20 @@ import sys
 import pytest
 import torch
 
-from encons import api, threads
-from encons.benchmark import expand
-from encons.build import compose
-from encons.errors import ConfigError
+from encons.entry import api
+
+from encons.infra import threads
+from encons.tools.benchmark import expand
+from encons.training.build import compose
+from encons.infra.errors import ConfigError
 
 #: a subprocess that builds a tiny run through the API and prints torch's threads before and after
 BUILD = """
-import sys, torch, encons, encons.api
+import sys, torch, encons, encons.entry.api
 before = torch.get_num_threads()
 cfg = encons.compose("debug=fast", "system=pendulum1", *sys.argv[2:], output_dir=sys.argv[1] + "/run",
                      cache_dir=sys.argv[1] + "/cache")
-encons.api.build(cfg)
+encons.entry.api.build(cfg)
 print(before, torch.get_num_threads())
 """
 
@@ -33,7 +35,7 @@ def _without_thread_env(**extra: str) -> dict:
 
 
 def _build_threads(tmp_path, *overrides: str, env: dict) -> tuple[int, int]:
-    """torch's threads in a new process before and after ``encons.build`` of a tiny run."""
+    """torch's threads in a new process before and after ``encons.training.build`` of a tiny run."""
     done = subprocess.run([sys.executable, "-c", BUILD, str(tmp_path), *overrides], capture_output=True,
                           text=True, env=env, timeout=300)
     assert done.returncode == 0, done.stderr

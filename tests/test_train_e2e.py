@@ -17,8 +17,8 @@ import functools
 import math
 
 import pytest
-from encons import api
-from encons.errors import ConfigError
+from encons.entry import api
+from encons.infra.errors import ConfigError
 from tests.helpers import SANTOS_TINY, simulated_systems
 
 KINDS = ["gyroscope", "damped_pendulum", "pendulum_control"]
@@ -40,8 +40,8 @@ def builds(cfg) -> str | None:
     """None when the run's model can serve its system, else the one-line reason."""
     from hydra.utils import execution_whitelist
 
-    from encons.build import build_model, build_system
-    from encons.trust import trusted_targets
+    from encons.training.build import build_model, build_system
+    from encons.config.trust import trusted_targets
 
     try:
         with execution_whitelist(trusted_targets()):

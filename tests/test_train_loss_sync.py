@@ -3,7 +3,7 @@ device). The two-process check is tests/test_ddp.py."""
 
 
 def test_train_loss_is_logged_with_sync_dist(tmp_path, monkeypatch):
-    from encons.build import build, compose
+    from encons.training.build import build, compose
 
     cfg = compose(["model=node", "system=pendulum1", "debug=fast", "logger=none"], output_dir=tmp_path / "run",
                   cache_dir=tmp_path / "cache")

@@ -9,9 +9,9 @@ import pytest
 import torch
 from hydra.utils import execution_whitelist
 
-from encons import api
-from encons.build import build_model, build_system
-from encons.trust import trusted_targets
+from encons.entry import api
+from encons.training.build import build_model, build_system
+from encons.config.trust import trusted_targets
 from encons.models.glnn import GLNN
 from encons.models.lnn import LNN, guarded_solve, lagrangian_derivatives
 from encons.models.networks import cranmer_init_, mlp
@@ -112,7 +112,7 @@ def test_fresh_networks_take_their_first_steps_without_nan(tmp_path, model_name,
     four AdamW steps. From Cranmer et al.'s signed start 11 of the 27 on pendulum1/2 and the gyroscope reached NaN;
     from a jointly convex start (no separation of q and q̇, no velocity scale) 3 of these 45: lnn on mass_spring
     and glnn on Lim & Kasim's pendulum (seed 0), lnn_angle on the gyroscope (seed 2)."""
-    from encons.build import build
+    from encons.training.build import build
 
     cfg = api.compose("debug=fast", f"model={model_name}", f"system={name}", f"seed={seed}", output_dir=tmp_path,
                       cache_dir=tmp_path / "cache")

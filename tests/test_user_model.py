@@ -76,8 +76,8 @@ def test_a_benchmarks_searchpath_reaches_every_run(user_project, monkeypatch):
     first run of the user's model with "model=linear is unknown")."""
     import sys
 
-    from encons import benchmark
-    from encons.build import compose
+    from encons.tools import benchmark
+    from encons.training.build import compose
 
     root, _ = user_project
     monkeypatch.syspath_prepend(str(root))

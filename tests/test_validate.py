@@ -1,4 +1,4 @@
-"""One validation pass (``encons.config.validate``): every check once, a frozen ``Checked`` value that
+"""One validation pass (``encons.config.check.validate``): every check once, a frozen ``Checked`` value that
 ``build`` instantiates without checking or looking anything up again; checks neither write folders nor
 change the config."""
 
@@ -11,12 +11,14 @@ from omegaconf import OmegaConf
 from omegaconf.errors import ReadonlyConfigError
 
 import encons
-from encons import build, config, runs, trust
+from encons import build
+from encons.config import check as config, trust
+from encons.training import runs
 
 
 @pytest.fixture
 def lookups(monkeypatch) -> Counter:
-    """Every ``encons.trust.locate`` call, by target."""
+    """Every ``encons.config.trust.locate`` call, by target."""
     counted: Counter = Counter()
     real = trust.locate
 

@@ -1,5 +1,5 @@
 """``validation.every`` / ``validation.criterion`` (conf/train.yaml): which epochs validate, what the best
-checkpoint and the plateau schedule see, and the per-epoch cost split (``encons.callbacks.CostLine``)."""
+checkpoint and the plateau schedule see, and the per-epoch cost split (``encons.training.callbacks.CostLine``)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import json
 import lightning.pytorch as pl
 import pytest
 
-from encons import api
-from encons.errors import ConfigError
+from encons.entry import api
+from encons.infra.errors import ConfigError
 
 
 class Seen(pl.Callback):
@@ -24,7 +24,7 @@ class Seen(pl.Callback):
 
 
 def fit(tmp_path, *overrides: str):
-    from encons.build import build, build_trainer
+    from encons.training.build import build, build_trainer
 
     cfg = api.compose("debug=fast", "model=hnn", "system=pendulum2", "data.n_train=8", "model.hidden=8",
                       "trainer.max_epochs=12", "test=false", *overrides, output_dir=tmp_path, cache_dir=tmp_path / "c")
@@ -73,7 +73,7 @@ def test_none_runs_no_validation(tmp_path):
     (["validation.criterion=onestep"], "validation.criterion=onestep; allowed: rollout, objective, none"),
 ])
 def test_bad_validation_is_refused_in_one_line(tmp_path, overrides, says):
-    from encons.config import validate
+    from encons.config.check import validate
 
     with pytest.raises(ConfigError, match=says.replace(".", r"\.")):
         validate(api.compose("debug=fast", *overrides, output_dir=tmp_path))

@@ -20,7 +20,7 @@ CONF = ROOT / "conf"
 
 @cache
 def base():
-    from encons import api
+    from encons.entry import api
 
     return OmegaConf.to_container(api.compose(), resolve=False)
 

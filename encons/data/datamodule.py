@@ -38,9 +38,9 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 from encons.data import store
 from encons.data.recording import checked_options, is_recording, load_recording
 from encons.data.simulate import sample_trajectories
-from encons.bounds import Declared, NonNegative, Positive, Range, Seed
-from encons.errors import ConfigError, DataError
-from encons.progress import Progress
+from encons.infra.bounds import Declared, NonNegative, Positive, Range, Seed
+from encons.infra.errors import ConfigError, DataError
+from encons.infra.progress import Progress
 from encons.systems.base import System
 
 log = logging.getLogger(__name__)
@@ -196,7 +196,7 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
         served = {k: self.system.to_chart(v, chart, self.chart) for k, v in splits.items()}
         served["train"] = served["train"] + self.noise * torch.randn(served["train"].shape, generator=gen,
                                                                       dtype=torch.float64)
-        # test states stay float64: the evaluation (encons.evaluation) scores errors down to ~1e-8
+        # test states stay float64: the evaluation (encons.numerics.evaluation) scores errors down to ~1e-8
         self.arrays = {k: {"states": v if k == "test" else v.float()} for k, v in served.items()}
         for name, u in inputs.items():
             self.arrays[name]["u"] = u.float()

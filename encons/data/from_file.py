@@ -21,7 +21,7 @@ class FileSystem(DataOnlySystem):
     """Dimensions and chart read from a file: split trajectories (``encons.data.store``) or a
     recording (``encons.data.recording``; a text one read through ``columns``, ``delimiter`` and ``comment``).
     ``angles`` marks the coordinates q that are angles (``data.recording.angles``: null/false none, true
-    all, or one boolean per coordinate): metrics compare them on the circle (``encons.metrics``)."""
+    all, or one boolean per coordinate): metrics compare them on the circle (``encons.numerics.metrics``)."""
 
     def __init__(self, path: str, chart: str | None = None, columns: dict | None = None,
                  delimiter: str | None = None, comment: str | None = "#",

@@ -49,14 +49,14 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from encons import bounds
-from encons.errors import ConfigError, DataError
-from encons.io import save_npz
-from encons.progress import to_log_files
+from encons.infra import bounds
+from encons.infra.errors import ConfigError, DataError
+from encons.infra.io import save_npz
+from encons.infra.progress import to_log_files
 
 log = logging.getLogger(__name__)
 
-#: The options' types, checked by ``encons.bounds.check`` (``resample=maybe`` is refused, not taken as true).
+#: The options' types, checked by ``encons.infra.bounds.check`` (``resample=maybe`` is refused, not taken as true).
 TYPES = {"test_fraction": float, "val_fraction": float, "angles": bool | list[bool] | None, "gap": float,
          "jitter": float, "resample": bool, "test_stride": int | None, "columns": dict | None,
          "delimiter": str | None, "comment": str | None}

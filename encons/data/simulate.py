@@ -6,8 +6,8 @@ import torch
 from torch import Tensor
 from torchdiffeq import odeint
 
-from encons.errors import DataError
-from encons.integrators import odeint_held
+from encons.infra.errors import DataError
+from encons.numerics.integrators import odeint_held
 from encons.systems.base import System
 
 

@@ -21,8 +21,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from encons.errors import DataError
-from encons.io import save_npz
+from encons.infra.errors import DataError
+from encons.infra.io import save_npz
 
 SPLITS = ("train", "val", "test")
 
@@ -34,7 +34,7 @@ def config_hash(config: dict) -> str:
 
 def save(path: Path, t: Tensor, splits: dict[str, Tensor], chart: str,
          inputs: dict[str, Tensor] | None = None, observations: dict[str, Tensor] | None = None) -> None:
-    """Write trajectories (and their inputs and frames per split, if any) atomically (``encons.io``)."""
+    """Write trajectories (and their inputs and frames per split, if any) atomically (``encons.infra.io``)."""
     arrays = {k: v.numpy() for k, v in splits.items()}
     arrays.update({f"u_{k}": v.numpy() for k, v in (inputs or {}).items()})
     arrays.update({f"obs_{k}": v.numpy() for k, v in (observations or {}).items()})

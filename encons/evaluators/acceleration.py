@@ -5,19 +5,19 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING
 
-from encons import metrics
-from encons.errors import ConfigError
+from encons.numerics import metrics
+from encons.infra.errors import ConfigError
 from encons.evaluators.base import Evaluator, Result
-from encons.integrators import state_derivative
+from encons.numerics.integrators import state_derivative
 
 if TYPE_CHECKING:
-    from encons.learner import Learner
+    from encons.numerics.learner import Learner
 
 log = logging.getLogger(__name__)
 
 
 class Acceleration(Evaluator):
-    """``accel_mse``: Xiao et al.'s loss (§3, (1/|S|) Σ ‖q̈̃ − q̈‖², ``encons.metrics.acceleration_mse``) at
+    """``accel_mse``: Xiao et al.'s loss (§3, (1/|S|) Σ ‖q̈̃ − q̈‖², ``encons.numerics.metrics.acceleration_mse``) at
     held-out states — the model's field against the system's true field at each state of the test
     trajectories' first ``data.n_steps`` + 1 steps (the time span a training trajectory covers), no
     rollout. The paper tests on a random half of its (x_t, x_{t+1}) pairs and prints that test error,

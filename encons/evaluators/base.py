@@ -1,10 +1,10 @@
 """The evaluator interface: what a test run scores, one class per way of scoring.
 
-The LightningModule (``encons.module.TrainingModule``) holds the run's evaluators (``conf/evaluators``,
+The LightningModule (``encons.training.module.TrainingModule``) holds the run's evaluators (``conf/evaluators``,
 chosen as ``evaluators=[states,santos]``). At the start of testing it calls each one's ``reset``; on
 every test batch ``update`` with that batch's :class:`TestBatch`; at the end of the test epoch
 ``compute``, whose :class:`Result` it merges (a metric or curve name given twice is an error) and logs as
-``test/<name>``; where figures are saved, ``figures``. One writer (``encons.callbacks.TestResults``)
+``test/<name>``; where figures are saved, ``figures``. One writer (``encons.training.callbacks.TestResults``)
 saves the merged metrics (``test_metrics.json``), curves (``test_curves.npz``) and figures
 (``figures/<stem>.png``) once. Hooks run inside Lightning's test loop: no gradients, the model in eval mode.
 """
@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 from torch import Tensor
 
 if TYPE_CHECKING:
-    from encons.learner import Learner
+    from encons.numerics.learner import Learner
 
 
 @dataclass
@@ -73,7 +73,7 @@ class Evaluator(ABC):
         return {}
 
     def ensemble_figures(self, module: Learner, members: list[Evaluator], seeds: list[int]) -> dict[str, Figure]:
-        """Figures of a seed ensemble (``encons.ensemble``), from its ``members``' evaluators of this name after
+        """Figures of a seed ensemble (``encons.training.ensemble``), from its ``members``' evaluators of this name after
         each member's test (``module``: the first member): where the members' spread shows. Default: none."""
         return {}
 

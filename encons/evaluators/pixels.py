@@ -8,12 +8,14 @@ from typing import TYPE_CHECKING
 from matplotlib.figure import Figure
 from torch import Tensor
 
-from encons import metrics, plots
-from encons.errors import ConfigError
+from encons.evaluators import figures
+
+from encons.numerics import metrics
+from encons.infra.errors import ConfigError
 from encons.evaluators.base import Evaluator, Result, TestBatch, gathered
 
 if TYPE_CHECKING:
-    from encons.learner import Learner
+    from encons.numerics.learner import Learner
 
 log = logging.getLogger(__name__)
 
@@ -75,5 +77,5 @@ class Pixels(Evaluator):
         t, mse, still, floor, pred, states, frames, x = self.drawn
         title = module.run_title()
         references = {"first frame held": still, "autoencoder floor": floor}
-        return {**plots.pixel_mse_figure(t, mse, title, references), **plots.latent_phase_figure(pred, states, title),
-                **plots.frames_figure(t, frames, x, title)}
+        return {**figures.pixel_mse_figure(t, mse, title, references), **figures.latent_phase_figure(pred, states, title),
+                **figures.frames_figure(t, frames, x, title)}

@@ -8,15 +8,17 @@ import torch
 from matplotlib.figure import Figure
 from torch import Tensor
 
-from encons import metrics, plots
-from encons.bounds import Count, Declared, Range, Seed
+from encons.evaluators import figures
+
+from encons.numerics import metrics
+from encons.infra.bounds import Count, Declared, Range, Seed
 from encons.data.simulate import simulate
-from encons.errors import ConfigError
+from encons.infra.errors import ConfigError
 from encons.evaluators.base import Evaluator, Result
-from encons.integrators import rollout
+from encons.numerics.integrators import rollout
 
 if TYPE_CHECKING:
-    from encons.learner import Learner
+    from encons.numerics.learner import Learner
 
 
 class SantosMetrics(Evaluator, Declared):
@@ -94,10 +96,10 @@ class SantosMetrics(Evaluator, Declared):
         """``integration``: configuration and true energy along the first integration trajectory."""
         if self.drawn is None:
             return {}
-        return plots.integration_figure(*self.drawn, chart=module.model.chart, title=module.run_title())
+        return figures.integration_figure(*self.drawn, chart=module.model.chart, title=module.run_title())
 
 
-def q_angles(module: TrainingModule) -> Tensor | None:
+def q_angles(module: Learner) -> Tensor | None:
     """Which coordinates q of the model's chart are angles (compared on the circle), or None."""
     mask = module.system.angle_entries(module.model.chart)
     return None if mask is None else mask[: module.model.n]

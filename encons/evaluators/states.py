@@ -9,18 +9,20 @@ import torch
 from matplotlib.figure import Figure
 from torch import Tensor
 
-from encons import metrics, plots
-from encons.errors import ConfigError
+from encons.evaluators import figures
+
+from encons.numerics import metrics
+from encons.infra.errors import ConfigError
 from encons.evaluators.base import Evaluator, Result, TestBatch, gathered
 
 if TYPE_CHECKING:
-    from encons.learner import Learner
+    from encons.numerics.learner import Learner
 
 log = logging.getLogger(__name__)
 
 
 class States(Evaluator):
-    """Test rollouts scored in the system's common chart (``encons.metrics.summarise``: trajectory relative
+    """Test rollouts scored in the system's common chart (``encons.numerics.metrics.summarise``: trajectory relative
     error over the ``horizon`` and, as ``traj_rel_err_window``, over the whole test window, final relative
     error, Finzi's geometric mean, valid prediction time, energy errors where the physics is known, the
     divergence fraction; ``windows``, the number of test windows those are means over), the constant and
@@ -85,14 +87,14 @@ class States(Evaluator):
 
     def figures(self, module: Learner) -> dict[str, Figure]:
         """``mse_vs_time`` (model and baselines), ``rollout`` (with the linear-ODE baseline's rollout),
-        ``relative_error`` and ``energy_error`` (``encons.plots``)."""
+        ``relative_error`` and ``energy_error`` (``encons.evaluators.figures``)."""
         t, pred_c, true_c, energies, curves, baseline = self.drawn  # the linear-ODE rollout compute scored
         units, title = module.system.units(module.system.common_chart), module.run_title()
-        time_label = plots.TIME if module.system.known_physics else plots.DATA_TIME
-        names = plots.coordinate_names(true_c.shape[-1], module.system.layout if module.system.common_chart == "cartesian"
+        time_label = figures.TIME if module.system.known_physics else figures.DATA_TIME
+        names = figures.coordinate_names(true_c.shape[-1], module.system.layout if module.system.common_chart == "cartesian"
                                        else None)
-        return {**plots.mse_figure(t.cpu(), curves, title=title, units=units, time_label=time_label),
-                **plots.rollout_figures(t.cpu(), pred_c.cpu(), true_c.cpu(),
+        return {**figures.mse_figure(t.cpu(), curves, title=title, units=units, time_label=time_label),
+                **figures.rollout_figures(t.cpu(), pred_c.cpu(), true_c.cpu(),
                                         [e.cpu() for e in energies] if energies else None, title=title,
                                         units=units, baseline=baseline.cpu(), angles=module.compared_angles,
                                         names=names, time_label=time_label, chart=module.system.common_chart)}
@@ -102,9 +104,9 @@ class States(Evaluator):
         test rollouts (the same windows for every member)."""
         t, _, true_c, *_ = self.drawn
         preds = torch.stack([m.drawn[1] for m in members]).cpu()
-        names = plots.coordinate_names(true_c.shape[-1], module.system.layout if module.system.common_chart == "cartesian"
+        names = figures.coordinate_names(true_c.shape[-1], module.system.layout if module.system.common_chart == "cartesian"
                                        else None)
-        return plots.ensemble_figures(t.cpu(), preds, true_c.cpu(), module.run_title(), seeds,
+        return figures.ensemble_figures(t.cpu(), preds, true_c.cpu(), module.run_title(), seeds,
                                       units=module.system.units(module.system.common_chart),
                                       angles=module.compared_angles, names=names,
-                                      time_label=plots.TIME if module.system.known_physics else plots.DATA_TIME)
+                                      time_label=figures.TIME if module.system.known_physics else figures.DATA_TIME)

@@ -4,12 +4,12 @@ Data come as ``s = (q, q̇)`` in the model's chart; ``to_internal`` maps them to
 state a continuous field acts on (e.g. ``(q, p)`` for Hamiltonian models, p = M(q) q̇) and
 ``from_internal`` maps back. (An observation model's ``encode``/``decode`` are another map:
 observations such as frames to states and back, ``encons.models.observation``.) Exogenous inputs ``u`` (controls, per-trajectory parameters; shape (..., m)) travel beside
-the state in one argument, never inside it. ``encons.integrators.rollout`` is the one way to roll
+the state in one argument, never inside it. ``encons.numerics.integrators.rollout`` is the one way to roll
 any model out: continuous fields through torchdiffeq, discrete models (``DiscreteModel``) by their
 own ``rollout``.
 
 What a model supports is declared by class attributes, checked once when a run is built
-(``encons.config.check_capabilities``): ``discrete``, ``supports_controls``, ``needs_constraints``,
+(``encons.config.check.check_capabilities``): ``discrete``, ``supports_controls``, ``needs_constraints``,
 ``history`` and ``objectives``.
 """
 
@@ -21,8 +21,8 @@ from typing import Callable, ClassVar, Iterator
 import torch
 from torch import Tensor, nn
 
-from encons.bounds import Declared
-from encons.errors import ConfigError
+from encons.infra.bounds import Declared
+from encons.infra.errors import ConfigError
 from encons.systems.base import System
 
 
@@ -76,7 +76,7 @@ class DynamicsModel(nn.Module, Declared):
 
     @contextmanager
     def rollout_scope(self) -> Iterator[None]:
-        """One rollout with fixed parameters (``encons.integrators.rollout`` enters it): a model may
+        """One rollout with fixed parameters (``encons.numerics.integrators.rollout`` enters it): a model may
         compute what depends on its parameters alone once here instead of per field evaluation
         (CHNN/CLNN: the inverse mass matrix). Default: nothing."""
         yield

@@ -14,9 +14,10 @@ from typing import Iterator
 import torch
 from torch import Tensor
 
-from encons.bounds import Count
+from encons.infra.bounds import Count
 from encons.models.base import DynamicsModel
-from encons.models.networks import MLPTape, PointMasses, Potential
+from encons.models.networks import MLPTape
+from encons.models.parts import PointMasses, Potential
 from encons.systems.base import System, split_state
 from encons.systems.constrained import (
     constrained_acceleration,

@@ -10,10 +10,11 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from encons.bounds import Count
+from encons.infra.bounds import Count
 from encons.models.base import DynamicsModel
 from encons.models.lnn import LNN, SECOND_ORDER_OBJECTIVES, Guard, guarded_solve
-from encons.models.networks import embed_angles, embedded_width, mlp
+from encons.models.networks import mlp
+from encons.models.parts import embed_angles, embedded_width
 from encons.systems.base import System, split_state
 
 

@@ -11,10 +11,11 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from encons.bounds import Count
-from encons.batching import batched_grad
+from encons.infra.bounds import Count
+from encons.infra.batching import batched_grad
 from encons.models.base import DynamicsModel
-from encons.models.networks import AngleEmbedding, CholeskyMass, MLPTape, embed_angles, mlp
+from encons.models.networks import MLPTape, mlp
+from encons.models.parts import AngleEmbedding, CholeskyMass, embed_angles
 from encons.models.structured import MassPotentialModel
 from encons.systems.base import System, split_state
 

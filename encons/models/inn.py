@@ -4,7 +4,7 @@ z = g(s) (eq. (5)), g a stack of Glow-style blocks (Kingma & Dhariwal 2018; the 
 FrEIA's ``AllInOneBlock`` the authors used): an affine coupling with soft-clamped log-scales,
 a global affine scaling and a fixed random rotation. The latent field ż = f(z) is an MLP.
 Rollouts integrate z and map back with g⁻¹ (``from_internal``), which is integrating the pushed-back field
-ṡ = (∂g⁻¹/∂z) f(g(s)) of eq. (6) (``encons.integrators.state_derivative`` evaluates it);
+ṡ = (∂g⁻¹/∂z) f(g(s)) of eq. (6) (``encons.numerics.integrators.state_derivative`` evaluates it);
 regularisers act on f at g(s), eq. (7).
 """
 
@@ -13,8 +13,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from encons.bounds import Count, Positive
-from encons.errors import ConfigError
+from encons.infra.bounds import Count, Positive
+from encons.infra.errors import ConfigError
 from encons.models.base import DynamicsModel
 from encons.models.networks import mlp
 from encons.systems.base import System

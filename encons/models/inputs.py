@@ -15,8 +15,9 @@ from __future__ import annotations
 
 from torch import Tensor, nn
 
-from encons.errors import ConfigError
-from encons.models.networks import embed_angles, embedded_width, mlp, run
+from encons.infra.errors import ConfigError
+from encons.models.networks import mlp, run
+from encons.models.parts import embed_angles, embedded_width
 from encons.systems.base import System
 
 INPUT_MATRICES = ("known", "learned")

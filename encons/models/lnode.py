@@ -16,10 +16,10 @@ import torch
 from torch import Tensor
 from torch.func import grad, jvp
 
-from encons.bounds import Count
+from encons.infra.bounds import Count
 from encons.models import inputs
 from encons.models.base import DynamicsModel, angle_mask
-from encons.models.networks import CholeskyMass, Potential
+from encons.models.parts import CholeskyMass, Potential
 from encons.systems.base import System, split_state
 
 
@@ -47,7 +47,7 @@ def forced_euler_lagrange(mass: Callable[[Tensor], Tensor], potential: Callable[
                           u: Tensor | None = None) -> Tensor:
     """ds/dt of eq. (4) for any M(q) (``mass``), V(q) (``potential``) and input matrix (``input_matrix``:
     a constant B (n, m) or a function q ↦ g(q) (..., n, m)): L-NODE's field, and the continuous
-    Euler–Lagrange equations of the learned M and V of SyMo and the structured models (``encons.control``)."""
+    Euler–Lagrange equations of the learned M and V of SyMo and the structured models (``encons.tools.control``)."""
     q, qd = split_state(s)
 
     def lagrangian(qi: Tensor) -> tuple[Tensor, tuple[Tensor, Tensor]]:

@@ -1,4 +1,6 @@
-"""Building blocks shared by the models: MLPs, angle embedding, Cholesky M(q), V(q), Cartesian masses."""
+"""The networks every model is made of: MLPs, their ensemble layers (a member axis on the weights) and their closed
+forms (``MLPTape``: pullback, push and curvature without autograd). The physical parts built of them live in
+``encons.models.parts``."""
 
 from __future__ import annotations
 
@@ -8,8 +10,7 @@ from typing import Callable
 import torch
 from torch import Tensor, nn
 
-from encons.errors import ConfigError
-from encons.systems.base import CartesianLayout
+from encons.infra.errors import ConfigError
 
 ACTIVATIONS = {"softplus": nn.Softplus, "tanh": nn.Tanh, "relu": nn.ReLU, "silu": nn.SiLU}
 
@@ -116,7 +117,7 @@ def _narrow(width: int) -> bool:
 class EnsembleLinear(nn.Module):
     """K ``nn.Linear`` layers as one: ``weight`` (K, out, in) and ``bias`` (K, out) (or None), on inputs whose
     leading axis is the member axis, (K, ..., in) -> (K, ..., out), by one batched product (the ensemble
-    dimension written into the layer; ``encons.stacked`` builds seed ensembles of them). ``MLPTape`` and
+    dimension written into the layer; ``encons.training.stacked`` builds seed ensembles of them). ``MLPTape`` and
     ``narrow_in``/``narrow_out`` read these weights per member too."""
 
     def __init__(self, layers: Sequence[nn.Linear]):
@@ -145,7 +146,7 @@ def member_view(t: Tensor, dim: int) -> Tensor:
 
 def product(x: Tensor, w: Tensor) -> Tensor:
     """x @ w for a matrix w (a, b), or per member for member-stacked matrices w (K, a, b) and x (K, ..., a) whose
-    leading axis is the member axis (an ensemble's networks, ``encons.stacked.EnsembleLinear``): one batched
+    leading axis is the member axis (an ensemble's networks, ``encons.training.stacked.EnsembleLinear``): one batched
     product for all members."""
     if w.dim() == 2:
         return x @ w
@@ -206,7 +207,7 @@ class MLPTape:
     uᵀ ∇²f v = Σ_k Σ_j ḡ_kj σ''(z_kj) ż_kj(u) ż_kj(v) with ḡ_k = ∂f/∂a_k from ``pullback`` and ż_k
     the forward tangents from ``push``, so a Hessian block costs one forward tangent per direction
     instead of a Hessian-vector product (reverse over reverse). Values equal autodiff's to rounding.
-    Member-stacked layers (``encons.stacked.EnsembleLinear``: weights (K, out, in)) act per member on inputs
+    Member-stacked layers (``encons.training.stacked.EnsembleLinear``: weights (K, out, in)) act per member on inputs
     whose leading axis is the member axis: one batched product per layer for all members.
     """
 
@@ -315,170 +316,3 @@ def layer_curvature(rows: int, tangents: list[Tensor], weights: list[Tensor]) ->
     if torch.compiler.is_compiling():
         return _layer_curvature(rows, tangents, weights)
     return LayerCurvature.apply(rows, *tangents, *weights)
-
-
-Angular = bool | tuple[bool, ...]
-
-
-def embed_angles(q: Tensor, angular: Angular) -> Tensor:
-    """(cos q, sin q) for angle-aware models (Zhong et al. §3, "-angle" variants), else q.
-
-    ``angular`` may mark each coordinate (a tuple of bools): then the translations come first,
-    unchanged, followed by (cos, sin) of the marked angles (Santos et al. §5.3, "embeddings").
-    """
-    if isinstance(angular, bool):
-        return torch.cat([torch.cos(q), torch.sin(q)], -1) if angular else q
-    angles = q[..., [i for i, a in enumerate(angular) if a]]
-    return torch.cat([q[..., [i for i, a in enumerate(angular) if not a]], torch.cos(angles), torch.sin(angles)], -1)
-
-
-class AngleEmbedding:
-    """``embed_angles(q, angular)`` (``x``), with cos and sin of the angles computed once for its forward
-    (``jvp``) and reverse (``vjp``) derivatives. A per-coordinate ``angular`` (e.g. the cart-pole's
-    (False, True)) keeps the translations first, unchanged, as ``embed_angles`` does."""
-
-    def __init__(self, q: Tensor, angular: Angular):
-        self.angular = angular
-        if angular is False:
-            self.x = q
-            return
-        if angular is True:
-            self.linear, self.angles = [], slice(None)  # a slice: no gathered copy of q
-        else:
-            self.linear = [i for i, a in enumerate(angular) if not a]
-            self.angles = [i for i, a in enumerate(angular) if a]
-            self.order = torch.tensor(self.linear + self.angles, device=q.device).argsort()  # [lin, ang] -> q order
-        angles = q[..., self.angles]
-        self.cos, self.sin = torch.cos(angles), torch.sin(angles)
-        self.x = torch.cat([q[..., self.linear], self.cos, self.sin], -1) if self.linear else \
-            torch.cat([self.cos, self.sin], -1)
-
-    def jvp(self, tangent: Tensor) -> Tensor:
-        """∂embed_angles(q)/∂q · t for tangents t (..., n)."""
-        if self.angular is False:
-            return tangent
-        angles = tangent[..., self.angles]
-        parts = [-self.sin * angles, self.cos * angles]
-        return torch.cat([tangent[..., self.linear], *parts] if self.linear else parts, -1)
-
-    def vjp(self, cotangent: Tensor) -> Tensor:
-        """gᵀ ∂embed_angles(q)/∂q for cotangents g on the embedding."""
-        if self.angular is False:
-            return cotangent
-        if isinstance(self.angular, bool):
-            cos, sin = cotangent.chunk(2, -1)
-            return self.cos * sin - self.sin * cos
-        k = len(self.linear)
-        cos, sin = cotangent[..., k:].chunk(2, -1)
-        return torch.cat([cotangent[..., :k], self.cos * sin - self.sin * cos], -1)[..., self.order]
-
-
-def embedded_width(n: int, angular: Angular) -> int:
-    """Width of ``embed_angles`` of n coordinates."""
-    return n + (n * angular if isinstance(angular, bool) else sum(angular))
-
-
-class CholeskyMass(nn.Module):
-    """M(q) = L(q) L(q)ᵀ with L lower triangular, softplus diagonal + ``eps`` (Zhong et al. §3).
-
-    With ``extra`` > 0 the same network has ``extra`` more outputs (``factor``): a trunk shared
-    with another head, e.g. V(q) in the structured models (one forward for both).
-    """
-
-    def __init__(self, n: int, angular: Angular, hidden: int, depth: int, activation: str, eps: float,
-                 extra: int = 0):
-        super().__init__()
-        self.n, self.angular, self.eps = n, angular, eps
-        rows, cols = torch.tril_indices(n, n)
-        self.entries = len(rows)
-        self.register_buffer("diag", rows == cols, persistent=False)
-        self.register_buffer("scatter", nn.functional.one_hot(rows * n + cols, n * n).float(), persistent=False)
-        self.net = mlp(embedded_width(n, angular), self.entries + extra, hidden, depth, activation)
-
-    def factor(self, q: Tensor) -> tuple[Tensor, Tensor]:
-        """L(q) (..., n, n) and the ``extra`` outputs (..., extra) of one network forward."""
-        return self.head(run(self.net, embed_angles(q, self.angular)))
-
-    def head(self, out: Tensor) -> tuple[Tensor, Tensor]:
-        """L and the ``extra`` outputs from the network's outputs ``out`` (..., entries + extra)."""
-        entries = out[..., :self.entries]
-        entries = torch.where(self.diag, nn.functional.softplus(entries) + self.eps, entries)
-        return self.lower(entries), out[..., self.entries:]
-
-    def head_slopes(self, out: Tensor) -> Tensor:
-        """∂(entry of L)/∂(its output) (..., entries): softplus' σ' (sigmoid) on the diagonal, 1 below."""
-        entries = out[..., :self.entries]
-        return torch.where(self.diag, torch.sigmoid(entries), torch.ones_like(entries))
-
-    def lower(self, entries: Tensor) -> Tensor:
-        """The lower-triangular (..., n, n) matrix with ``entries`` (..., entries) row by row."""
-        return (entries @ self.scatter.to(entries)).unflatten(-1, (self.n, self.n))
-
-    def lower_adjoint(self, matrix: Tensor) -> Tensor:
-        """Adjoint of ``lower``: the cotangent of the entries for a cotangent ``matrix`` (..., n, n)."""
-        return matrix.flatten(-2) @ self.scatter.to(matrix).T
-
-    def cholesky(self, q: Tensor) -> Tensor:
-        """L(q), shape (..., n, n)."""
-        return self.factor(q)[0]
-
-    def forward(self, q: Tensor) -> Tensor:
-        """M(q), shape (..., n, n)."""
-        factor = self.cholesky(q)
-        return factor @ factor.transpose(-1, -2)
-
-    def solve(self, q: Tensor, p: Tensor) -> Tensor:
-        """M(q)⁻¹ p through the Cholesky factor."""
-        return torch.cholesky_solve(p.unsqueeze(-1), self.cholesky(q)).squeeze(-1)
-
-
-class Potential(nn.Module):
-    """V(q): an MLP to a scalar, angles embedded on S¹ when ``angular`` (Zhong et al. §3)."""
-
-    def __init__(self, n: int, angular: Angular, hidden: int, depth: int, activation: str):
-        super().__init__()
-        self.angular = angular
-        self.net = mlp(embedded_width(n, angular), 1, hidden, depth, activation, out_bias=False)
-
-    def forward(self, q: Tensor) -> Tensor:
-        """V(q), shape ``q.shape[:-1]``."""
-        return run(self.net, embed_angles(q, self.angular)).squeeze(-1)
-
-
-class PointMasses(nn.Module):
-    """Constant Cartesian masses, exp-parametrised (Zhong et al. §4.1), one set per body of ``layout``.
-
-    A point mass learns its mass; a rigid body its mass and one axis "inertia" per axis point
-    (Finzi et al. 2020), kinetic energy ½ m |ẋ_c|² + ½ Σ_i I_i |ẋ_i − ẋ_c|². In body coordinates
-    y = T x (y_c = x_c, y_i = x_i − x_c; a point mass is its own row) that is ½ Σ_k c_k |y_k|²
-    with c the parameters, so the matrix over points is Mp = Tᵀ diag(c) T and its inverse
-    T⁻¹ diag(1/c) T⁻ᵀ in closed form: no loop, no scatter, no matrix inversion per call (T and
-    T⁻¹ are constants of the layout). Equals ``point_mass_matrix``.
-    """
-
-    def __init__(self, layout: CartesianLayout):
-        super().__init__()
-        self.layout = layout
-        self.log_params = nn.ParameterList([nn.Parameter(torch.zeros(len(points))) for points in layout.bodies])
-        frame = torch.zeros(layout.n_points, layout.n_points, dtype=torch.float64)
-        row = 0
-        for points in layout.bodies:  # once, at build; rows in the order of the parameters
-            for k, point in enumerate(points):
-                frame[row, point] = 1.0
-                if k and len(points) > 1:
-                    frame[row, points[0]] = -1.0
-                row += 1
-        self.register_buffer("frame", frame.float(), persistent=False)
-        self.register_buffer("frame_inverse", torch.linalg.inv(frame).float(), persistent=False)
-
-    def params(self) -> Tensor:
-        """c: every body's positive parameters, concatenated (n_points,)."""
-        return torch.cat(list(self.log_params)).exp()
-
-    def forward(self) -> Tensor:
-        """The (n_points, n_points) mass matrix over points, Tᵀ diag(c) T."""
-        return (self.frame.T * self.params()) @ self.frame
-
-    def inverse(self) -> Tensor:
-        """Its inverse T⁻¹ diag(1/c) T⁻ᵀ."""
-        return (self.frame_inverse * self.params().reciprocal()) @ self.frame_inverse.T

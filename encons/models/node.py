@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from encons.bounds import Count
+from encons.infra.bounds import Count
 from encons.models.base import DynamicsModel
 from encons.models.networks import mlp
 from encons.systems.base import System

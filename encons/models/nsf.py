@@ -12,8 +12,8 @@ import torch
 from torch import Tensor
 from torch.func import grad, jacfwd
 
-from encons.bounds import Count
-from encons.batching import batched
+from encons.infra.bounds import Count
+from encons.infra.batching import batched
 from encons.models.base import DynamicsModel
 from encons.models.networks import mlp
 from encons.systems.base import System

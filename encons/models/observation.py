@@ -14,11 +14,10 @@ from __future__ import annotations
 
 from typing import Annotated, ClassVar
 
-import torch
 from torch import Tensor, nn
 
-from encons.bounds import Count, Declared, NonNegative, Range
-from encons.errors import ConfigError, DataError
+from encons.infra.bounds import Count, Declared, NonNegative, Range
+from encons.infra.errors import ConfigError, DataError
 from encons.models.networks import ACTIVATIONS, mlp
 from encons.systems.base import System
 from encons.systems.latent import LatentSystem

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from encons.bounds import Count
+from encons.infra.bounds import Count
 from encons.models import inputs
 from encons.models.base import DynamicsModel, angle_mask
-from encons.models.networks import CholeskyMass, Potential
+from encons.models.parts import CholeskyMass, Potential
 from encons.systems.base import System
 
 

@@ -29,10 +29,10 @@ import torch
 from torch import Tensor
 from torch.func import grad, vjp, vmap
 
-from encons.bounds import Count, Positive, Range
-from encons.errors import ConfigError
+from encons.infra.bounds import Count, Positive, Range
+from encons.infra.errors import ConfigError
 from encons.models.base import DiscreteModel, DynamicsModel, angle_mask
-from encons.models.networks import CholeskyMass, Potential
+from encons.models.parts import CholeskyMass, Potential
 from encons.systems.base import System
 
 

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from encons.bounds import Declared
-from encons.errors import ChartError, ConfigError, PhysicsError
+from encons.infra.bounds import Declared
+from encons.infra.errors import ChartError, ConfigError, PhysicsError
 from encons.systems.constrained import DistanceConstraints, constrained_acceleration, full_mass_matrix
 
 
@@ -134,7 +134,7 @@ class System(Declared, abc.ABC):
         return ("rad" if chart == "angle" else "m",) * self.coord_dim(chart)
 
     def angle_entries(self, chart: str) -> Tensor | None:
-        """Which of the 2n state entries in ``chart`` are angles (bool (2n,), for ``encons.metrics``): the
+        """Which of the 2n state entries in ``chart`` are angles (bool (2n,), for ``encons.numerics.metrics``): the
         declared ``angles`` in the angle chart (their rates are not); None where there are none."""
         if self.angles is None or not any(self.angles) or chart != "angle":
             return None

@@ -19,8 +19,8 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from encons.bounds import Count, NonNegative, Positive
-from encons.errors import ConfigError
+from encons.infra.bounds import Count, NonNegative, Positive
+from encons.infra.errors import ConfigError
 from encons.systems.mechanical import Mechanical
 
 

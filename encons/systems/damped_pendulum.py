@@ -13,7 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from encons.bounds import Count, NonNegative, Positive
+from encons.infra.bounds import Count, NonNegative, Positive
 from encons.systems.base import split_state
 from encons.systems.pendulum import NPendulum, PerLink, Pixels
 

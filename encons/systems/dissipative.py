@@ -17,7 +17,7 @@ import abc
 import torch
 from torch import Tensor
 
-from encons.bounds import NonNegative, Positive
+from encons.infra.bounds import NonNegative, Positive
 from encons.systems.base import split_state
 from encons.systems.mechanical import Mechanical
 

@@ -19,8 +19,8 @@ import torch
 from torch import Tensor
 from torch.func import jvp
 
-from encons.bounds import Finite, NonNegative, Positive, Range
-from encons.errors import ConfigError
+from encons.infra.bounds import Finite, NonNegative, Positive, Range
+from encons.infra.errors import ConfigError
 from encons.systems.base import CartesianLayout, PointSystem, point_mass_matrix, split_state
 from encons.systems.constrained import DistanceConstraints
 

@@ -8,7 +8,7 @@ the observed system, whose frames or states the metrics compare.
 
 from __future__ import annotations
 
-from encons.errors import ConfigError
+from encons.infra.errors import ConfigError
 from encons.systems.base import DataOnlySystem, System
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from encons.bounds import Positive
+from encons.infra.bounds import Positive
 from encons.systems.base import System, split_state
 
 

@@ -15,8 +15,8 @@ from typing import Annotated
 import torch
 from torch import Tensor
 
-from encons.bounds import Count, NonNegative, Positive, Range
-from encons.errors import ConfigError
+from encons.infra.bounds import Count, NonNegative, Positive, Range
+from encons.infra.errors import ConfigError
 from encons.systems.base import CartesianLayout, PointSystem, point_mass_matrix, split_state
 from encons.systems.constrained import DistanceConstraints
 from encons.systems.render import render_rods

@@ -9,7 +9,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from encons.errors import ConfigError
+from encons.infra.errors import ConfigError
 from encons.systems.base import System, split_state
 
 

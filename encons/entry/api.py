@@ -1,0 +1,50 @@
+"""The Python API: compose a config, build, train, load a run back, evaluate it, roll a model out.
+
+    import encons
+    cfg = encons.compose("model=hnn_angle", "system=pendulum1", "debug=fast")
+    run = encons.train(cfg)              # Run: trained module (best checkpoint), metrics, run folder
+    again = encons.load(run.run_dir)     # from the checkpoint alone: it carries its config
+    encons.evaluate(again)               # the same test metrics, to the digit
+
+A facade over ``encons.training.build`` (compose, instantiate), ``encons.config.check`` (validate once) and
+``encons.training.runs`` (train, load, evaluate); the CLI (``encons.entry.cli``) calls the same functions. Lightning and torch are imported on
+first use, not at import.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from encons.training.build import build, build_trainer, catalogue
+from encons.training.build import compose as _compose
+from encons.training import runs
+from encons.config.check import validate
+from encons.training.results import Ensemble, Run
+from encons.training.runs import evaluate, load
+
+__all__ = ["Run", "Ensemble", "compose", "validate", "build", "build_trainer", "train", "load", "evaluate",  # noqa: F822
+           "rollout", "catalogue"]  # rollout: from __getattr__
+
+
+def __getattr__(name: str):  # ``rollout`` re-exported without importing torch at ``import encons.entry.api``
+    if name == "rollout":
+        from encons.numerics.integrators import rollout
+
+        return rollout
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def train(cfg: DictConfig | str | Sequence[str], summary: bool = True) -> Run | Ensemble:
+    """Train a composed config, or the config ``compose`` makes of overrides (a string or a list of them).
+    See :func:`encons.training.runs.train`."""
+    return runs.train(cfg if isinstance(cfg, DictConfig) else compose(cfg), summary)
+
+
+def compose(*overrides: str, output_dir: str | Path | None = None, cache_dir: str | Path | None = None) -> DictConfig:
+    """The run config the CLI would compose from ``overrides`` (``"model=hnn"``, ``"trainer.max_epochs=5"``;
+    a list works too). ``output_dir`` defaults to the CLI's run folder (``outputs/<system>-<model>/<time>``)."""
+    flat = [o for item in overrides for o in ([item] if isinstance(item, str) else item)]
+    return _compose(flat, output_dir, cache_dir)

@@ -1,0 +1,1 @@
+"""The commands' libraries: benchmark grids, sweeps, reports and their figures, the rendered docs, control."""

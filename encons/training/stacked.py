@@ -1,0 +1,301 @@
+"""The stacked path of a seed ensemble (``encons.training.ensemble``): K members' networks as one model.
+
+``StackedModel`` evaluates every member in one call, two ways. With the ensemble dimension (``dimension_model``:
+a model whose parameters all live in ``nn.Linear`` layers) a copy of the model has each layer replaced by an
+``EnsembleLinear`` of the members' layers, and the model's own code runs once on rows (K, N, ...) whose leading
+axis is the member axis: its field, ``to_internal``/``from_internal``, SyMo's ``residual``, a discrete model's
+``rollout`` (E2E-SyMo's Newton iterations, each sample of each member converging on its own), a regulariser's
+Jacobians. Otherwise ``vmap`` over the member axis of ``functional_call`` on one template of the model
+(``torch.func.stack_module_state``), for CHNN/CLNN (their masses), the INN (its coupling scales) and NSF (a
+per-sample field); ``vmap`` cannot pass a branch on values, so a discrete model's rollout needs the dimension.
+
+Outside the model the member axis is folded into the batch axis (member-major: rows ``k·N … (k+1)·N − 1`` are
+member ``k``'s copy of the batch), so the integrator, the objective and the rollout code run once, unchanged, on
+K·N windows; each objective means its terms by ``TrainingModule.reduce``, which ``StackedTraining`` takes per
+member, giving the K losses whose sum's gradient is each member's own. One optimiser over the stacked
+parameters is K optimisers when it acts elementwise (Adam, AdamW, SGD): ``why_not`` checks this by name.
+Gradient clipping is per member (a norm over one member's slices); a schedule on a member's own metric
+(``ReduceLROnPlateau``) is one scheduler per member, whose learning-rate factor scales that member's step.
+Validation, checkpoints and tests use the members' own modules, into which the stacked weights are copied
+before each validation and at the end.
+
+``why_not`` names what no stacked way takes (an observation model's encoder, a non-elementwise optimiser,
+``compile``); ``probe`` checks on the first batch that the stacked losses equal the members' own;
+``step_times`` measures whether the stacked step is faster than the loop's (``encons.training.ensemble`` picks by it).
+"""
+
+from __future__ import annotations
+
+import copy
+import inspect
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+from torch.func import functional_call, stack_module_state, vjp, vmap
+
+from encons.models.base import DynamicsModel
+from encons.models.networks import EnsembleLinear
+from encons.training.module import TrainingModule
+
+ELEMENTWISE = ("Adam", "AdamW", "SGD", "RMSprop", "Adamax")  # optimisers whose step acts on each element alone
+
+
+def dimension_model(models: Sequence[DynamicsModel]) -> nn.Module | None:
+    """A copy of ``models[0]`` whose every ``nn.Linear`` is an ``EnsembleLinear`` of the members' layers; None
+    where a parameter lives outside ``nn.Linear`` layers, a buffer differs between members (a constant of the
+    model is shared), the members differ in layout, or the model keeps a per-rollout cache (``rollout_scope``)."""
+    if getattr(type(models[0]), "rollout_scope") is not getattr(DynamicsModel, "rollout_scope"):
+        return None
+    linears = [name for name, mod in models[0].named_modules() if isinstance(mod, nn.Linear)]
+    owned = {f"{n}.{p}" for n in linears for p in ("weight", "bias")}
+    if not linears or not {n for n, _ in models[0].named_parameters()} <= owned:
+        return None
+    buffers = [dict(m.named_buffers()) for m in models]
+    if any(b.keys() != buffers[0].keys() or not all(torch.equal(b[n], buffers[0][n]) for n in b) for b in buffers):
+        return None
+    if any([n for n, _ in m.named_parameters()] != [n for n, _ in models[0].named_parameters()] for m in models):
+        return None
+    stacked = copy.deepcopy(models[0])
+    for name in linears:
+        parent, _, leaf = name.rpartition(".")
+        setattr(stacked.get_submodule(parent) if parent else stacked, leaf,
+                EnsembleLinear([m.get_submodule(name) for m in models]))
+    return stacked
+
+
+class _Call(nn.Module):
+    """``model.<fn>(*args)`` (a method's name) or ``fn(model, *args)`` as a module's forward, so that
+    ``functional_call`` can run it on a member's weights."""
+
+    def __init__(self, model: nn.Module, fn: str | Callable[..., Any]):
+        super().__init__()
+        self.model, self.fn = model, fn
+
+    def forward(self, *args: Any) -> Any:
+        return getattr(self.model, self.fn)(*args) if isinstance(self.fn, str) else self.fn(self.model, *args)
+
+
+class StackedModel(nn.Module):
+    """K copies of one ``DynamicsModel`` with their parameters stacked (``weights``: member axis first).
+
+    Its ``forward(t, z, u)``, ``to_internal``, ``from_internal``, ``residual`` and ``rollout`` take tensors whose
+    leading axis is the member axis folded into the batch (member-major: rows ``k·N … (k+1)·N − 1`` are member
+    ``k``'s) and return the same layout: each member's own call on its rows, by the ensemble dimension in the
+    layers (``dimension``, where ``dimension_model`` allows it: measured faster than ``vmap``), else by ``vmap``
+    over the member axis of ``functional_call`` on one template. ``rollout_scope`` is empty: a model's
+    per-rollout cache (CHNN/CLNN's inverse masses) is the template's, so each field evaluation computes it from
+    the member's weights instead. ``penalty`` gives a regulariser per member.
+    """
+
+    def __init__(self, models: Sequence[DynamicsModel], dimension: bool = True):
+        super().__init__()
+        self.k = len(models)
+        self.dimension = dimension_model(models) if dimension else None
+        if self.dimension is not None:
+            self.names, self.buffer_names = [], []
+            layers = [layer for layer in self.dimension.modules() if isinstance(layer, EnsembleLinear)]
+            self.weights = nn.ParameterList([w for layer in layers for w in (layer.weight, layer.bias) if w is not None])
+            self.__dict__["template"] = self.dimension
+            return
+        params, buffers = stack_module_state(list(models))
+        self.names = list(params)
+        self.weights = nn.ParameterList([nn.Parameter(params[n].detach().clone()) for n in self.names])
+        self.buffer_names = list(buffers)
+        for i, name in enumerate(self.buffer_names):
+            self.register_buffer(f"stacked_buffer_{i}", buffers[name].clone())
+        self.__dict__["template"] = copy.deepcopy(models[0])  # not a submodule: its own weights are never used
+
+    def __getattr__(self, name: str) -> Any:  # chart, history, objectives, discrete, ...: the template's
+        try:
+            return super().__getattr__(name)
+        except AttributeError:
+            if "template" not in self.__dict__:  # still being built
+                raise
+            return getattr(self.__dict__["template"], name)
+
+    def member_weights(self) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
+        buffers = {n: getattr(self, f"stacked_buffer_{i}") for i, n in enumerate(self.buffer_names)}
+        return dict(zip(self.names, self.weights)), buffers
+
+    def fold(self, x: Tensor) -> Tensor:
+        return x.reshape(self.k, x.shape[0] // self.k, *x.shape[1:])
+
+    def per_member(self, fn: str | Callable[..., Any], args: tuple, folded: tuple[bool, ...]) -> Any:
+        """``template.<fn>(*args)`` (or ``fn(template, *args)``) for every member on its weights (vmap over the
+        member axis): the ``folded`` arguments are tensors folded member-major along their leading axis, the
+        others (times, points, None) are shared by all members. The result is folded the same way where an
+        argument was, else it gets a leading member axis."""
+        template = _Call(self.__dict__["template"], fn)
+        params, buffers = self.member_weights()
+        params = {f"model.{n}": v for n, v in params.items()}
+        buffers = {f"model.{n}": v for n, v in buffers.items()}
+        dims = tuple(0 if f else None for f in folded)
+        args = tuple(self.fold(a) if f else a for a, f in zip(args, folded))
+        out = vmap(lambda p, b, *xs: functional_call(template, (p, b), xs), in_dims=(0, 0, *dims))(params, buffers,
+                                                                                                   *args)
+        return out.reshape(-1, *out.shape[2:]) if any(folded) else out
+
+    def call(self, name: str, args: tuple, folded: tuple[bool, ...]) -> Any:
+        """The template's method ``name`` for all members: with the ensemble dimension in its layers, one call on
+        the ``folded`` arguments unfolded to (K, N, ...) (the model's code broadcasts over the extra leading
+        axis); else ``per_member``."""
+        if self.dimension is None:
+            return self.per_member(name, args, folded)
+        out = getattr(self.dimension, name)(*(self.fold(a) if f else a for a, f in zip(args, folded)))
+        return out.reshape(-1, *out.shape[2:])
+
+    def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
+        return self.call("forward", (t, z), (False, True)) if u is None else \
+            self.call("forward", (t, z, u), (False, True, True))
+
+    def to_internal(self, s: Tensor) -> Tensor:
+        return self.call("to_internal", (s,), (True,))
+
+    def from_internal(self, z: Tensor) -> Tensor:
+        return self.call("from_internal", (z,), (True,))
+
+    def residual(self, states: Tensor, t: Tensor, u: Tensor | None = None) -> Tensor:
+        return self.call("residual", (states, t), (True, False)) if u is None else \
+            self.call("residual", (states, t, u), (True, False, True))
+
+    def rollout(self, start: Tensor, t: Tensor, u: Tensor | None = None) -> Tensor:
+        """A discrete model's rollout (SyMo/E2E-SyMo: Newton iterations, each sample of each member converging on
+        its own), with the ensemble dimension only: ``vmap`` cannot pass its stopping test."""
+        return self.call("rollout", (start, t), (True, False)) if u is None else \
+            self.call("rollout", (start, t, u), (True, False, True))
+
+    @contextmanager
+    def rollout_scope(self) -> Iterator[None]:
+        yield
+
+    def penalty(self, regulariser: Any, points: Tensor, u: Tensor | None) -> Tensor:
+        """``regulariser(member, points, u)`` of every member (K,), at the same points for all. With the ensemble
+        dimension (``dimension_penalty``: a Jacobian penalty on the default constrained field), every member's
+        per-sample Jacobians come from one reverse pass per field dimension through the whole stacked field (its
+        rows are independent, so row b's cotangent e_j gives row j of row b's Jacobian); else ``per_member``."""
+        if self.dimension is None:
+            return self.per_member(regulariser, (points, u), (False, False))
+        s = points.repeat(self.k, 1)
+        u = None if u is None else u.repeat(self.k, 1)
+        z = self.to_internal(s)
+        t = torch.zeros((), dtype=s.dtype, device=s.device)
+        _, pullback = vjp(lambda z: self(t, z) if u is None else self(t, z, u), z)
+        basis = torch.eye(z.shape[-1], dtype=z.dtype, device=z.device).unsqueeze(1).expand(-1, *z.shape)
+        jac = vmap(pullback)(basis)[0].movedim(0, 1)  # (B, d out, d in)
+        return regulariser.weight * regulariser.violation(jac).reshape(self.k, -1).mean(1)
+
+
+    @torch.no_grad()
+    def copy_to(self, models: Sequence[nn.Module]) -> None:
+        """Write member ``k``'s slices into ``models[k]``'s own parameters and buffers."""
+        if self.dimension is not None:
+            for name, layer in self.dimension.named_modules():
+                if isinstance(layer, EnsembleLinear):
+                    for k, model in enumerate(models):
+                        model.get_submodule(name).weight.copy_(layer.weight[k])
+                        if layer.bias is not None:
+                            model.get_submodule(name).bias.copy_(layer.bias[k])
+            return
+        params, buffers = self.member_weights()
+        for k, model in enumerate(models):
+            own = dict(model.named_parameters()) | dict(model.named_buffers())
+            for name, value in (params | buffers).items():
+                own[name].copy_(value[k])
+
+
+def dimension_penalty(model: DynamicsModel, regulariser: Any) -> bool:
+    """Whether ``StackedModel.penalty`` takes ``regulariser`` with the ensemble dimension: a Jacobian penalty
+    (``encons.numerics.regularisers.JacobianPenalty``: a weight and a violation per Jacobian) of the default constrained
+    field (the internal field at ``to_internal(s)``; an INN's latent field is another)."""
+    return (regulariser is None or callable(getattr(regulariser, "violation", None))) and \
+        type(model).constrained_field is DynamicsModel.constrained_field
+
+
+class StackedTraining(TrainingModule):
+    """The training objective of all members at once: a ``TrainingModule`` on a ``StackedModel`` whose
+    ``reduce`` means each member's rows, so ``loss`` returns the K members' losses."""
+
+    def reduce(self, terms: Tensor) -> Tensor:
+        return terms.reshape(self.model.k, -1).mean(1)
+
+    def regularise(self, points: Tensor, u: Tensor | None) -> Tensor:
+        return self.model.penalty(self.regulariser, points, u)
+
+    def member_losses(self, batch: dict) -> tuple[Tensor, Tensor | None]:
+        """The K members' objectives on ``batch`` and their regulariser's penalties (None: no regulariser);
+        a member's training loss is their sum."""
+        k = self.model.k
+        folded = {key: v.repeat(k, *[1] * (v.dim() - 1)) for key, v in batch.items() if isinstance(v, Tensor)}
+        return self.loss(folded), self.penalty(batch)
+
+    def training_loss(self, batch: dict) -> Tensor:
+        """The K members' training losses (K,): each objective plus its penalty."""
+        objective, penalty = self.member_losses(batch)
+        return objective if penalty is None else objective + penalty
+
+
+def optimizer(partial: Any, params: list[Tensor]) -> torch.optim.Optimizer:
+    """The members' optimiser over the stacked weights, by its fused kernel where it has one (one pass over each
+    stacked tensor instead of one per operation; the same update up to rounding), else as configured."""
+    cls = partial.func if hasattr(partial, "func") else partial
+    if "fused" in inspect.signature(cls).parameters and "fused" not in getattr(partial, "keywords", {}):
+        try:
+            return partial(params, fused=True)
+        except (RuntimeError, ValueError):  # a device or dtype the kernel does not take
+            pass
+    return partial(params)
+
+
+def why_not(cfg: Any, members: Sequence[TrainingModule]) -> str | None:
+    """Why the members cannot train stacked (None: they can), from the model, objective and settings alone."""
+    member = members[0]
+    if not member.observation.identity:
+        return f"observation={type(member.observation).__name__} trains an encoder beside the model"
+    if cfg.get("compile"):
+        return "compile=true compiles one model's field"
+    opt = member.optimizer.func if hasattr(member.optimizer, "func") else member.optimizer
+    if getattr(opt, "__name__", "") not in ELEMENTWISE:
+        return f"optimizer {getattr(opt, '__name__', opt)} may mix elements across members; allowed stacked: {', '.join(ELEMENTWISE)}"
+    return None
+
+
+def step_times(stacked: StackedTraining, members: Sequence[TrainingModule], batch: dict,
+               repeats: int = 2) -> tuple[float, float]:
+    """Seconds of one forward and backward of the members' training losses on ``batch``: stacked, and member by
+    member (the loop path), the faster of ``repeats`` after a warm-up; the gradients are cleared after."""
+    def step_stacked() -> None:
+        stacked.training_loss(batch).sum().backward()
+
+    def step_loop() -> None:
+        for m in members:
+            m.training_loss(batch).backward()
+
+    best = []
+    for step, modules in ((step_stacked, [stacked]), (step_loop, members)):
+        times = []
+        for _ in range(repeats + 1):
+            started = time.perf_counter()
+            step()
+            times.append(time.perf_counter() - started)
+        for module in modules:
+            module.zero_grad(set_to_none=True)
+        best.append(min(times[1:]))
+    return best[0], best[1]
+
+
+def probe(stacked: StackedTraining, members: Sequence[TrainingModule], batch: dict, rtol: float = 1e-4) -> str | None:
+    """None when the stacked losses on ``batch`` equal each member's own (relative ``rtol``), else why not
+    (the first line of the error ``vmap`` raised, e.g. at a data-dependent branch)."""
+    try:
+        got = stacked.training_loss(batch).detach()
+    except Exception as err:  # noqa: BLE001 - any failure of the stacked forward sends the run down the loop path
+        return f"the stacked field failed ({type(err).__name__}: {str(err).splitlines()[0]})"
+    want = torch.stack([m.training_loss(batch).detach() for m in members])
+    diff = ((got - want).abs() / want.abs().clamp_min(1e-12)).max()
+    if not bool(diff <= rtol):
+        return f"the stacked losses differ from the members' own by {float(diff):.2g} (relative) on the first batch"
+    return None
