@@ -20,16 +20,18 @@ from pathlib import Path
 import torch
 
 from encons.entry import api
-
 from encons.tools import control
 
 
 def linear_errors(model, system) -> dict[str, float]:
     plant, truth = control.learned_plant(model, system, "model"), control.true_plant(system)
     (a, b), (ta, tb) = control.linearise(plant, 1), control.linearise(truth, 1)
-    return {"a_rel_err": float(torch.linalg.norm(a - ta) / torch.linalg.norm(ta)),
-            "b_rel_err": float(torch.linalg.norm(b - tb) / torch.linalg.norm(tb)),
-            "dthetadd_du": float(b[-1, 0]), "dthetadd_du_true": float(tb[-1, 0])}
+    return {
+        "a_rel_err": float(torch.linalg.norm(a - ta) / torch.linalg.norm(ta)),
+        "b_rel_err": float(torch.linalg.norm(b - tb) / torch.linalg.norm(tb)),
+        "dthetadd_du": float(b[-1, 0]),
+        "dthetadd_du_true": float(tb[-1, 0]),
+    }
 
 
 def main() -> None:
@@ -38,18 +40,31 @@ def main() -> None:
         name, _, overrides = spec.partition("=")
         extra = [o for o in overrides.split(";") if o]
         with tempfile.TemporaryDirectory() as tmp:
-            cfg = api.compose("logger=none", "trainer.enable_progress_bar=false", "~evaluators/santos",
-                              "model=lnode", "system=cartpole", "data.n_test=16", *extra, output_dir=Path(tmp) / "run",
-                              cache_dir=Path(tmp) / "cache")
+            cfg = api.compose(
+                "logger=none",
+                "trainer.enable_progress_bar=false",
+                "~evaluators/santos",
+                "model=lnode",
+                "system=cartpole",
+                "data.n_test=16",
+                *extra,
+                output_dir=Path(tmp) / "run",
+                cache_dir=Path(tmp) / "cache",
+            )
             from encons.training.build import build
+
             _, module = build(cfg)
             init_model, system = copy.deepcopy(module.model), module.system
             started = time.perf_counter()
             run = api.train(cfg, summary=False)
             wall = time.perf_counter() - started
-            row = {"name": name, "overrides": extra, "train_wall_s": round(wall, 1),
-                   **{f"init_{k}": v for k, v in linear_errors(init_model, system).items()},
-                   **linear_errors(run.model, system)}
+            row = {
+                "name": name,
+                "overrides": extra,
+                "train_wall_s": round(wall, 1),
+                **{f"init_{k}": v for k, v in linear_errors(init_model, system).items()},
+                **linear_errors(run.model, system),
+            }
             row["control_success"] = control.compare(run, starts=40, seed=0).metrics["control/success_rate"]
         print(json.dumps(row), flush=True)
         with out.open("a") as f:

@@ -23,7 +23,6 @@ from pathlib import Path
 import torch
 
 from encons.entry import api
-
 from encons.tools import control
 from encons.training.build import build
 
@@ -32,10 +31,14 @@ def errors(model, system) -> dict[str, float]:
     plant, truth = control.learned_plant(model, system, "model"), control.true_plant(system)
     (a, b), (ta, tb) = control.linearise(plant, system.n_controls), control.linearise(truth, system.n_controls)
     q0 = torch.zeros(1, system.n, dtype=torch.float64)
-    return {"a_rel_err": float(torch.linalg.norm(a - ta) / torch.linalg.norm(ta)),
-            "b_rel_err": float(torch.linalg.norm(b - tb) / torch.linalg.norm(tb)),
-            "dthetadd_du": float(b[-1, 0]), "dthetadd_du_true": float(tb[-1, 0]),
-            "mass_upright": plant.mass(q0)[0].tolist(), "mass_upright_true": truth.mass(q0)[0].tolist()}
+    return {
+        "a_rel_err": float(torch.linalg.norm(a - ta) / torch.linalg.norm(ta)),
+        "b_rel_err": float(torch.linalg.norm(b - tb) / torch.linalg.norm(tb)),
+        "dthetadd_du": float(b[-1, 0]),
+        "dthetadd_du_true": float(tb[-1, 0]),
+        "mass_upright": plant.mass(q0)[0].tolist(),
+        "mass_upright_true": truth.mass(q0)[0].tolist(),
+    }
 
 
 def swing_up(model, system, h: float, starts: int = 40) -> dict[str, float]:
@@ -43,8 +46,9 @@ def swing_up(model, system, h: float, starts: int = 40) -> dict[str, float]:
     loop from ``starts`` seeded (0) starts of the system's ``Settings``, as ``encons.tools.control.compare`` runs it."""
     settings = control.SETTINGS[type(system)]
     plant = control.learned_plant(model, system, "model")
-    states, inputs = control.closed_loop(system, control.SwingUp(plant, system, h), settings.starts(starts, 0), h,
-                                         round(settings.duration / h))
+    states, inputs = control.closed_loop(
+        system, control.SwingUp(plant, system, h), settings.starts(starts, 0), h, round(settings.duration / h)
+    )
     return control.score(control.true_plant(system), states, inputs, settings, h)[0]
 
 
@@ -55,8 +59,14 @@ def main() -> None:
         name, _, overrides = spec.partition("=")
         extra = [o for o in overrides.split(";") if o]
         with tempfile.TemporaryDirectory() as tmp:
-            cfg = api.compose("logger=none", "model=lnode", "system=cartpole", *extra, output_dir=Path(tmp) / "run",
-                              cache_dir=Path(tmp) / "cache")
+            cfg = api.compose(
+                "logger=none",
+                "model=lnode",
+                "system=cartpole",
+                *extra,
+                output_dir=Path(tmp) / "run",
+                cache_dir=Path(tmp) / "cache",
+            )
             data, module = build(cfg)
             torch.manual_seed(int(cfg.seed))
             optimizer = module.optimizer(module.parameters())
@@ -71,8 +81,14 @@ def main() -> None:
             stream, epoch = batches(), 0
             for step in range(total + 1):
                 if step in marks:
-                    row = {"name": name, "overrides": extra, "step": step, "epoch": epoch,
-                           "wall_s": round(time.perf_counter() - started, 1), **errors(module.model, module.system)}
+                    row = {
+                        "name": name,
+                        "overrides": extra,
+                        "step": step,
+                        "epoch": epoch,
+                        "wall_s": round(time.perf_counter() - started, 1),
+                        **errors(module.model, module.system),
+                    }
                     print(json.dumps(row), flush=True)
                     with out.open("a") as f:
                         f.write(json.dumps(row) + "\n")
@@ -80,12 +96,15 @@ def main() -> None:
                     row["control"] = swing_up(module.model, module.system, data.dt)
                     print(json.dumps({"name": name, "step": step, "control": row["control"]}), flush=True)
                     with out.open("a") as f:
-                        f.write(json.dumps({"name": name, "overrides": extra, "step": step, "final": True, **row}) + "\n")
+                        f.write(
+                            json.dumps({"name": name, "overrides": extra, "step": step, "final": True, **row}) + "\n"
+                        )
                     break
                 epoch, batch = next(stream)
                 optimizer.zero_grad()
                 module.loss(batch).backward()
                 optimizer.step()
+
 
 if __name__ == "__main__":
     main()

@@ -31,23 +31,57 @@ from pathlib import Path
 import torch
 
 from encons.entry import api
-
-from encons.training import ensemble, stacked
-
 from encons.infra import threads
+from encons.training import ensemble, stacked
 from encons.training.build import build
 
 SMALL_DATA = ["data.n_val=2", "data.n_test=2", "logger=none"]
 #: The papers' cells (conf/profile), one family each where it is used: the profile's protocol for that model.
-LIM_KASIM = ["system=mass_spring", "objective=derivative", "optimizer=adamw", "scheduler=none", "optimizer.lr=1e-4",
-             "optimizer.weight_decay=0.0", "model.depth=2", "model.hidden=200", "data.batch_size=1", "data.chunk_len=30"]
-XIAO = ["system=damped_oscillator", "objective=acceleration", "optimizer=adamw", "scheduler=none", "optimizer.lr=1e-3",
-        "optimizer.weight_decay=0.0", "data.chunk_len=200", "data.batch_size=5", "model.hidden=200", "model.depth=3"]
-SANTOS = ["experiment=symo_paper", "system=cartpole", "optimizer.lr=1e-3", "model.hidden=256", "data.n_train=8",
-          "data.batch_size=1"]
+LIM_KASIM = [
+    "system=mass_spring",
+    "objective=derivative",
+    "optimizer=adamw",
+    "scheduler=none",
+    "optimizer.lr=1e-4",
+    "optimizer.weight_decay=0.0",
+    "model.depth=2",
+    "model.hidden=200",
+    "data.batch_size=1",
+    "data.chunk_len=30",
+]
+XIAO = [
+    "system=damped_oscillator",
+    "objective=acceleration",
+    "optimizer=adamw",
+    "scheduler=none",
+    "optimizer.lr=1e-3",
+    "optimizer.weight_decay=0.0",
+    "data.chunk_len=200",
+    "data.batch_size=5",
+    "model.hidden=200",
+    "model.depth=3",
+]
+SANTOS = [
+    "experiment=symo_paper",
+    "system=cartpole",
+    "optimizer.lr=1e-3",
+    "model.hidden=256",
+    "data.n_train=8",
+    "data.batch_size=1",
+]
 ZHONG = ["experiment=paper", "system=pendulum2"]
-FINZI = ["system=gyroscope", "data.noise=0.0", "data.chunk_len=5", "data.batch_size=200", "model.hidden=200",
-         "model.depth=3", "optimizer=adamw", "scheduler=none", "optimizer.lr=1e-2", "optimizer.weight_decay=1e-4"]
+FINZI = [
+    "system=gyroscope",
+    "data.noise=0.0",
+    "data.chunk_len=5",
+    "data.batch_size=200",
+    "model.hidden=200",
+    "model.depth=3",
+    "optimizer=adamw",
+    "scheduler=none",
+    "optimizer.lr=1e-2",
+    "optimizer.weight_decay=1e-4",
+]
 CELLS = {
     "lim_kasim": [*LIM_KASIM, "model=node"],
     "lim_kasim-hnn": [*LIM_KASIM, "model=hnn"],
@@ -120,18 +154,27 @@ def split(step, steps: int) -> dict[str, float]:
     total = sum(e.self_cpu_time_total for e in events)
     matmul = sum(e.self_cpu_time_total for e in events if e.key in MATMUL)
     optim = sum(e.cpu_time_total for e in events if e.key.startswith("Optimizer.step"))
-    return {"matmul": matmul / steps / 1e3, "optimiser": optim / steps / 1e3,
-            "rest": (total - matmul - optim) / steps / 1e3}
+    return {
+        "matmul": matmul / steps / 1e3,
+        "optimiser": optim / steps / 1e3,
+        "rest": (total - matmul - optim) / steps / 1e3,
+    }
 
 
-def measure(name: str, cell: list[str], ks: list[int], steps: int, repeats: int, cache: str,
-            splits: list[dict] | None = None) -> list[dict]:
+def measure(
+    name: str, cell: list[str], ks: list[int], steps: int, repeats: int, cache: str, splits: list[dict] | None = None
+) -> list[dict]:
     rows = []
     pool, batch = members(cell, max(ks), cache)
     for k in ks:
         mods = pool[:k]
-        module = ensemble._module(api.compose(*cell, *SMALL_DATA, output_dir=tempfile.mkdtemp(), cache_dir=cache),
-                                  mods, list(range(k)), _Data(batch), None)
+        module = ensemble._module(
+            api.compose(*cell, *SMALL_DATA, output_dir=tempfile.mkdtemp(), cache_dir=cache),
+            mods,
+            list(range(k)),
+            _Data(batch),
+            None,
+        )
         if isinstance(module, ensemble.StackedEnsemble):
             opt = stacked.optimizer(mods[0].optimizer, list(module.stacked.parameters()))
         else:
@@ -141,21 +184,37 @@ def measure(name: str, cell: list[str], ks: list[int], steps: int, repeats: int,
         for _ in range(repeats):  # interleaved: load on the shared cores hits both alike
             best_sep = min(best_sep, timed(lambda: separate_step(mods, opts, batch), steps))
             best_ens = min(best_ens, timed(lambda: ensemble_step(module, opt, batch), steps))
-        row = {"cell": name, "K": k, "path": module.path.split(":")[0], "separate member-steps/s": k / best_sep,
-               "ensemble member-steps/s": k / best_ens, "ensemble / separate": best_sep / best_ens}
+        row = {
+            "cell": name,
+            "K": k,
+            "path": module.path.split(":")[0],
+            "separate member-steps/s": k / best_sep,
+            "ensemble member-steps/s": k / best_ens,
+            "ensemble / separate": best_sep / best_ens,
+        }
         rows.append(row)
         print(" | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in row.values()), flush=True)
         if module.path.startswith("loop"):
             print(f"  ({name}: {module.path})", flush=True)
         if splits is not None and k == max(ks):
-            for way, fn in (("separate", lambda: separate_step(mods, opts, batch)),
-                            ("ensemble", lambda: ensemble_step(module, opt, batch))):
+            for way, fn in (
+                ("separate", lambda: separate_step(mods, opts, batch)),
+                ("ensemble", lambda: ensemble_step(module, opt, batch)),
+            ):
                 part = split(fn, steps)
                 total = sum(part.values())
-                splits.append({"cell": name, "K": k, "way": way, "ms per member-step": total / k,
-                               **{f"{p} share": v / total for p, v in part.items()}})
-                print(" | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in splits[-1].values()),
-                      flush=True)
+                splits.append(
+                    {
+                        "cell": name,
+                        "K": k,
+                        "way": way,
+                        "ms per member-step": total / k,
+                        **{f"{p} share": v / total for p, v in part.items()},
+                    }
+                )
+                print(
+                    " | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in splits[-1].values()), flush=True
+                )
     return rows
 
 
@@ -194,9 +253,14 @@ def mlp_rows(ks: list[int], steps: int, repeats: int, width: int = 200, rows: in
         for _ in range(repeats):
             for name, fn in (("separate", separate), ("vmap", vmapped), ("dimension", dimension)):
                 best[name] = min(best[name], timed(fn, steps))
-        row = {"K": k, "separate ms": 1e3 * best["separate"], "vmap ms": 1e3 * best["vmap"],
-               "ensemble dimension ms": 1e3 * best["dimension"], "separate / vmap": best["separate"] / best["vmap"],
-               "separate / dimension": best["separate"] / best["dimension"]}
+        row = {
+            "K": k,
+            "separate ms": 1e3 * best["separate"],
+            "vmap ms": 1e3 * best["vmap"],
+            "ensemble dimension ms": 1e3 * best["dimension"],
+            "separate / vmap": best["separate"] / best["vmap"],
+            "separate / dimension": best["separate"] / best["dimension"],
+        }
         out.append(row)
         print(" | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in row.values()), flush=True)
     return out
@@ -220,7 +284,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", type=Path, default=None)
-    parser.add_argument("--layers", action="store_true", help="also time the network alone: vmap vs an ensemble dimension")
+    parser.add_argument(
+        "--layers", action="store_true", help="also time the network alone: vmap vs an ensemble dimension"
+    )
     parser.add_argument("--split", action="store_true", help="also split one step at the largest K (torch.profiler)")
     args = parser.parse_args()
     threads.apply(args.threads)
@@ -228,9 +294,19 @@ def main() -> None:
     header = ["cell", "K", "path", "separate member-steps/s", "ensemble member-steps/s", "ensemble / separate"]
     print(" | ".join(header), flush=True)
     splits: list[dict] | None = [] if args.split else None
-    rows = [r for name in args.cells
-            for r in measure(name, CELLS[name], args.members, max(1, args.steps // (10 if name.startswith(SLOW) else 1)),
-                             args.repeats, cache, splits)]
+    rows = [
+        r
+        for name in args.cells
+        for r in measure(
+            name,
+            CELLS[name],
+            args.members,
+            max(1, args.steps // (10 if name.startswith(SLOW) else 1)),
+            args.repeats,
+            cache,
+            splits,
+        )
+    ]
     tables = [(header, rows)]
     if splits:
         tables.append((list(splits[0]), splits))
@@ -242,11 +318,15 @@ def main() -> None:
         lines = []
         for head, body in tables:
             lines += ["", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-            lines += ["| " + " | ".join(f"{r[h]:.3g}" if isinstance(r[h], float) else str(r[h]) for h in head) + " |"
-                      for r in body]
+            lines += [
+                "| " + " | ".join(f"{r[h]:.3g}" if isinstance(r[h], float) else str(r[h]) for h in head) + " |"
+                for r in body
+            ]
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text("\n".join(lines) + f"\n\n{torch.get_num_threads()} thread(s); command: python "
-                            f"benchmarks/ensemble_speed.py {' '.join(__import__('sys').argv[1:])}\n")
+        args.out.write_text(
+            "\n".join(lines) + f"\n\n{torch.get_num_threads()} thread(s); command: python "
+            f"benchmarks/ensemble_speed.py {' '.join(__import__('sys').argv[1:])}\n"
+        )
 
 
 if __name__ == "__main__":

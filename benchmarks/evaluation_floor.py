@@ -15,17 +15,18 @@ import time
 
 import torch
 
-from encons.entry import api
-
-from encons.numerics import metrics
-
-from encons.infra import threads
-from encons.training.build import build_system
 from encons.data.simulate import sample_trajectories
+from encons.entry import api
+from encons.infra import threads
+from encons.numerics import metrics
 from encons.numerics.evaluation import Evaluation
+from encons.training.build import build_system
 
-CANDIDATES = {"rk4 x1": Evaluation(method="rk4"), "rk4 x16": Evaluation(method="rk4", substeps=16),
-              "dopri5 1e-10 (default)": Evaluation()}
+CANDIDATES = {
+    "rk4 x1": Evaluation(method="rk4"),
+    "rk4 x16": Evaluation(method="rk4", substeps=16),
+    "dopri5 1e-10 (default)": Evaluation(),
+}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -49,10 +50,15 @@ def main(argv: list[str] | None = None) -> None:
                 began = time.perf_counter()
                 pred = evaluation.oracle(system, chart, start, t, u)
                 took = time.perf_counter() - began
-                geom = metrics.geometric_mean_relative_error(system.to_chart(pred, chart, system.common_chart),
-                                                             reference).mean().item()
-                print(f"{name:18s} {chart:9s} {steps:5d} steps  {label:24s} geom_rel_err {geom:.2e}  {took:6.1f} s",
-                      flush=True)
+                geom = (
+                    metrics.geometric_mean_relative_error(system.to_chart(pred, chart, system.common_chart), reference)
+                    .mean()
+                    .item()
+                )
+                print(
+                    f"{name:18s} {chart:9s} {steps:5d} steps  {label:24s} geom_rel_err {geom:.2e}  {took:6.1f} s",
+                    flush=True,
+                )
 
 
 if __name__ == "__main__":

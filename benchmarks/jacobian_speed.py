@@ -56,12 +56,16 @@ def main() -> None:
     parser.add_argument("--hidden", type=int, default=200)
     parser.add_argument("--depth", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=10)
-    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.infra.threads' policy)")
+    parser.add_argument(
+        "--threads", type=int, default=None, help="torch threads (default: encons.infra.threads' policy)"
+    )
     args = parser.parse_args()
     threads.apply(args.threads)
     torch.manual_seed(0)
-    print(f"batch {args.batch}, MLP {args.depth} × {args.hidden} softplus, {torch.get_num_threads()} thread(s); "
-          "ms per call (fastest of {args.repeats}, process CPU time)".replace("{args.repeats}", str(args.repeats)))
+    print(
+        f"batch {args.batch}, MLP {args.depth} × {args.hidden} softplus, {torch.get_num_threads()} thread(s); "
+        "ms per call (fastest of {args.repeats}, process CPU time)".replace("{args.repeats}", str(args.repeats))
+    )
     print(f"{'d':>3} {'method':<15} {'Jacobian':>10} {'C_H + backward':>15} {'vs loop':>8}")
     for d in args.dims:
         field = mlp(d, d, args.hidden, args.depth, "softplus")

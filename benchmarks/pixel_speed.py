@@ -25,10 +25,14 @@ import torch
 
 from encons.entry import api
 
-RUNS = [("pixel_pendulum", "node", []), ("pixel_pendulum", "hnn", []), ("pixel_pendulum", "nsf", []),
-        ("pixel_pendulum", "node", ["regulariser=hamiltonian", "regulariser.weight=500"]),
-        ("pixel_damped_pendulum", "node", []),
-        ("pixel_damped_pendulum", "node", ["regulariser=dissipative", "regulariser.weight=500"])]
+RUNS = [
+    ("pixel_pendulum", "node", []),
+    ("pixel_pendulum", "hnn", []),
+    ("pixel_pendulum", "nsf", []),
+    ("pixel_pendulum", "node", ["regulariser=hamiltonian", "regulariser.weight=500"]),
+    ("pixel_damped_pendulum", "node", []),
+    ("pixel_damped_pendulum", "node", ["regulariser=dissipative", "regulariser.weight=500"]),
+]
 
 
 def fastest(fn, steps: int) -> float:
@@ -45,7 +49,9 @@ def fastest(fn, steps: int) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--steps", type=int, default=5)
-    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.infra.threads' policy)")
+    parser.add_argument(
+        "--threads", type=int, default=None, help="torch threads (default: encons.infra.threads' policy)"
+    )
     parser.add_argument("--videos", type=int, default=None)
     parser.add_argument("--frames", type=int, default=None)
     args = parser.parse_args()
@@ -55,17 +61,27 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         generated = set()
         for system, model, extra in RUNS:
-            cfg = api.compose(f"system={system}", f"model={model}", "logger=none", *extra, *sizes,
-                              f"threads={args.threads or 'null'}", output_dir=f"{tmp}/run", cache_dir=f"{tmp}/cache")
+            cfg = api.compose(
+                f"system={system}",
+                f"model={model}",
+                "logger=none",
+                *extra,
+                *sizes,
+                f"threads={args.threads or 'null'}",
+                output_dir=f"{tmp}/run",
+                cache_dir=f"{tmp}/cache",
+            )
             data, module = api.build(cfg)
             if system not in generated:  # again, timed, into a fresh cache file
                 generated.add(system)
                 data.cache_file.unlink()
                 start = time.perf_counter()
                 data.prepare_data()
-                print(f"{system}: dataset simulated, rendered and written in {time.perf_counter() - start:.2f} s "
-                      f"({sum(a['obs'].shape[0] for a in data.arrays.values())} videos × "
-                      f"{data.arrays['test']['obs'].shape[1]} frames)")
+                print(
+                    f"{system}: dataset simulated, rendered and written in {time.perf_counter() - start:.2f} s "
+                    f"({sum(a['obs'].shape[0] for a in data.arrays.values())} videos × "
+                    f"{data.arrays['test']['obs'].shape[1]} frames)"
+                )
             batch = next(iter(data.train_dataloader()))
             opt = torch.optim.AdamW(module.parameters(), lr=1e-4)
 

@@ -35,15 +35,28 @@ CELLS = {
     "pixels": ["pixel_pendulum/hnn"],
     "control": ["cartpole/symo"],
 }
-FIELDS = ["tag", "profile", "cell", "epochs", "train_s", "validation_s", "checkpoint_s", "epoch_s", "max_epochs",
-          "full_h", "profile_runs", "wall_s", "error"]
+FIELDS = [
+    "tag",
+    "profile",
+    "cell",
+    "epochs",
+    "train_s",
+    "validation_s",
+    "checkpoint_s",
+    "epoch_s",
+    "max_epochs",
+    "full_h",
+    "profile_runs",
+    "wall_s",
+    "error",
+]
 
 
 def profile_runs(profile: str):
     from hydra import compose, initialize_config_dir
 
-    from encons.tools.benchmark import expand
     from encons.infra.paths import config_dir
+    from encons.tools.benchmark import expand
 
     with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
         cfg = compose("benchmark", [f"profile={profile}", "out=/tmp/unused"])
@@ -59,13 +72,30 @@ def measure(profile: str, cell: str, epochs: int, extra: list[str], cache: str) 
     n = None
     if "-n" in label and label.rsplit("-n", 1)[1].isdigit():
         label, n = label.rsplit("-n", 1)[0], int(label.rsplit("-n", 1)[1])
-    run = next(r for r in planned if r.system == system and r.label == label and r.n_train == n and r.seed == planned[0].seed)
+    run = next(
+        r for r in planned if r.system == system and r.label == label and r.n_train == n and r.seed == planned[0].seed
+    )
     full = compose(list(run.overrides), tempfile.mkdtemp(), cache)
-    row = {"profile": profile, "cell": cell, "epochs": epochs, "max_epochs": full.trainer.max_epochs,
-           "profile_runs": len(planned), "error": ""}
+    row = {
+        "profile": profile,
+        "cell": cell,
+        "epochs": epochs,
+        "max_epochs": full.trainer.max_epochs,
+        "profile_runs": len(planned),
+        "error": "",
+    }
     with tempfile.TemporaryDirectory() as out:
-        cfg = compose(["trainer.enable_model_summary=false", *run.overrides, f"trainer.max_epochs={epochs}",
-                       "test=false", *extra], out, cache)
+        cfg = compose(
+            [
+                "trainer.enable_model_summary=false",
+                *run.overrides,
+                f"trainer.max_epochs={epochs}",
+                "test=false",
+                *extra,
+            ],
+            out,
+            cache,
+        )
         started = time.perf_counter()
         try:
             runs.train(cfg, summary=False)
@@ -97,8 +127,11 @@ def main() -> None:
     import torch
 
     torch.set_num_threads(1)
-    todo = ([tuple(c.split(":", 1)) for c in args.cells] if args.cells is not None else
-            [(p, c) for p in args.profiles for c in CELLS[p]])
+    todo = (
+        [tuple(c.split(":", 1)) for c in args.cells]
+        if args.cells is not None
+        else [(p, c) for p in args.profiles for c in CELLS[p]]
+    )
     out = Path(args.out)
     table = out / "costs.csv"
     old = list(csv.DictReader(table.open())) if table.is_file() else []
@@ -120,23 +153,35 @@ def write(out: Path, rows: list[dict], args) -> None:
         writer.writerows({k: r.get(k, "") for k in FIELDS} for r in rows)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     num = lambda v, f="{:.3g}": f.format(float(v)) if v not in ("", None) else "–"  # noqa: E731
-    lines = ["# Profile costs, measured", "",
-             f"Written by `{' '.join(['python', *sys.argv])}` at commit {commit}, "
-             f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, one thread, `nice -n 10`, "
-             f"load average at the end {os.getloadavg()[0]:.1f} on 2 shared cores (each row's load in the run log). "
-             "Seconds per epoch are means over epochs 2..N of the run's `costs.json` (`encons.training.callbacks.CostLine`); "
-             "full = epoch × the profile's `trainer.max_epochs` (no test, no data simulation). "
-             "`before`: the profile as on main before validation.* (every epoch, the rollout criterion); "
-             "`after`: with the profile's `validation.*`.", "",
-             "| tag | profile | cell | train s | validation s | checkpoint s | epoch s | max epochs | full (h) | error |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# Profile costs, measured",
+        "",
+        f"Written by `{' '.join(['python', *sys.argv])}` at commit {commit}, "
+        f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, one thread, `nice -n 10`, "
+        f"load average at the end {os.getloadavg()[0]:.1f} on 2 shared cores (each row's load in the run log). "
+        "Seconds per epoch are means over epochs 2..N of the run's `costs.json` (`encons.training.callbacks.CostLine`); "
+        "full = epoch × the profile's `trainer.max_epochs` (no test, no data simulation). "
+        "`before`: the profile as on main before validation.* (every epoch, the rollout criterion); "
+        "`after`: with the profile's `validation.*`.",
+        "",
+        "| tag | profile | cell | train s | validation s | checkpoint s | epoch s | max epochs | full (h) | error |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
-        lines.append(f"| {r['tag']} | {r['profile']} | {r['cell']} | {num(r.get('train_s'))} | "
-                     f"{num(r.get('validation_s'))} | {num(r.get('checkpoint_s'))} | {num(r.get('epoch_s'))} | "
-                     f"{r['max_epochs']} | {num(r.get('full_h'))} | {r.get('error', '')} |")
-    lines += ["", "## Full cost per profile", "",
-              "Mean measured cell's full cost × the profile's runs (every cell × seed), one core.", "",
-              "| tag | profile | runs | full (core-hours) |", "|---|---|---|---|"]
+        lines.append(
+            f"| {r['tag']} | {r['profile']} | {r['cell']} | {num(r.get('train_s'))} | "
+            f"{num(r.get('validation_s'))} | {num(r.get('checkpoint_s'))} | {num(r.get('epoch_s'))} | "
+            f"{r['max_epochs']} | {num(r.get('full_h'))} | {r.get('error', '')} |"
+        )
+    lines += [
+        "",
+        "## Full cost per profile",
+        "",
+        "Mean measured cell's full cost × the profile's runs (every cell × seed), one core.",
+        "",
+        "| tag | profile | runs | full (core-hours) |",
+        "|---|---|---|---|",
+    ]
     groups: dict[tuple, list] = {}
     for r in rows:
         if r.get("full_h") not in ("", None):

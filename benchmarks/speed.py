@@ -40,21 +40,33 @@ from typing import Callable
 import torch
 from torch import Tensor
 
-from encons.infra import threads
-from encons.entry.api import catalogue, compose
-from encons.training.build import build_model, build_system
 from encons.data.simulate import sample_trajectories, simulate
+from encons.entry.api import catalogue, compose
+from encons.infra import threads
 from encons.infra.errors import ConfigError
-from encons.numerics.integrators import Integrator
 from encons.models.base import DynamicsModel
 from encons.models.constrained import CHNN, CLNN
 from encons.models.lnn import LNN, LNNStructure, guarded_solve
 from encons.models.networks import mlp
-from encons.training.module import TrainingModule
+from encons.numerics.integrators import Integrator
 from encons.systems.base import System, point_mass_matrix, split_state
+from encons.training.build import build_model, build_system
+from encons.training.module import TrainingModule
 
-FIELDS = ["system", "model", "order", "wall_ms", "cpu_ms", "steps_per_s", "peak_mb", "ratio_floor",
-          "naive_cpu_ms", "speedup_vs_naive", "compile_s", "speedup_compiled"]
+FIELDS = [
+    "system",
+    "model",
+    "order",
+    "wall_ms",
+    "cpu_ms",
+    "steps_per_s",
+    "peak_mb",
+    "ratio_floor",
+    "naive_cpu_ms",
+    "speedup_vs_naive",
+    "compile_s",
+    "speedup_compiled",
+]
 
 
 class BareFloor(DynamicsModel):
@@ -77,8 +89,9 @@ class BareFloor(DynamicsModel):
 
 def rows_jacobian(out: Tensor, x: Tensor) -> Tensor:
     """d out / d x (B, K, D) by one ``autograd.grad`` per output row (create_graph)."""
-    return torch.stack([torch.autograd.grad(out[..., k].sum(), x, create_graph=True)[0]
-                        for k in range(out.shape[-1])], -2)
+    return torch.stack(
+        [torch.autograd.grad(out[..., k].sum(), x, create_graph=True)[0] for k in range(out.shape[-1])], -2
+    )
 
 
 class NaiveCartesian(DynamicsModel):
@@ -97,8 +110,10 @@ class NaiveCartesian(DynamicsModel):
 
     def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
         layout, phi = self.system.layout, self.model.constraints
-        mass = torch.kron(point_mass_matrix(layout, [p.exp() for p in self.model.masses.log_params]),
-                          torch.eye(layout.dim, dtype=z.dtype))
+        mass = torch.kron(
+            point_mass_matrix(layout, [p.exp() for p in self.model.masses.log_params]),
+            torch.eye(layout.dim, dtype=z.dtype),
+        )
         minv = torch.linalg.inv(mass)
         with torch.enable_grad():
             z = z if z.requires_grad else z.requires_grad_()
@@ -145,8 +160,11 @@ class NaiveLagrangian(DynamicsModel):
                 dl = torch.autograd.grad(self.lagrangian(si), si, create_graph=True)[0]
                 hess = torch.autograd.functional.hessian(self.lagrangian, si, create_graph=True)
             h, r = hess[n:, n:], dl[:n] - hess[n:, :n] @ si[n:]
-            out.append(guarded_solve(h, r, self.model.guard) if isinstance(self.model, LNN)  # the model's solve
-                       else torch.linalg.solve(h, r))
+            out.append(
+                guarded_solve(h, r, self.model.guard)
+                if isinstance(self.model, LNN)  # the model's solve
+                else torch.linalg.solve(h, r)
+            )
         return torch.cat([s[..., n:], torch.stack(out).reshape(s[..., n:].shape)], -1)
 
 
@@ -159,7 +177,9 @@ def naive_of(model: DynamicsModel, system: System) -> DynamicsModel | None:
 
 
 def compose_cfg(system: str, model: str, hidden: int, depth: int):
-    return compose(f"system={system}", f"model={model}", f"model.hidden={hidden}", f"model.depth={depth}", "logger=none")
+    return compose(
+        f"system={system}", f"model={model}", f"model.hidden={hidden}", f"model.depth={depth}", "logger=none"
+    )
 
 
 def windows(system: System, chart: str, dt: float, batch: int, chunk: int) -> Tensor:
@@ -193,8 +213,9 @@ def time_step(step: Callable[[], None], steps: int, warm_up: bool = True) -> tup
     return min(wall), min(cpu)
 
 
-def alternated(first: Callable[[], None], second: Callable[[], None], steps: int,
-               repeats: int) -> tuple[tuple[float, float], tuple[float, float]]:
+def alternated(
+    first: Callable[[], None], second: Callable[[], None], steps: int, repeats: int
+) -> tuple[tuple[float, float], tuple[float, float]]:
     """The fastest (wall, CPU) ms of each of two steps timed in turn over ``repeats`` rounds of
     ``time_step``, so that the pair shares the machine's load of the moment (a burst while one was
     timed alone would skew their ratio)."""
@@ -244,13 +265,20 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="rounds of (floor, model), alternated; fastest of each")
     parser.add_argument("--naive-steps", type=int, default=1, help="timed steps per naive implementation (0: skip)")
     parser.add_argument("--naive-samples", type=int, default=20, help="windows the per-sample loops are timed on")
-    parser.add_argument("--compile", nargs="*", default=["chnn", "clnn", "lnn"], choices=models,
-                        help="models also timed with compile=true (none: skip)")
+    parser.add_argument(
+        "--compile",
+        nargs="*",
+        default=["chnn", "clnn", "lnn"],
+        choices=models,
+        help="models also timed with compile=true (none: skip)",
+    )
     parser.add_argument("--batch", type=int, default=200)
     parser.add_argument("--chunk", type=int, default=5)
     parser.add_argument("--hidden", type=int, default=256)
     parser.add_argument("--depth", type=int, default=3)
-    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.infra.threads' policy)")
+    parser.add_argument(
+        "--threads", type=int, default=None, help="torch threads (default: encons.infra.threads' policy)"
+    )
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/speed.csv"))
     args = parser.parse_args()
     threads.apply(args.threads)
@@ -273,11 +301,24 @@ def main() -> None:
         floor_steps, floor_rows = {}, {}
         for order in (1, 2):
             model = BareFloor(system, system.base_chart, order, args.hidden, args.depth)
-            floor_steps[order] = stepper(model, list(model.parameters()), system,
-                                         windows(system, system.base_chart, dt, args.batch, args.chunk), dt)
+            floor_steps[order] = stepper(
+                model,
+                list(model.parameters()),
+                system,
+                windows(system, system.base_chart, dt, args.batch, args.chunk),
+                dt,
+            )
             wall, cpu = time_step(floor_steps[order], args.steps)
-            add(system=system_name, model=f"floor (order {order})", order=order, wall_ms=wall, cpu_ms=cpu,
-                steps_per_s=1e3 / wall, peak_mb=peak_memory(floor_steps[order]), ratio_floor=1.0)
+            add(
+                system=system_name,
+                model=f"floor (order {order})",
+                order=order,
+                wall_ms=wall,
+                cpu_ms=cpu,
+                steps_per_s=1e3 / wall,
+                peak_mb=peak_memory(floor_steps[order]),
+                ratio_floor=1.0,
+            )
             floor_rows[order] = rows[-1]
             print(f"{system_name}: floor order {order}: {wall:.1f} ms", flush=True)
 
@@ -295,13 +336,22 @@ def main() -> None:
             floor_row = floor_rows[order]  # keeps the floor's fastest over every pairing
             floor_row.update(wall_ms=min(floor_row["wall_ms"], floor_wall), cpu_ms=min(floor_row["cpu_ms"], floor_cpu))
             floor_row["steps_per_s"] = 1e3 / floor_row["wall_ms"]
-            row = dict(system=system_name, model=model_name, order=order, wall_ms=wall, cpu_ms=cpu,
-                       steps_per_s=1e3 / wall, peak_mb=peak_memory(step), ratio_floor=cpu / floor_cpu)
+            row = dict(
+                system=system_name,
+                model=model_name,
+                order=order,
+                wall_ms=wall,
+                cpu_ms=cpu,
+                steps_per_s=1e3 / wall,
+                peak_mb=peak_memory(step),
+                ratio_floor=cpu / floor_cpu,
+            )
             naive = naive_of(model, system) if args.naive_steps else None
             if naive is not None:
                 part = batch[: args.naive_samples] if isinstance(naive, NaiveLagrangian) else batch
-                _, naive_cpu = time_step(stepper(naive, list(model.parameters()), system, part, dt), args.naive_steps,
-                                         warm_up=False)  # seconds per step: no warm-up needed
+                _, naive_cpu = time_step(
+                    stepper(naive, list(model.parameters()), system, part, dt), args.naive_steps, warm_up=False
+                )  # seconds per step: no warm-up needed
                 naive_cpu *= len(batch) / len(part)
                 row.update(naive_cpu_ms=naive_cpu, speedup_vs_naive=naive_cpu / cpu)
             if model_name in args.compile:
@@ -314,11 +364,27 @@ def main() -> None:
                 (_, eager_cpu), (_, compiled_cpu) = alternated(step, compiled_step, args.steps, args.repeats)
                 row["speedup_compiled"] = eager_cpu / compiled_cpu
             add(**row)
-            print(f"{progress}: {wall:.1f} ms" + (f", naive {row['naive_cpu_ms']:.0f} ms" if naive else "")
-                  + (f", compiled ×{row['speedup_compiled']:.2f}" if "compile_s" in row else ""), flush=True)
+            print(
+                f"{progress}: {wall:.1f} ms"
+                + (f", naive {row['naive_cpu_ms']:.0f} ms" if naive else "")
+                + (f", compiled ×{row['speedup_compiled']:.2f}" if "compile_s" in row else ""),
+                flush=True,
+            )
 
-    header = ["system", "model", "order", "wall ms", "CPU ms", "steps/s", "peak MiB", "× floor", "naive CPU ms",
-              "speed-up vs naive", "compile s", "speed-up compiled"]
+    header = [
+        "system",
+        "model",
+        "order",
+        "wall ms",
+        "CPU ms",
+        "steps/s",
+        "peak MiB",
+        "× floor",
+        "naive CPU ms",
+        "speed-up vs naive",
+        "compile s",
+        "speed-up compiled",
+    ]
     specs = ["", "", "", ".1f", ".1f", ".2f", ".0f", ".2f", ".0f", ".1f", ".0f", ".2f"]
     lines = [[fmt(r[k], s) if s else str(r[k]) for k, s in zip(FIELDS, specs)] for r in rows]
     widths = [max(len(h), *(len(line[i]) for line in lines)) for i, h in enumerate(header)]
@@ -330,10 +396,12 @@ def main() -> None:
         writer = csv.DictWriter(f, fieldnames=FIELDS)
         writer.writeheader()
         writer.writerows(rows)
-    machine = (f"{platform.machine()} {platform.processor() or platform.platform()}, "
-               f"{torch.get_num_threads()} torch thread(s), torch {torch.__version__}, "
-               f"batch {args.batch} × chunk {args.chunk}, {args.depth} × {args.hidden}, "
-               f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
+    machine = (
+        f"{platform.machine()} {platform.processor() or platform.platform()}, "
+        f"{torch.get_num_threads()} torch thread(s), torch {torch.__version__}, "
+        f"batch {args.batch} × chunk {args.chunk}, {args.depth} × {args.hidden}, "
+        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}"
+    )
     markdown = args.out.with_suffix(".md")
     table = [f"Machine: {machine}.", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     table += ["| " + " | ".join(line) + " |" for line in lines]

@@ -16,8 +16,11 @@ import tempfile
 from pathlib import Path
 
 WATCHED = ("encons.training.build", "encons.config.check", "encons.config.trust")
-CONFIGS = [("model=hnn", "system=pendulum1"), ("model=chnn", "system=gyroscope"),
-           ("model=glnn", "system=damped_oscillator")]
+CONFIGS = [
+    ("model=hnn", "system=pendulum1"),
+    ("model=chnn", "system=gyroscope"),
+    ("model=glnn", "system=damped_oscillator"),
+]
 
 
 def run(overrides, tmp: Path, count: bool):
@@ -62,16 +65,24 @@ def main() -> None:
         out["lookups"] = {"total": sum(calls.values()), "targets": len(calls), "per_target": dict(calls.most_common())}
         # the stops of cfg's route: calls into build/config/trust from another module (not from one of the
         # three, not this script's counting wrapper, not contextlib running a ``with`` of one of them)
-        out["entries_from_outside"] = dict(collections.Counter(
-            s.split(" -> ")[1].split(".")[1] for s in stops if not s.startswith((*WATCHED, "__main__", "contextlib"))))
-        out["entries_from_encons_modules"] = dict(collections.Counter(s.split(" -> ")[1].rsplit(".", 1)[0] for s in stops))
+        out["entries_from_outside"] = dict(
+            collections.Counter(
+                s.split(" -> ")[1].split(".")[1]
+                for s in stops
+                if not s.startswith((*WATCHED, "__main__", "contextlib"))
+            )
+        )
+        out["entries_from_encons_modules"] = dict(
+            collections.Counter(s.split(" -> ")[1].rsplit(".", 1)[0] for s in stops)
+        )
         out["entry_calls"] = stops
         if "--metrics" in sys.argv:
             out["metrics"] = {}
             for i, overrides in enumerate(CONFIGS):
                 m = metrics if i == 0 else run(overrides, Path(tmp) / str(i), False)[0]
-                out["metrics"][" ".join(overrides)] = {k: v for k, v in sorted(m.items())
-                                                        if k.startswith("test/") or k.startswith("best/")}
+                out["metrics"][" ".join(overrides)] = {
+                    k: v for k, v in sorted(m.items()) if k.startswith("test/") or k.startswith("best/")
+                }
     Path(sys.argv[1]).parent.mkdir(parents=True, exist_ok=True)
     Path(sys.argv[1]).write_text(json.dumps(out, indent=1) + "\n")
     print(json.dumps({k: v for k, v in out.items() if k != "metrics"}, indent=1))

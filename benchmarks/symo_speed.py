@@ -17,11 +17,11 @@ import time
 
 import torch
 
-from encons.infra import threads
 from encons.data.simulate import simulate
+from encons.infra import threads
 from encons.models.symo import E2ESyMo, SyMo
-from encons.training.module import TrainingModule
 from encons.systems.controlled import CartPole, ControlledPendulum
+from encons.training.module import TrainingModule
 
 SYSTEMS = {"pendulum_control": (ControlledPendulum, 0.1, 128), "cartpole": (CartPole, 0.05, 256)}
 
@@ -54,7 +54,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--steps", type=int, default=5)
     parser.add_argument("--batch", type=int, default=512)
-    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.infra.threads' policy)")
+    parser.add_argument(
+        "--threads", type=int, default=None, help="torch threads (default: encons.infra.threads' policy)"
+    )
     args = parser.parse_args()
     threads.apply(args.threads)
     print(f"{'system':<18}{'model':<10}{'wall ms':>9}{'cpu ms':>9}{'ratio':>7}  Newton iterations")

@@ -31,10 +31,26 @@ from encons.infra.compat import quiet_upstream
 
 #: model/system -> target val/traj_rel_err: the flagship, then one model per family on pendulum2
 #: (about twice what each reached in 100 default epochs, sweeps/README.md)
-RUNS = {"chnn/gyroscope": 0.005, "node/pendulum2": 0.4, "hnn_angle/pendulum2": 0.5,
-        "lnn_structure/pendulum2": 0.3, "symo/pendulum2": 0.5, "glnn/pendulum2": 0.5}
-FIELDS = ["model", "system", "target", "reached", "time_to_target_s", "epochs", "val_traj_rel_err",
-          "test_traj_rel_err", "data_s", "threads"]
+RUNS = {
+    "chnn/gyroscope": 0.005,
+    "node/pendulum2": 0.4,
+    "hnn_angle/pendulum2": 0.5,
+    "lnn_structure/pendulum2": 0.3,
+    "symo/pendulum2": 0.5,
+    "glnn/pendulum2": 0.5,
+}
+FIELDS = [
+    "model",
+    "system",
+    "target",
+    "reached",
+    "time_to_target_s",
+    "epochs",
+    "val_traj_rel_err",
+    "test_traj_rel_err",
+    "data_s",
+    "threads",
+]
 
 
 class Clock(pl.Callback):
@@ -55,13 +71,21 @@ class Clock(pl.Callback):
             trainer.should_stop = True
 
 
-def time_to_accuracy(model: str, system: str, target: float, max_epochs: int, workdir: Path,
-                     overrides: tuple[str, ...] = ()) -> dict:
+def time_to_accuracy(
+    model: str, system: str, target: float, max_epochs: int, workdir: Path, overrides: tuple[str, ...] = ()
+) -> dict:
     """One row: train ``model`` on ``system`` until ``val/traj_rel_err`` ≤ ``target`` (or ``max_epochs``)."""
-    cfg = api.compose(f"model={model}", f"system={system}", "logger=none", f"trainer.max_epochs={max_epochs}",
-                      "trainer.enable_progress_bar=false",
-                      "trainer.enable_model_summary=false", *overrides,
-                      output_dir=workdir / f"{model}-{system}", cache_dir=workdir / "cache")
+    cfg = api.compose(
+        f"model={model}",
+        f"system={system}",
+        "logger=none",
+        f"trainer.max_epochs={max_epochs}",
+        "trainer.enable_progress_bar=false",
+        "trainer.enable_model_summary=false",
+        *overrides,
+        output_dir=workdir / f"{model}-{system}",
+        cache_dir=workdir / "cache",
+    )
     start = time.perf_counter()
     data, module = api.build(cfg)
     data_s = time.perf_counter() - start
@@ -70,17 +94,27 @@ def time_to_accuracy(model: str, system: str, target: float, max_epochs: int, wo
     trainer.callbacks.append(clock)
     trainer.fit(module, datamodule=data)
     trainer.test(module, datamodule=data, verbose=False)
-    return {"model": model, "system": system, "target": target, "reached": clock.reached_s is not None,
-            "time_to_target_s": clock.reached_s, "epochs": clock.epochs, "val_traj_rel_err": clock.value,
-            "test_traj_rel_err": module.test_metrics["traj_rel_err"], "data_s": data_s,
-            "threads": torch.get_num_threads()}
+    return {
+        "model": model,
+        "system": system,
+        "target": target,
+        "reached": clock.reached_s is not None,
+        "time_to_target_s": clock.reached_s,
+        "epochs": clock.epochs,
+        "val_traj_rel_err": clock.value,
+        "test_traj_rel_err": module.test_metrics["traj_rel_err"],
+        "data_s": data_s,
+        "threads": torch.get_num_threads(),
+    }
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--runs", nargs="+", default=list(RUNS), choices=list(RUNS), metavar="MODEL/SYSTEM")
     parser.add_argument("--max-epochs", type=int, default=100, help="budget per run")
-    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: encons.infra.threads' policy)")
+    parser.add_argument(
+        "--threads", type=int, default=None, help="torch threads (default: encons.infra.threads' policy)"
+    )
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/time_to_accuracy.csv"))
     parser.add_argument("overrides", nargs="*", help="train overrides for every run, e.g. data.n_train=200")
     args = parser.parse_args(argv)
@@ -97,22 +131,48 @@ def main(argv: list[str] | None = None) -> list[dict]:
             rows.append(time_to_accuracy(model, system, RUNS[run], args.max_epochs, Path(tmp), overrides))
             r = rows[-1]
             reached = f"{r['time_to_target_s']:.1f} s" if r["reached"] else f"not reached in {args.max_epochs} epochs"
-            print(f"{run}: val traj_rel_err ≤ {r['target']}: {reached} ({r['epochs']} epochs; data {r['data_s']:.1f} s; "
-                  f"test traj_rel_err {r['test_traj_rel_err']:.3g})", flush=True)
+            print(
+                f"{run}: val traj_rel_err ≤ {r['target']}: {reached} ({r['epochs']} epochs; data {r['data_s']:.1f} s; "
+                f"test traj_rel_err {r['test_traj_rel_err']:.3g})",
+                flush=True,
+            )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with args.out.open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=FIELDS)
         writer.writeheader()
         writer.writerows(rows)
-    header = ["model", "system", "target val traj_rel_err", "time to target s", "epochs", "val traj_rel_err",
-              "test traj_rel_err", "data s", "threads"]
-    lines = [[r["model"], r["system"], f"{r['target']:g}",
-              f"{r['time_to_target_s']:.1f}" if r["reached"] else f"not in {args.max_epochs} epochs",
-              str(r["epochs"]), f"{r['val_traj_rel_err']:.3g}", f"{r['test_traj_rel_err']:.3g}", f"{r['data_s']:.1f}",
-              str(r["threads"])] for r in rows]
+    header = [
+        "model",
+        "system",
+        "target val traj_rel_err",
+        "time to target s",
+        "epochs",
+        "val traj_rel_err",
+        "test traj_rel_err",
+        "data s",
+        "threads",
+    ]
+    lines = [
+        [
+            r["model"],
+            r["system"],
+            f"{r['target']:g}",
+            f"{r['time_to_target_s']:.1f}" if r["reached"] else f"not in {args.max_epochs} epochs",
+            str(r["epochs"]),
+            f"{r['val_traj_rel_err']:.3g}",
+            f"{r['test_traj_rel_err']:.3g}",
+            f"{r['data_s']:.1f}",
+            str(r["threads"]),
+        ]
+        for r in rows
+    ]
     stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    table = [f"{os.cpu_count()} cores, {stamp}, overrides: {' '.join(args.overrides) or 'none'}.", "",
-             "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    table = [
+        f"{os.cpu_count()} cores, {stamp}, overrides: {' '.join(args.overrides) or 'none'}.",
+        "",
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+    ]
     args.out.with_suffix(".md").write_text("\n".join(table + ["| " + " | ".join(line) + " |" for line in lines]) + "\n")
     print(f"written: {args.out}, {args.out.with_suffix('.md')}")
     return rows

@@ -6,7 +6,9 @@ The library is :mod:`encons.tools.benchmark`, so importing this file is refused 
 import sys
 
 if __name__ != "__main__":
-    raise ImportError("encons.benchmark is only the command `python -m encons.benchmark`; import encons.tools.benchmark")
+    raise ImportError(
+        "encons.benchmark is only the command `python -m encons.benchmark`; import encons.tools.benchmark"
+    )
 
 from encons.entry.cli import main  # noqa: E402 - only when run as the command
 

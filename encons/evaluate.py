@@ -6,7 +6,9 @@ The Python name ``encons.evaluate`` is the API's function (:func:`encons.entry.a
 import sys
 
 if __name__ != "__main__":
-    raise ImportError("encons.evaluate is the API's function, not a module: call encons.evaluate(run); `python -m encons.evaluate` is the command")
+    raise ImportError(
+        "encons.evaluate is the API's function, not a module: call encons.evaluate(run); `python -m encons.evaluate` is the command"
+    )
 
 from encons.entry.cli import main  # noqa: E402 - only when run as the command
 

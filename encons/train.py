@@ -6,7 +6,9 @@ The Python name ``encons.train`` is the API's function (:func:`encons.entry.api.
 import sys
 
 if __name__ != "__main__":
-    raise ImportError("encons.train is the API's function, not a module: call encons.train(cfg); `python -m encons.train` is the command")
+    raise ImportError(
+        "encons.train is the API's function, not a module: call encons.train(cfg); `python -m encons.train` is the command"
+    )
 
 from encons.entry.cli import main  # noqa: E402 - only when run as the command
 

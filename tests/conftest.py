@@ -12,7 +12,6 @@ import pytest
 import torch
 from hydra.core.global_hydra import GlobalHydra
 
-
 torch.set_default_dtype(torch.float32)
 torch.set_num_threads(1)  # tiny tensors: threads only contend (about 4× faster on 2 shared cores)
 
@@ -63,8 +62,13 @@ def train_run(tmp_path):
     from encons.entry import api
 
     def run(overrides: list[str], name: str = "run", fast: bool = True, figures: bool = False) -> dict[str, float]:
-        cfg = api.compose(*(["debug=fast"] if fast else []), f"figures={str(figures).lower()}", *overrides,
-                          output_dir=tmp_path / name, cache_dir=tmp_path / "cache")
+        cfg = api.compose(
+            *(["debug=fast"] if fast else []),
+            f"figures={str(figures).lower()}",
+            *overrides,
+            output_dir=tmp_path / name,
+            cache_dir=tmp_path / "cache",
+        )
         return api.train(cfg).metrics
 
     return run

@@ -54,51 +54,70 @@ NUMBER = re.compile(r"(?<![\w.\-/^])[-−]?(?:\d{1,3}(?:,\d{3})+|\d+)(?:\.\d+)?(
 FILE_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 MARK = re.compile(r"<!--\s*not-a-result:(.*?)-->", re.S)
 PATH = re.compile(r"(?<![\w/.])((?:\.\./)*[\w.-]+(?:/[\w.+-]+)*/?)")
-REFERENCE = re.compile(r"(?:§|\bTables?\s|\bTab\.\s|\bFigs?\.\s|\bFigure\s|\b[Ee]qs?\.\s\(?|\b[Ee]quation\s\(?|"
-                       r"\bTheorem\s|\bSection\s|\bissue\s|\bAppendix\s|"
-                       r"\bet al\.,?\s|\bet al\.\s\(|&\s\w+\s|\bPR\s|#)$")
+REFERENCE = re.compile(
+    r"(?:§|\bTables?\s|\bTab\.\s|\bFigs?\.\s|\bFigure\s|\b[Ee]qs?\.\s\(?|\b[Ee]quation\s\(?|"
+    r"\bTheorem\s|\bSection\s|\bissue\s|\bAppendix\s|"
+    r"\bet al\.,?\s|\bet al\.\s\(|&\s\w+\s|\bPR\s|#)$"
+)
 RANGE = re.compile(r"(?:§|\bTables?\s|\bFigs?\.\s|\b[Ee]qs?\.\s\(?)\d+(?:\.\d+)?\)?(?:\s*[–/-]\s*|,\s|\sand\s)\(?$")
 
 
 _N = r"[-−]?\d[\d,]*(?:\.\d+)?(?:[eE][-+−]?\d+)?"
 _LIST = rf"{_N}(?:\s*(?:,|–|-|…|\.\.\.|/|and|or|to|and then)\s*{_N})*"
-KEYS = (r"lr|learning rates?|seeds?|batch(?: size)?|widths?|depths?|N_train|n_train|rtol|atol|tol|weight decay|epochs?|"
-        r"K|k|dt|horizon|noise|patience|max_epochs|chunks? of|windows? of|step size|grid of|every")
-UNITS = (r"epochs?|trajector(?:y|ies)|steps?|seeds|networks?|layers?|hidden units|units|neurons|starts|members|cores?|"
-         r"threads?|workers?|points|samples|GPUs?|CPUs?|iterations|batches|dimensions|frames|links|bodies|trials|"
-         r"time steps|hidden layers|pixels|px|channels|evaluations|rollouts|states|digits|bits|masses|pendulums")
-_MONTH = (r"(?:January|February|March|April|May|June|July|August|September|October|November|December|"
-          r"Jan|Feb|Mar|Apr|Jun|Jul|Aug|Sept?|Oct|Nov|Dec)\b\.?")
-DATE = re.compile(rf"\b\d{{1,2}}\s+{_MONTH}(?:\s+\d{{4}})?|\b{_MONTH}\s+\d{{1,2}}(?:,?\s+\d{{4}})?\b|"
-                  rf"\b{_MONTH}\s+\d{{4}}|"
-                  r"\b\d{4}-\d\d-\d\d\b|\b\d{1,2}:\d\d(?::\d\d)?(?:[–-]\d{1,2}:\d\d(?::\d\d)?)?\b")
-SETTING = re.compile(rf"(?<![\w.])(?:(?:{KEYS})\s*(?:=|:|of)?\s*{_LIST}|{_LIST}\s+(?:[a-z-]+\s+)?(?:{UNITS})\b|"
-                     rf"\d+\s*[×x]\s*\d+(?:\s*[×x]\s*\d+)*(?!\.\d|\d))")
+KEYS = (
+    r"lr|learning rates?|seeds?|batch(?: size)?|widths?|depths?|N_train|n_train|rtol|atol|tol|weight decay|epochs?|"
+    r"K|k|dt|horizon|noise|patience|max_epochs|chunks? of|windows? of|step size|grid of|every"
+)
+UNITS = (
+    r"epochs?|trajector(?:y|ies)|steps?|seeds|networks?|layers?|hidden units|units|neurons|starts|members|cores?|"
+    r"threads?|workers?|points|samples|GPUs?|CPUs?|iterations|batches|dimensions|frames|links|bodies|trials|"
+    r"time steps|hidden layers|pixels|px|channels|evaluations|rollouts|states|digits|bits|masses|pendulums"
+)
+_MONTH = (
+    r"(?:January|February|March|April|May|June|July|August|September|October|November|December|"
+    r"Jan|Feb|Mar|Apr|Jun|Jul|Aug|Sept?|Oct|Nov|Dec)\b\.?"
+)
+DATE = re.compile(
+    rf"\b\d{{1,2}}\s+{_MONTH}(?:\s+\d{{4}})?|\b{_MONTH}\s+\d{{1,2}}(?:,?\s+\d{{4}})?\b|"
+    rf"\b{_MONTH}\s+\d{{4}}|"
+    r"\b\d{4}-\d\d-\d\d\b|\b\d{1,2}:\d\d(?::\d\d)?(?:[–-]\d{1,2}:\d\d(?::\d\d)?)?\b"
+)
+SETTING = re.compile(
+    rf"(?<![\w.])(?:(?:{KEYS})\s*(?:=|:|of)?\s*{_LIST}|{_LIST}\s+(?:[a-z-]+\s+)?(?:{UNITS})\b|"
+    rf"\d+\s*[×x]\s*\d+(?:\s*[×x]\s*\d+)*(?!\.\d|\d))"
+)
 
 
 def documents(root: Path = ROOT) -> list[Path]:
     """The prose a reader meets: README.md, docs/*.md and every report's README.md and RUN.md."""
     reports = root / "benchmarks" / "reports"
-    return [root / "README.md", *sorted((root / "docs").glob("*.md")),
-            *sorted(p for p in reports.rglob("*.md") if p.name in PROSE)]
+    return [
+        root / "README.md",
+        *sorted((root / "docs").glob("*.md")),
+        *sorted(p for p in reports.rglob("*.md") if p.name in PROSE),
+    ]
 
 
 @dataclass
 class Paragraph:
     doc: Path
     line: int
-    text: str                      # as written
+    text: str  # as written
     exempt: set[str] = field(default_factory=set)
     settings: int = 0
-    lead: str = ""                 # a list item's lead-in paragraph (ending in a colon), else empty
+    lead: str = ""  # a list item's lead-in paragraph (ending in a colon), else empty
 
 
 def paragraphs(doc: Path) -> list[Paragraph]:
     """The paragraphs of ``doc`` with fenced blocks and rendered tables dropped; list items and table rows
     are paragraphs of their own, a paragraph's line is where it starts."""
     text = doc.read_text()
-    text = re.sub(r"```.*?```|<!-- encons-report:.*?<!-- /encons-report -->",
-                  lambda m: "\n" * m.group(0).count("\n"), text, flags=re.S)
+    text = re.sub(
+        r"```.*?```|<!-- encons-report:.*?<!-- /encons-report -->",
+        lambda m: "\n" * m.group(0).count("\n"),
+        text,
+        flags=re.S,
+    )
     out: list[Paragraph] = []
     lines: list[str] = []
     start = 0
@@ -112,7 +131,7 @@ def paragraphs(doc: Path) -> list[Paragraph]:
             if not lines:
                 start = i
             lines.append(line)
-    lead, depth = "", -1           # the lead-in in force, and its indent (-1: a paragraph, not an item)
+    lead, depth = "", -1  # the lead-in in force, and its indent (-1: a paragraph, not an item)
     for p in out:
         item = re.match(r"(\s*)(?:[-*+]|\d+\.)\s", p.text)
         indent = len(item.group(1)) if item else -1
@@ -152,8 +171,8 @@ def numbers(p: Paragraph) -> list[str]:
         if any(a <= m.start() and m.end() <= b for a, b in settings):
             p.settings += 1
             continue
-        before = text[max(0, m.start() - 20):m.start()]
-        if REFERENCE.search(before) or RANGE.search(text[max(0, m.start() - 30):m.start()]):
+        before = text[max(0, m.start() - 20) : m.start()]
+        if REFERENCE.search(before) or RANGE.search(text[max(0, m.start() - 30) : m.start()]):
             continue
         if re.match(r"(?:1[89]|20)\d\d$", m.group(0)) and re.search(r"(?:et al\.,?|&\s?\w+|\w+,)\s*\(?$", before):
             continue
@@ -190,8 +209,11 @@ def sources(p: Paragraph, root: Path = ROOT) -> list[Path]:
         if path.is_file():
             files.append(path)
         else:
-            files += [f for f in sorted(path.rglob("*")) if f.is_file() and f.suffix in TEXT
-                      and f.name not in PROSE and not f.name.startswith(".")]
+            files += [
+                f
+                for f in sorted(path.rglob("*"))
+                if f.is_file() and f.suffix in TEXT and f.name not in PROSE and not f.name.startswith(".")
+            ]
     return files
 
 
@@ -255,8 +277,8 @@ class Verdict:
     settings: int = 0
     recorded: int = 0
     untied: list[str] = field(default_factory=list)
-    paragraphs: set[str] = field(default_factory=set)    # fingerprints of the paragraphs with untied numbers
-    where: dict[str, str] = field(default_factory=dict)   # an untied entry -> its paragraph's fingerprint
+    paragraphs: set[str] = field(default_factory=set)  # fingerprints of the paragraphs with untied numbers
+    where: dict[str, str] = field(default_factory=dict)  # an untied entry -> its paragraph's fingerprint
 
 
 def check(root: Path = ROOT, docs: list[Path] | None = None) -> Verdict:
@@ -279,8 +301,9 @@ def check(root: Path = ROOT, docs: list[Path] | None = None) -> Verdict:
                     verdict.recorded += 1
                 else:
                     where = ", ".join(str(f.relative_to(root)) for f in files[:4]) or "no committed file named"
-                    verdict.untied.append(f"{doc.relative_to(root)}:{p.line}: {n} not in {where} — "
-                                          f"{' '.join(p.text.split())[:300]}")
+                    verdict.untied.append(
+                        f"{doc.relative_to(root)}:{p.line}: {n} not in {where} — {' '.join(p.text.split())[:300]}"
+                    )
                     verdict.paragraphs.add(fingerprint(p, root))
                     verdict.where[verdict.untied[-1]] = fingerprint(p, root)
     return verdict

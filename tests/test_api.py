@@ -13,8 +13,10 @@ import encons
 
 
 def test_import_is_light_and_versioned():
-    probe = ("import sys, encons; print(encons.__version__, sorted(encons.__all__));"
-             "print('lightning.pytorch' in sys.modules, 'torch' in sys.modules)")
+    probe = (
+        "import sys, encons; print(encons.__version__, sorted(encons.__all__));"
+        "print('lightning.pytorch' in sys.modules, 'torch' in sys.modules)"
+    )
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
     version, names = out.splitlines()[0].split(" ", 1)
     assert version.count(".") >= 2
@@ -23,8 +25,14 @@ def test_import_is_light_and_versioned():
 
 
 def test_notebook_workflow_round_trips_a_run(tmp_path):
-    cfg = encons.compose("model=hnn_angle", "system=pendulum1", "debug=fast", "trainer.max_epochs=3",
-                         output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    cfg = encons.compose(
+        "model=hnn_angle",
+        "system=pendulum1",
+        "debug=fast",
+        "trainer.max_epochs=3",
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
     run = encons.train(cfg)
     assert isinstance(run, encons.Run) and run.run_dir == tmp_path / "run"
     assert run.checkpoint.name.startswith("best-") and math.isfinite(run.metrics["test/traj_rel_err"])

@@ -90,10 +90,16 @@ def _figure(path, value):
 
 WRITERS = {  # name: (file, write(path, version), read(path) -> what a reader sees)
     "checkpoint": ("last.ckpt", _checkpoint, lambda p: torch.load(p, weights_only=True)["epoch"]),
-    "metrics": ("test_metrics.json", lambda p, v: atomic.write_json(p, {"traj_rel_err": [v] * 500}),
-                lambda p: json.loads(p.read_text())["traj_rel_err"][0]),
-    "curves": ("test_curves.npz", lambda p, v: atomic.save_npz(p, rel_err=np.full(3000, float(v))),
-               lambda p: float(np.load(p)["rel_err"][0])),
+    "metrics": (
+        "test_metrics.json",
+        lambda p, v: atomic.write_json(p, {"traj_rel_err": [v] * 500}),
+        lambda p: json.loads(p.read_text())["traj_rel_err"][0],
+    ),
+    "curves": (
+        "test_curves.npz",
+        lambda p, v: atomic.save_npz(p, rel_err=np.full(3000, float(v))),
+        lambda p: float(np.load(p)["rel_err"][0]),
+    ),
     "report": ("summary.csv", _report, lambda p: p.read_text().splitlines()[1]),
     "figure": ("rollout.png", _figure, lambda p: p.read_bytes()),
 }
@@ -161,7 +167,10 @@ def test_a_disk_that_fills_during_training_keeps_the_last_good_checkpoints(tmp_p
     folder = tmp_path / "run" / "checkpoints"
     line = str(caught.value)
     assert "\n" not in line and line.startswith(f"folder={str(folder)!r}: cannot write ") and "No space left" in line
-    assert sorted(p.name for p in folder.iterdir()) == ["best-epoch0001.ckpt", "last.ckpt"]  # no partial file (epochs counted from 1)
+    assert sorted(p.name for p in folder.iterdir()) == [
+        "best-epoch0001.ckpt",
+        "last.ckpt",
+    ]  # no partial file (epochs counted from 1)
     for kept in folder.iterdir():
         assert torch.load(kept, weights_only=True)["epoch"] == 0
 
@@ -170,12 +179,16 @@ def test_resume_skips_a_damaged_last_checkpoint_with_one_warning(tmp_path, caplo
     import shutil
 
     from encons.entry import api
-
     from encons.infra import checkpoints
 
     def compose(name, *overrides):
-        return api.compose("debug=fast", "trainer.max_epochs=1", *overrides, output_dir=tmp_path / "runs" / name,
-                           cache_dir=tmp_path / "cache")
+        return api.compose(
+            "debug=fast",
+            "trainer.max_epochs=1",
+            *overrides,
+            output_dir=tmp_path / "runs" / name,
+            cache_dir=tmp_path / "cache",
+        )
 
     api.train(compose("good"), summary=False)
     shutil.copytree(tmp_path / "runs" / "good", tmp_path / "runs" / "cut")
@@ -192,4 +205,6 @@ def test_resume_skips_a_damaged_last_checkpoint_with_one_warning(tmp_path, caplo
         shutil.rmtree(tmp_path / "runs" / name)
     with pytest.raises(EnconsError) as caught:  # nothing readable left: refused in one line
         api.train(compose("again", "ckpt_path=last"), summary=False)
-    assert "\n" not in str(caught.value) and "ckpt_path=last" in str(caught.value) and "; allowed: " in str(caught.value)
+    assert (
+        "\n" not in str(caught.value) and "ckpt_path=last" in str(caught.value) and "; allowed: " in str(caught.value)
+    )

@@ -75,8 +75,15 @@ TRAIN = [  # (overrides, text the error line must hold)
     # sweeps
     (["-m", "sweeps=nope"], "sweeps=nope"),
     (["-m", "sweeps=optuna", "optimizer.lr=tag(log,interval(1e-2,1e-4))"], "optimizer.lr"),
-    (["-m", "sweeps=optuna", "sweeps.storage=sqlite:///{tmp}/nope/x.db",
-      "optimizer.lr=tag(log,interval(1e-4,1e-2))"], "sweeps.storage="),
+    (
+        [
+            "-m",
+            "sweeps=optuna",
+            "sweeps.storage=sqlite:///{tmp}/nope/x.db",
+            "optimizer.lr=tag(log,interval(1e-4,1e-2))",
+        ],
+        "sweeps.storage=",
+    ),
     (["-m", "sweeps=optuna", "hydra.sweeper.max_failure_rate=2"], "hydra.sweeper.max_failure_rate=2"),
 ]
 
@@ -89,20 +96,20 @@ OTHER = [  # (module, argv, text the error line must hold)
     ("encons.evaluate", ["{run}", "data.test_steps=-1"], "data.test_steps=-1"),
     ("encons.evaluate", ["{run}", "horizon=0"], "horizon=0"),
     ("encons.evaluate", ["{bad_ckpt}"], "bad.ckpt"),
-    ("encons.tools.benchmark", ["profile=nope"], "profile=nope"),
-    ("encons.tools.benchmark", ["seeds=[]", "out={tmp}/bench"], "seeds=[]"),
-    ("encons.tools.benchmark", ["seeds=[-1]", "out={tmp}/bench"], "seeds=[-1]"),
-    ("encons.tools.benchmark", ['train=["trainer.max_epochs=-1"]', "out={tmp}/bench"], "trainer.max_epochs=-1"),
-    ("encons.tools.benchmark", ["out={file}"], "out="),
-    ("encons.tools.benchmark", ["n_train=[0]", "out={tmp}/bench"], "n_train=0"),
-    ("encons.tools.benchmark", ["threads=0", "out={tmp}/bench"], "threads=0"),
-    ("encons.tools.report", ["{file}"], "file.txt"),
-    ("encons.tools.report", ["{empty}"], "empty"),
-    ("encons.tools.report", ["{tmp}/nope"], "nope"),
-    ("encons.tools.report", ["{rows}"], "result.json"),
-    ("encons.tools.benchmark", ["models=[nope]", "out={tmp}/bench"], "model=nope"),
-    ("encons.tools.sweep", ["sqlite:///{tmp}/nope/x.db", "study"], "sweeps.storage="),
-    ("encons.tools.sweep", ["sqlite:///{tmp}/x.db", "study"], "study='study'"),
+    ("encons.benchmark", ["profile=nope"], "profile=nope"),
+    ("encons.benchmark", ["seeds=[]", "out={tmp}/bench"], "seeds=[]"),
+    ("encons.benchmark", ["seeds=[-1]", "out={tmp}/bench"], "seeds=[-1]"),
+    ("encons.benchmark", ['train=["trainer.max_epochs=-1"]', "out={tmp}/bench"], "trainer.max_epochs=-1"),
+    ("encons.benchmark", ["out={file}"], "out="),
+    ("encons.benchmark", ["n_train=[0]", "out={tmp}/bench"], "n_train=0"),
+    ("encons.benchmark", ["threads=0", "out={tmp}/bench"], "threads=0"),
+    ("encons.report", ["{file}"], "file.txt"),
+    ("encons.report", ["{empty}"], "empty"),
+    ("encons.report", ["{tmp}/nope"], "nope"),
+    ("encons.report", ["{rows}"], "result.json"),
+    ("encons.benchmark", ["models=[nope]", "out={tmp}/bench"], "model=nope"),
+    ("encons.sweep", ["sqlite:///{tmp}/nope/x.db", "study"], "sweeps.storage="),
+    ("encons.sweep", ["sqlite:///{tmp}/x.db", "study"], "study='study'"),
 ]
 
 
@@ -128,9 +135,15 @@ def places(tmp_path, finished_run):
     (tmp_path / "rows" / "runs" / "a" / "result.json").write_text('{"system": "pend')
     bad = tmp_path / "bad.ckpt"
     bad.write_bytes(finished_run.checkpoint.read_bytes()[:5000])
-    return {"tmp": str(tmp_path), "file": str(tmp_path / "file.txt"), "empty": str(tmp_path / "empty"),
-            "run": str(finished_run.run_dir), "ckpt": str(finished_run.checkpoint), "bad_ckpt": str(bad),
-            "rows": str(tmp_path / "rows")}
+    return {
+        "tmp": str(tmp_path),
+        "file": str(tmp_path / "file.txt"),
+        "empty": str(tmp_path / "empty"),
+        "run": str(finished_run.run_dir),
+        "ckpt": str(finished_run.checkpoint),
+        "bad_ckpt": str(bad),
+        "rows": str(tmp_path / "rows"),
+    }
 
 
 def _assert_one_line(proc, key: str) -> None:
@@ -142,9 +155,16 @@ def _assert_one_line(proc, key: str) -> None:
 @pytest.mark.parametrize("args, key", _cases(TRAIN, [" ".join(a) for a, _ in TRAIN]))
 def test_train_cli(places, tmp_path, monkeypatch, args, key):
     monkeypatch.chdir(tmp_path)
-    proc = in_process("encons.train", ["debug=fast", f"hydra.run.dir={tmp_path / 'run'}",
-                                       f"hydra.sweep.dir={tmp_path / 'multi'}", *(a.format(**places) for a in args)],
-                      monkeypatch)
+    proc = in_process(
+        "encons.train",
+        [
+            "debug=fast",
+            f"hydra.run.dir={tmp_path / 'run'}",
+            f"hydra.sweep.dir={tmp_path / 'multi'}",
+            *(a.format(**places) for a in args),
+        ],
+        monkeypatch,
+    )
     _assert_one_line(proc, key.format(**places))
 
 
@@ -170,8 +190,17 @@ def _api_cases():
     }
 
 
-API = ["train a list", "train a string", "compose a list", "compose unknown", "load nothing", "load a file",
-       "load a damaged checkpoint", "evaluate a group change", "catalogue unknown"]
+API = [
+    "train a list",
+    "train a string",
+    "compose a list",
+    "compose unknown",
+    "load nothing",
+    "load a file",
+    "load a damaged checkpoint",
+    "evaluate a group change",
+    "catalogue unknown",
+]
 
 
 @pytest.mark.parametrize("name", _cases([(n,) for n in API], API))

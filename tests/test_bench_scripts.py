@@ -17,12 +17,41 @@ SMOKE = {
     "evaluation_floor.py": ["pendulum1", "2"],
     "pixel_speed.py": ["--steps", "1", "--videos", "2", "--frames", "10"],
     "time_to_accuracy.py": ["--runs", "node/pendulum2", "--max-epochs", "1", "debug=fast"],
-    "control_b.py": None, "control_b_curve.py": None, "profile_costs.py": None, "structure_figures.py": None,  # report makers (not smoke-run)
-    "speed.py": ["--systems", "pendulum2", "--models", "chnn", "--steps", "1", "--repeats", "1", "--naive-steps", "0",
-                 "--compile", "--batch", "4", "--chunk", "3", "--hidden", "8", "--depth", "1"],
+    "control_b.py": None,
+    "control_b_curve.py": None,
+    "profile_costs.py": None,
+    "structure_figures.py": None,  # report makers (not smoke-run)
+    "speed.py": [
+        "--systems",
+        "pendulum2",
+        "--models",
+        "chnn",
+        "--steps",
+        "1",
+        "--repeats",
+        "1",
+        "--naive-steps",
+        "0",
+        "--compile",
+        "--batch",
+        "4",
+        "--chunk",
+        "3",
+        "--hidden",
+        "8",
+        "--depth",
+        "1",
+    ],
 }
-PRINTS = {"evaluation_floor.py": "geom_rel_err", "jacobian_speed.py": "vmap(jacrev)", "symo_speed.py": "E2ESyMo", "ensemble_speed.py": "lim_kasim | 2 | stacked", "pixel_speed.py": "rollout frames/s",
-          "speed.py": "chnn", "time_to_accuracy.py": "node/pendulum2"}
+PRINTS = {
+    "evaluation_floor.py": "geom_rel_err",
+    "jacobian_speed.py": "vmap(jacrev)",
+    "symo_speed.py": "E2ESyMo",
+    "ensemble_speed.py": "lim_kasim | 2 | stacked",
+    "pixel_speed.py": "rollout frames/s",
+    "speed.py": "chnn",
+    "time_to_accuracy.py": "node/pendulum2",
+}
 
 
 def test_every_benchmark_script_has_a_smoke_run():

@@ -11,15 +11,20 @@ from pathlib import Path
 import pytest
 
 from encons.config import trust
-from encons.tools.benchmark import expand, optimiser
-from encons.training.build import compose
 from encons.entry.cli import benchmark as main
 from encons.infra.errors import ConfigError
 from encons.infra.paths import config_dir
+from encons.tools.benchmark import expand, optimiser
 from encons.tools.report import write_report
+from encons.training.build import compose
 
-FIGURES = ("traj_rel_err.png", "rel_err_vs_time.png", "energy_err_vs_time.png", "energy_rmse.png",
-           "data_efficiency.png")
+FIGURES = (
+    "traj_rel_err.png",
+    "rel_err_vs_time.png",
+    "energy_err_vs_time.png",
+    "energy_rmse.png",
+    "data_efficiency.png",
+)
 
 
 def test_smoke_profile_writes_report_and_resumes(tmp_path, capsys):
@@ -45,7 +50,7 @@ def test_smoke_profile_writes_report_and_resumes(tmp_path, capsys):
     stamps = {p: p.stat().st_mtime_ns for p in (out / "runs").glob("*/result.json")}
     capsys.readouterr()
     main(["profile=smoke", f"out={out}", f"cache_dir={cache}"])
-    printed = capsys.readouterr().out                    # the stream training logs to, not stderr
+    printed = capsys.readouterr().out  # the stream training logs to, not stderr
     assert printed.count("finished before, skipped") == 6 and "benchmark run 6 of 6 done" in printed
     assert stamps == {p: p.stat().st_mtime_ns for p in (out / "runs").glob("*/result.json")}
     (out / "summary.md").unlink()
@@ -59,7 +64,8 @@ def test_smoke_profile_writes_report_and_resumes(tmp_path, capsys):
     assert f"resuming from {killed.parent / 'checkpoints' / 'last.ckpt'}" in capsys.readouterr().out
     after = json.loads(killed.read_text())
     assert {k: v for k, v in after.items() if k.startswith("test/")} == {
-        k: v for k, v in before.items() if k.startswith("test/")}
+        k: v for k, v in before.items() if k.startswith("test/")
+    }
 
 
 def test_profiles_expand_and_carry_published_numbers():
@@ -68,7 +74,8 @@ def test_profiles_expand_and_carry_published_numbers():
     lim_kasim = expand(compose(["profile=lim_kasim"], config_name="benchmark"))
     assert {r.label for r in lim_kasim} >= {"node+C_H", "hnn", "nsf", "node+C_D"}
     assert next(r for r in lim_kasim if r.label == "node+C_H" and r.system == "pendulum").paper == {
-        "energy_rmse_median": 0.024}
+        "energy_rmse_median": 0.024
+    }
     quick = expand(compose(["profile=quick"], config_name="benchmark"))
     assert len(quick) == 11 * 4 * 3
     zhong = expand(compose(["profile=zhong"], config_name="benchmark"))
@@ -85,8 +92,9 @@ def test_profiles_expand_and_carry_published_numbers():
     with pytest.raises(ConfigError, match="only=\\['nope'\\] selects none"):
         expand(compose(["profile=lim_kasim", "only=[nope]"], config_name="benchmark"))
     xiao = expand(compose(["profile=xiao"], config_name="benchmark"))
-    assert len(xiao) == 16 and next(r for r in xiao if r.label == "glnn-h200-d3" and r.system == "damped_oscillator"
-                                    ).paper == {"accel_mse": 1.94e-4}
+    assert len(xiao) == 16 and next(
+        r for r in xiao if r.label == "glnn-h200-d3" and r.system == "damped_oscillator"
+    ).paper == {"accel_mse": 1.94e-4}
 
 
 def test_quick_gives_every_model_one_optimiser_and_schedule():
@@ -97,7 +105,9 @@ def test_quick_gives_every_model_one_optimiser_and_schedule():
     runs = expand(profile)
     per_system = {}
     for r in runs:
-        per_system.setdefault((r.label, r.seed), set()).add(tuple(o for o in r.overrides if not o.startswith("system=")))
+        per_system.setdefault((r.label, r.seed), set()).add(
+            tuple(o for o in r.overrides if not o.startswith("system="))
+        )
     assert len(per_system) == 11 * 3 and all(len(v) == 1 for v in per_system.values())
     configs = {r.label: compose(r.overrides) for r in runs if r.system == "pendulum2" and r.seed == 0}
     used = {m: optimiser(c) for m, c in configs.items()}
@@ -105,13 +115,18 @@ def test_quick_gives_every_model_one_optimiser_and_schedule():
     assert all("; constant lr; 20 epochs" in u for u in used.values()), used
     family = {m: trust.locate(c.model._target_, "model").family for m, c in configs.items()}
     assert set(family.values()) == set(profile.per_family)
-    chosen = {f: [float(o.split("=")[1]) for o in ovr if o.startswith("optimizer.lr=")] for f, ovr in profile.per_family.items()}
+    chosen = {
+        f: [float(o.split("=")[1]) for o in ovr if o.startswith("optimizer.lr=")]
+        for f, ovr in profile.per_family.items()
+    }
     assert {m: [c.optimizer.lr] for m, c in configs.items()} == {m: chosen[family[m]] for m in configs}
 
 
 def test_a_family_the_profile_does_not_list_is_refused():
     with pytest.raises(ConfigError, match="per_family has no entry for model=hnn \\(family canonical\\); allowed"):
-        expand(compose(["profile=smoke", '++per_family={unstructured: ["optimizer.lr=1e-2"]}'], config_name="benchmark"))
+        expand(
+            compose(["profile=smoke", '++per_family={unstructured: ["optimizer.lr=1e-2"]}'], config_name="benchmark")
+        )
 
 
 def test_unknown_profile_is_one_line_error():
@@ -141,9 +156,12 @@ def test_help_lists_the_profiles_and_trains_nothing(tmp_path, capsys):
     assert not any(tmp_path.iterdir())
 
 
-TINY_SANTOS = ['train=["figures=false","evaluation.rtol=1e-6","evaluation.atol=1e-8","data.n_val=2","data.n_test=2","model.hidden=8","trainer.max_epochs=1",'
-               '"evaluators.santos.steps=4","evaluators.santos.n_trajectories=2"]', "n_train=[2]",
-               "per_n_train={}"]
+TINY_SANTOS = [
+    'train=["figures=false","evaluation.rtol=1e-6","evaluation.atol=1e-8","data.n_val=2","data.n_test=2","model.hidden=8","trainer.max_epochs=1",'
+    '"evaluators.santos.steps=4","evaluators.santos.n_trajectories=2"]',
+    "n_train=[2]",
+    "per_n_train={}",
+]
 
 
 @pytest.mark.slow
@@ -156,7 +174,14 @@ def test_santos_profile_at_smoke_size_writes_figures_3_4_and_resumes(tmp_path, c
     with (out / "results.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == 2 * 6 and not any(r["error"] for r in rows)
-    assert {r["model"] for r in rows} == {"node-rk4", "node-midpoint", "lnode-rk4", "lnode-midpoint", "symo", "e2e_symo"}
+    assert {r["model"] for r in rows} == {
+        "node-rk4",
+        "node-midpoint",
+        "lnode-rk4",
+        "lnode-midpoint",
+        "symo",
+        "e2e_symo",
+    }
     assert all(("objective=residual" in r["overrides"]) == (r["model"] == "symo") for r in rows)  # the rest: onestep
     md = (out / "summary.md").read_text()
     for key in ("mse_train", "mse_test", "mse_integration", "energy_mse_integration", "mass_mse", "newton_unconverged"):
@@ -174,9 +199,13 @@ def test_xiao_profile_at_smoke_size_writes_tables_3_4_and_mse_curves_and_resumes
     """profile=xiao (Xiao et al. Tables 3–4, Figs. 3 and 5) with tiny sizes: the width/depth runs and the
     baseline on both systems, the paper's cell values beside accel_mse, state and energy MSE against time."""
     out, cache = tmp_path / "xiao", tmp_path / "cache"
-    args = ["profile=xiao", f"out={out}", f"cache_dir={cache}",
-            'train=["figures=false","evaluation.rtol=1e-6","evaluation.atol=1e-8","data.n_train=2","data.n_val=1","data.n_test=2","data.n_steps=20","data.test_steps=30",'
-            '"data.chunk_len=20","trainer.max_epochs=1"]']
+    args = [
+        "profile=xiao",
+        f"out={out}",
+        f"cache_dir={cache}",
+        'train=["figures=false","evaluation.rtol=1e-6","evaluation.atol=1e-8","data.n_train=2","data.n_val=1","data.n_test=2","data.n_steps=20","data.test_steps=30",'
+        '"data.chunk_len=20","trainer.max_epochs=1"]',
+    ]
     main(args)
     with (out / "results.csv").open() as f:
         rows = list(csv.DictReader(f))
@@ -199,12 +228,13 @@ def test_a_cell_gives_no_spread_for_one_run_or_a_spread_below_float_rounding():
     from encons.tools.report import markdown
 
     base = {"system": "pendulum1", "n_train": 800, "data_efficiency": False, "failed": 0, "optimiser": ""}
-    summary = [{**base, "model": "one", "runs": 1, "test/vpt": 0.25, "test/vpt_sd": 0.0},
-               {**base, "model": "same", "runs": 3, "test/vpt": 0.5, "test/vpt_sd": 8.5e-18},
-               {**base, "model": "spread", "runs": 3, "test/vpt": 0.5, "test/vpt_sd": 0.02}]
+    summary = [
+        {**base, "model": "one", "runs": 1, "test/vpt": 0.25, "test/vpt_sd": 0.0},
+        {**base, "model": "same", "runs": 3, "test/vpt": 0.5, "test/vpt_sd": 8.5e-18},
+        {**base, "model": "spread", "runs": 3, "test/vpt": 0.5, "test/vpt_sd": 0.02},
+    ]
     cells = {line.split(" | ")[1]: line.split(" | ")[4] for line in markdown(summary, {}).splitlines()[2:5]}
     assert cells == {"one": "0.25", "same": "0.5", "spread": "0.5 ± 0.02"}
-
 
 
 def test_train_debug_fast_shrinks_a_profiles_sizes_and_a_users_key_wins():
@@ -217,7 +247,8 @@ def test_train_debug_fast_shrinks_a_profiles_sizes_and_a_users_key_wins():
     for run in runs:
         cfg = compose(run.overrides)
         assert cfg.trainer.max_epochs == 2 and cfg.data.chunk_len <= cfg.data.n_steps + 1, run.id
-        assert cfg.objective == "derivative"                       # the profile's other keys stay
-    mine = expand(compose(["profile=lim_kasim", 'train=["debug=fast","trainer.max_epochs=7"]'],
-                          config_name="benchmark"))
+        assert cfg.objective == "derivative"  # the profile's other keys stay
+    mine = expand(
+        compose(["profile=lim_kasim", 'train=["debug=fast","trainer.max_epochs=7"]'], config_name="benchmark")
+    )
     assert compose(mine[0].overrides).trainer.max_epochs == 7

@@ -9,21 +9,29 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf, open_dict
 
-from encons.infra import bounds
-
 from encons.config import trust
-from encons.training.build import Request, check, compose
+from encons.infra import bounds
 from encons.infra.errors import ConfigError
 from encons.infra.paths import config_dir
+from encons.training.build import Request, check, compose
 
-GROUPS = {"model": "model", "system": "system", "integrator": "integrator", "regulariser": "regulariser",
-          "observation": "observation"}
+GROUPS = {
+    "model": "model",
+    "system": "system",
+    "integrator": "integrator",
+    "regulariser": "regulariser",
+    "observation": "observation",
+}
 
 
 def _options() -> list[tuple[str, str]]:
     conf = Path(config_dir())
-    return [(group, p.stem) for group in GROUPS for p in sorted((conf / group).glob("*.yaml"))
-            if not p.name.startswith("_") and p.stem not in ("none", "from_file")]
+    return [
+        (group, p.stem)
+        for group in GROUPS
+        for p in sorted((conf / group).glob("*.yaml"))
+        if not p.name.startswith("_") and p.stem not in ("none", "from_file")
+    ]
 
 
 def _outside_inside(bare, rng: bounds.Range) -> list[tuple[float, bool]]:
@@ -63,8 +71,11 @@ def _check_every_bound(cfg, key: str, declared: dict) -> int:
             value = element(value) if value == value else value
             trial = cfg.copy()
             current = OmegaConf.select(trial, full)
-            given = ([*OmegaConf.to_container(current)][:-1] + [value]) if is_list and current is not None else \
-                ([value] if is_list else value)
+            given = (
+                ([*OmegaConf.to_container(current)][:-1] + [value])
+                if is_list and current is not None
+                else ([value] if is_list else value)
+            )
             with open_dict(trial):
                 OmegaConf.update(trial, full, given, force_add=True)
             if fits:
@@ -89,7 +100,9 @@ def test_every_declared_bound_of_a_conf_option_is_enforced(tmp_path, group, opti
 def test_every_bound_declared_by_a_reader_and_the_data_and_evaluation_nodes_is_enforced(tmp_path):
     from encons.data.datamodule import TrajectoryDataModule
 
-    cfg = compose(["debug=fast", "scheduler=plateau", "optimized_metric=train/loss"], tmp_path / "run", tmp_path / "cache")
+    cfg = compose(
+        ["debug=fast", "scheduler=plateau", "optimized_metric=train/loss"], tmp_path / "run", tmp_path / "cache"
+    )
     counts = {key: _check_every_bound(cfg, key, declared) for key, declared in bounds.DECLARED.items()}
     counts["data"] = _check_every_bound(cfg, "data", bounds.hints(TrajectoryDataModule))
     counts["evaluation"] = _check_every_bound(cfg, "evaluation", _declared(cfg, "evaluation"))
@@ -111,8 +124,16 @@ def test_a_system_constructed_directly_refuses_a_value_outside_a_declared_range(
 
 
 def test_range_words():
-    assert [str(r) for r in (bounds.Range(gt=0), bounds.Range(ge=1), bounds.Range(gt=0, lt=1),
-                             bounds.Range(ge=0, lt=1), bounds.Range(), bounds.Range(ge=1, says="a positive integer"))] \
-        == ["> 0", ">= 1", "in (0, 1)", "in [0, 1)", "a finite number", "a positive integer"]
+    assert [
+        str(r)
+        for r in (
+            bounds.Range(gt=0),
+            bounds.Range(ge=1),
+            bounds.Range(gt=0, lt=1),
+            bounds.Range(ge=0, lt=1),
+            bounds.Range(),
+            bounds.Range(ge=1, says="a positive integer"),
+        )
+    ] == ["> 0", ">= 1", "in (0, 1)", "in [0, 1)", "a finite number", "a positive integer"]
     assert 0.5 in bounds.Range(gt=0, lt=1) and 1 not in bounds.Range(gt=0, lt=1)
     assert float("inf") not in bounds.Range() and float("nan") not in bounds.Range(ge=0)

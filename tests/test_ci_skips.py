@@ -16,8 +16,11 @@ class Session:
 
 def test_a_missing_installed_dependency_fails_a_strict_session_and_allowed_skips_do_not(monkeypatch):
     monkeypatch.setenv("ENCONS_STRICT_SKIPS", "1")
-    monkeypatch.setattr(conftest, "_skips", Counter({"no CUDA device on this machine": 13,
-                                                     "declared incompatibility: model=chnn needs constraints": 19}))
+    monkeypatch.setattr(
+        conftest,
+        "_skips",
+        Counter({"no CUDA device on this machine": 13, "declared incompatibility: model=chnn needs constraints": 19}),
+    )
     session = Session()
     conftest.pytest_sessionfinish(session, 0)
     assert session.exitstatus == 0
@@ -26,7 +29,7 @@ def test_a_missing_installed_dependency_fails_a_strict_session_and_allowed_skips
     assert session.exitstatus == pytest.ExitCode.TESTS_FAILED
     monkeypatch.delenv("ENCONS_STRICT_SKIPS")
     session = Session()
-    conftest.pytest_sessionfinish(session, 0)    # outside CI a skip is reported, not fatal
+    conftest.pytest_sessionfinish(session, 0)  # outside CI a skip is reported, not fatal
     assert session.exitstatus == 0
 
 
@@ -42,8 +45,11 @@ def test_the_summary_lists_each_reason_with_its_count_and_marks_the_disallowed(m
             lines.append(line)
 
     conftest.pytest_terminal_summary(Reporter())
-    assert lines == ["skip reasons", "   2 × no CUDA device on this machine",
-                     "   1 × psycopg2 missing   <- not an allowed skip"]
+    assert lines == [
+        "skip reasons",
+        "   2 × no CUDA device on this machine",
+        "   1 × psycopg2 missing   <- not an allowed skip",
+    ]
 
 
 def test_an_expected_failure_is_not_counted_as_a_skip(monkeypatch):

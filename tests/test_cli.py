@@ -10,21 +10,24 @@ from tests.helpers import run_cli
 FAST = ["debug=fast", "logger=none"]
 
 
-@pytest.mark.parametrize("args, needle", [
-    (["model=nosuchmodel"], "model=nosuchmodel is unknown; allowed: chnn,"),
-    (["system=nosuchsystem"], "system=nosuchsystem is unknown; allowed:"),
-    (["integrator=rk5"], "integrator=rk5 is unknown; allowed: dopri5, euler, midpoint, rk4\n"),
-    (["integrator.method=rk5"], "integrator.method='rk5' is unknown; allowed:"),
-    (["model.chart=polar"], "needs the 'polar' chart"),
-    (["model.hidden=-4"], "model.hidden=-4; allowed: a positive integer"),
-    (["data.n_train=0"], "data.n_train=0; allowed: >= 1"),
-    (["data.chunk_len=1"], "data.chunk_len=1; allowed: [2, "),
-    (["trainer.max_epochs=0"], "trainer.max_epochs=0; allowed: an integer >= 1"),
-    (["optimizer.lr=-1"], "optimizer.lr=-1"),
-    (["nosuchkey=3"], "nosuchkey is not a key of the config"),
-    (["system=from_file", "system.path=/nonexistent/data.npz"], "does not exist"),
-    (["ckpt_path=last"], "no earlier run"),
-])
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["model=nosuchmodel"], "model=nosuchmodel is unknown; allowed: chnn,"),
+        (["system=nosuchsystem"], "system=nosuchsystem is unknown; allowed:"),
+        (["integrator=rk5"], "integrator=rk5 is unknown; allowed: dopri5, euler, midpoint, rk4\n"),
+        (["integrator.method=rk5"], "integrator.method='rk5' is unknown; allowed:"),
+        (["model.chart=polar"], "needs the 'polar' chart"),
+        (["model.hidden=-4"], "model.hidden=-4; allowed: a positive integer"),
+        (["data.n_train=0"], "data.n_train=0; allowed: >= 1"),
+        (["data.chunk_len=1"], "data.chunk_len=1; allowed: [2, "),
+        (["trainer.max_epochs=0"], "trainer.max_epochs=0; allowed: an integer >= 1"),
+        (["optimizer.lr=-1"], "optimizer.lr=-1"),
+        (["nosuchkey=3"], "nosuchkey is not a key of the config"),
+        (["system=from_file", "system.path=/nonexistent/data.npz"], "does not exist"),
+        (["ckpt_path=last"], "no earlier run"),
+    ],
+)
 def test_bad_input_gives_one_clear_error(cli, tmp_path, args, needle):
     proc = cli(*FAST, *args, cwd=tmp_path)
     assert proc.returncode == 2
@@ -46,8 +49,12 @@ def test_cli_trains_quietly_and_writes_outputs(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     run_dir = next((tmp_path / "outputs" / "pendulum1-hnn").iterdir())
     assert (run_dir / "checkpoints" / "last.ckpt").is_file()
-    assert {p.name for p in (run_dir / "figures").iterdir()} == {"rollout.png", "relative_error.png",
-                                                                 "energy_error.png", "mse_vs_time.png"}
+    assert {p.name for p in (run_dir / "figures").iterdir()} == {
+        "rollout.png",
+        "relative_error.png",
+        "energy_error.png",
+        "mse_vs_time.png",
+    }
     assert "test/traj_rel_err" in proc.stdout
     assert "Warning" not in proc.stderr and "💡" not in proc.stdout + proc.stderr, proc.stderr  # quiet run
     log = (run_dir / "train.log").read_text()
@@ -58,6 +65,8 @@ def test_an_empty_override_value_is_one_line_naming_it(cli):
     """``hydra.sweeper.sampler.seed=$K`` with K unset reaches encons as ``...seed=``."""
     result = cli("-m", "sweeps=hamiltonian_weight", "hydra.sweeper.sampler.seed=")
     assert result.returncode == 2
-    assert result.stderr.strip().splitlines()[-1] == ("encons: error: hydra.sweeper.sampler.seed= has no value (an unset shell "
-                                            "variable?); allowed: hydra.sweeper.sampler.seed=VALUE, or "
-                                            "hydra.sweeper.sampler.seed=null for none")
+    assert result.stderr.strip().splitlines()[-1] == (
+        "encons: error: hydra.sweeper.sampler.seed= has no value (an unset shell "
+        "variable?); allowed: hydra.sweeper.sampler.seed=VALUE, or "
+        "hydra.sweeper.sampler.seed=null for none"
+    )

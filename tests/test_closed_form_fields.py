@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pytest
 import torch
-from torch.func import grad, hessian, jacfwd, jacrev, jvp, vmap
+from torch.func import hessian, jacfwd, jacrev, jvp, vmap
 
 from encons.infra.batching import batched_grad
 from encons.models.constrained import CHNN, CLNN
@@ -54,8 +54,10 @@ def test_layer_curvature_is_its_plain_expression_to_every_order():
     tangents = [torch.randn(5, 4, 7, dtype=torch.float64, requires_grad=True) for _ in range(2)]
     weights = [torch.randn(5, 7, dtype=torch.float64, requires_grad=True) for _ in range(2)]
     f = lambda t1, t2, w1, w2: layer_curvature(3, [t1, t2], [w1, w2])  # noqa: E731
-    plain = lambda t1, t2, w1, w2: sum(torch.einsum("...ic,...c,...jc->...ij", t[..., :3, :], w, t)  # noqa: E731
-                                       for t, w in ((t1, w1), (t2, w2)))
+    plain = lambda t1, t2, w1, w2: sum(
+        torch.einsum("...ic,...c,...jc->...ij", t[..., :3, :], w, t)  # noqa: E731
+        for t, w in ((t1, w1), (t2, w2))
+    )
     args = (*tangents, *weights)
     assert f(*args).shape == (5, 3, 4) and gap(f(*args), plain(*args)) < 1e-14
     assert torch.autograd.gradcheck(f, args, check_forward_ad=True)
@@ -78,8 +80,12 @@ def test_narrow_products_are_the_plain_ones_to_every_order():
     assert gap(narrow_in(x, weight_t, bias), x @ weight_t + bias) < 1e-14
     assert gap(narrow_out(g, weight_t), g @ weight_t.T) < 1e-14
     assert gap(narrow_out(g, weight_t, bias[:5]), g @ weight_t.T + bias[:5]) < 1e-14
-    for f, args in ((narrow_in, (x, weight_t, bias)), (narrow_in, (x, weight_t)), (narrow_out, (g, weight_t)),
-                    (narrow_out, (g, weight_t, bias[:5]))):
+    for f, args in (
+        (narrow_in, (x, weight_t, bias)),
+        (narrow_in, (x, weight_t)),
+        (narrow_out, (g, weight_t)),
+        (narrow_out, (g, weight_t, bias[:5])),
+    ):
         assert torch.autograd.gradcheck(f, args) and torch.autograd.gradgradcheck(f, args)
     wide_t = torch.randn(16, 3, dtype=torch.float64)
     assert torch.equal(narrow_in(g, wide_t), g @ wide_t)

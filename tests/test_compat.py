@@ -19,8 +19,9 @@ def test_torchdiffeq_methods_and_which_are_fixed_step():
 def test_optuna_sweeper_parses_a_search_space():
     import optuna
 
-    space, fixed, fixed_overrides = compat.optuna_search_space(["optimizer.lr=tag(log, interval(1e-4, 1e-2))",
-                                                                "seed=3", "model=choice(hnn, node)"])
+    space, fixed, fixed_overrides = compat.optuna_search_space(
+        ["optimizer.lr=tag(log, interval(1e-4, 1e-2))", "seed=3", "model=choice(hnn, node)"]
+    )
     assert isinstance(space["optimizer.lr"], optuna.distributions.FloatDistribution) and space["optimizer.lr"].log
     assert isinstance(space["model"], optuna.distributions.CategoricalDistribution)
     assert fixed == {"seed": "3"} and fixed_overrides == []
@@ -40,7 +41,7 @@ def test_wandb_logger_loses_lightnings_anonymous_none(tmp_path):
     from lightning.pytorch.loggers import WandbLogger
 
     logger = WandbLogger(offline=True, save_dir=str(tmp_path))
-    assert logger._wandb_init.get("anonymous", "absent") is None   # what Lightning 2.6 passes
+    assert logger._wandb_init.get("anonymous", "absent") is None  # what Lightning 2.6 passes
     compat.drop_wandb_anonymous(logger)
     assert "anonymous" not in logger._wandb_init
 
@@ -49,11 +50,13 @@ def test_lightnings_missing_monitor_message_lists_the_logged_metrics():
     from lightning.fabric.utilities.exceptions import MisconfigurationException
     from lightning.pytorch.callbacks import ModelCheckpoint
 
-    trainer = SimpleNamespace(fit_loop=SimpleNamespace(epoch_loop=SimpleNamespace(
-        val_loop=SimpleNamespace(_has_run=True))))
+    trainer = SimpleNamespace(
+        fit_loop=SimpleNamespace(epoch_loop=SimpleNamespace(val_loop=SimpleNamespace(_has_run=True)))
+    )
     with pytest.raises(MisconfigurationException) as err:
         ModelCheckpoint(monitor="val/nope")._save_topk_checkpoint(
-            trainer, {"val/loss": torch.tensor(1.0), "train/loss": torch.tensor(2.0), "epoch": torch.tensor(0)})
+            trainer, {"val/loss": torch.tensor(1.0), "train/loss": torch.tensor(2.0), "epoch": torch.tensor(0)}
+        )
     assert compat.logged_metric_names(err.value) == ["val/loss", "train/loss"]
     assert compat.logged_metric_names(ValueError("other")) is None
 
@@ -79,8 +82,8 @@ def test_quiet_upstream_keeps_lightnings_device_lines_off_the_console_but_in_the
     level, root.level = root.level, logging.INFO
     try:
         compat.quiet_upstream()
-        compat.quiet_upstream()                                     # twice: one filter per handler
-        name = "lightning.pytorch.utilities.rank_zero"   # what reaches the root's handlers from Lightning's logger
+        compat.quiet_upstream()  # twice: one filter per handler
+        name = "lightning.pytorch.utilities.rank_zero"  # what reaches the root's handlers from Lightning's logger
         for line in ("GPU available: False, used: False", "TPU available: False, using: 0 TPU cores", "kept"):
             record = logging.LogRecord(name, logging.INFO, __file__, 0, line, (), None)
             console.handle(record)

@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from encons.training.build import compose
 from encons.infra.errors import ConfigError
+from encons.training.build import compose
 
 
 def built(tmp_path, *overrides: str):
@@ -38,11 +38,14 @@ def test_compiled_rollout_loss_and_gradients_equal_eager(tmp_path, model, system
     assert torch.allclose(grads[0], grads[1], rtol=1e-3, atol=1e-5 * grads[1].abs().max().item())
 
 
-@pytest.mark.parametrize("overrides, words", [
-    (["model=hnn", "regulariser=hamiltonian", "compile=true"], "compile=true compiles the model's vector field"),
-    (["model=symo", "system=pendulum_control", "objective=residual", "compile=true"], "is discrete"),
-    (["compile=yes"], "compile='yes'"),
-])
+@pytest.mark.parametrize(
+    "overrides, words",
+    [
+        (["model=hnn", "regulariser=hamiltonian", "compile=true"], "compile=true compiles the model's vector field"),
+        (["model=symo", "system=pendulum_control", "objective=residual", "compile=true"], "is discrete"),
+        (["compile=yes"], "compile='yes'"),
+    ],
+)
 def test_compile_nonsense_is_one_line(tmp_path, overrides, words):
     with pytest.raises(ConfigError) as err:
         built(tmp_path, *overrides)

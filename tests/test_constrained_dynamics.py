@@ -12,8 +12,8 @@ from encons.systems.constrained import (
     constrained_hamiltonian_field,
     constraint_jacobians,
     eliminate_linear,
-    jacobians,
     full_mass_matrix,
+    jacobians,
 )
 from encons.systems.gyroscope import Gyroscope
 from encons.systems.pendulum import NPendulum
@@ -57,8 +57,9 @@ def test_block_form_is_the_dense_eq_20(system_name, off_manifold):
         return torch.cat(jvp(system.constraints, (x,), (p @ minv,)), -1)
 
     d = z.shape[-1] // 2
-    sym = torch.cat([torch.cat([torch.zeros(d, d), torch.eye(d)], 1),
-                     torch.cat([-torch.eye(d), torch.zeros(d, d)], 1)]).double()
+    sym = torch.cat(
+        [torch.cat([torch.zeros(d, d), torch.eye(d)], 1), torch.cat([-torch.eye(d), torch.zeros(d, d)], 1)]
+    ).double()
     dpsi = vmap(jacfwd(psi))(z)
     j_grad = grad_h @ sym.T
     lam = torch.linalg.solve(dpsi @ sym @ dpsi.transpose(-1, -2), (dpsi @ j_grad.unsqueeze(-1)).squeeze(-1))
@@ -91,9 +92,10 @@ def test_eq_15_with_linear_rows_eliminated_is_the_dense_solve_off_the_manifold(s
     jac, d_rate = constraint_jacobians(system.constraints, x, v)
     rhs = (jac @ minv @ grad_v.unsqueeze(-1) - d_rate @ v.unsqueeze(-1)).squeeze(-1)
     lam = torch.linalg.solve(jac @ minv @ jac.transpose(-1, -2), rhs)
-    dense = (((jac.transpose(-1, -2) @ lam.unsqueeze(-1)).squeeze(-1) - grad_v) @ minv)
-    assert torch.allclose(constrained_acceleration(x, v, minv, grad_v, system.constraints), dense,
-                          atol=1e-9 * dense.abs().max())
+    dense = ((jac.transpose(-1, -2) @ lam.unsqueeze(-1)).squeeze(-1) - grad_v) @ minv
+    assert torch.allclose(
+        constrained_acceleration(x, v, minv, grad_v, system.constraints), dense, atol=1e-9 * dense.abs().max()
+    )
 
 
 @pytest.mark.parametrize("system_name", SYSTEMS)
@@ -106,5 +108,4 @@ def test_eq_20_and_eq_15_agree_on_the_manifold(system_name):
     grad_v = torch.randn(x.shape, generator=gen, dtype=x.dtype)
     jac, d_rate = constraint_jacobians(system.constraints, x, v)
     p_dot = constrained_hamiltonian_field(torch.cat([grad_v, v], -1), jac, d_rate, minv).chunk(2, -1)[1]
-    assert torch.allclose(p_dot @ minv, constrained_acceleration(x, v, minv, grad_v, system.constraints),
-                          atol=1e-9)
+    assert torch.allclose(p_dot @ minv, constrained_acceleration(x, v, minv, grad_v, system.constraints), atol=1e-9)

@@ -13,8 +13,12 @@ from encons.systems.constrained import DistanceConstraints, constraint_jacobians
 from encons.systems.gyroscope import Gyroscope
 from encons.systems.pendulum import NPendulum
 
-SYSTEMS = {"pendulum1": lambda: NPendulum(1), "pendulum2": lambda: NPendulum(2, masses=[1.0, 1.5], lengths=[1.0, 0.8]),
-           "pendulum4": lambda: NPendulum(4, lengths=[1.0, 0.7, 1.2, 0.9]), "gyroscope": Gyroscope}
+SYSTEMS = {
+    "pendulum1": lambda: NPendulum(1),
+    "pendulum2": lambda: NPendulum(2, masses=[1.0, 1.5], lengths=[1.0, 0.8]),
+    "pendulum4": lambda: NPendulum(4, lengths=[1.0, 0.7, 1.2, 0.9]),
+    "gyroscope": Gyroscope,
+}
 
 
 def hand_written_phi(system, x):

@@ -12,14 +12,13 @@ import scipy.signal
 import torch
 
 from encons.entry import cli
-
-from encons.tools import control
 from encons.infra.errors import ConfigError
 from encons.models.hnn import HNNStructure
 from encons.models.lnode import forced_euler_lagrange
 from encons.models.node import NODE
 from encons.systems.controlled import CartPole, ControlledPendulum
 from encons.systems.pendulum import NPendulum
+from encons.tools import control
 
 
 @pytest.mark.parametrize("system", [ControlledPendulum(), CartPole()], ids=["pendulum", "cartpole"])
@@ -38,8 +37,9 @@ def true_swing_up(system, h: float, starts: int):
     settings = control.SETTINGS[type(system)]
     plant = control.true_plant(system)
     init = system.sample_initial(starts, torch.Generator().manual_seed(0))
-    states, inputs = control.closed_loop(system, control.SwingUp(plant, system, h), init, h,
-                                         round(settings.duration / h))
+    states, inputs = control.closed_loop(
+        system, control.SwingUp(plant, system, h), init, h, round(settings.duration / h)
+    )
     return plant, settings, states, inputs, *control.score(plant, states, inputs, settings, h)
 
 
@@ -51,7 +51,7 @@ def test_true_pendulum_controller_swings_up_and_holds_95_percent_within_time_and
     assert metrics["success_rate"] >= 0.95
     assert inputs.abs().max() <= system.u_max
     assert t_up[torch.isfinite(t_up)].max() <= settings.duration - settings.hold
-    held = plant.error(states[torch.isfinite(t_up), -round(settings.hold / h):])
+    held = plant.error(states[torch.isfinite(t_up), -round(settings.hold / h) :])
     assert (held[..., 0].abs() <= 0.1).all() and (held[..., 1].abs() <= 0.5).all()
 
 
@@ -60,8 +60,8 @@ def test_cartpole_lqr_from_the_linearised_true_model_matches_the_closed_form_ric
     discrete LQR gain of that closed form (ZOH by scipy.signal, scipy's DARE) to 1e-6."""
     system, h = CartPole(), 0.05
     mc, mp, l, g = system.mc, system.mp, system.l, system.g
-    mass = np.array([[mc + mp, mp * l], [mp * l, 4 / 3 * mp * l**2]])   # M(0)
-    gravity = np.array([[0.0, 0.0], [0.0, mp * g * l]])                # −∂²V/∂q² at θ = 0 (V = m_p g l cos θ)
+    mass = np.array([[mc + mp, mp * l], [mp * l, 4 / 3 * mp * l**2]])  # M(0)
+    gravity = np.array([[0.0, 0.0], [0.0, mp * g * l]])  # −∂²V/∂q² at θ = 0 (V = m_p g l cos θ)
     a = np.block([[np.zeros((2, 2)), np.eye(2)], [np.linalg.solve(mass, gravity), np.zeros((2, 2))]])
     b = np.concatenate([np.zeros((2, 1)), np.linalg.solve(mass, np.array([[1.0], [0.0]]))])
     lin_a, lin_b = control.linearise(control.true_plant(system), 1)
@@ -91,13 +91,18 @@ def test_a_model_without_an_energy_is_refused_in_one_line():
         control.learned_plant(NODE(ControlledPendulum()), ControlledPendulum(), "encons.models.node.NODE")
     line = str(err.value)
     assert "\n" not in line and "gives no an energy" not in line
-    assert line.startswith("model._target_=encons.models.node.NODE gives no energy") and "allowed: a run of lnode" in line
+    assert (
+        line.startswith("model._target_=encons.models.node.NODE gives no energy") and "allowed: a run of lnode" in line
+    )
 
 
 def test_a_run_on_a_system_without_inputs_is_refused_in_one_line():
     system = NPendulum(1)
-    with pytest.raises(ConfigError, match=r"^system=pendulum1 has no controller here .*; allowed: a run on "
-                                          r"pendulum_control or cartpole$"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^system=pendulum1 has no controller here .*; allowed: a run on "
+        r"pendulum_control or cartpole$",
+    ):
         control.learned_plant(HNNStructure(system), system, "encons.models.hnn.HNNStructure")
 
 
@@ -105,13 +110,18 @@ FAST = ["debug=fast", "figures=false", "logger=none", "trainer.enable_progress_b
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("model,system", [("lnode", "pendulum_control"), ("symo", "cartpole"), ("hnn_structure", "cartpole")])
+@pytest.mark.parametrize(
+    "model,system", [("lnode", "pendulum_control"), ("symo", "cartpole"), ("hnn_structure", "cartpole")]
+)
 def test_control_command_scores_a_tiny_trained_run(model, system, tmp_path, capsys):
     """Train a debug-size model, then ``python -m encons.control RUN`` (``encons.entry.cli.control``): metrics, figures."""
     from encons.entry import api
 
-    api.train(api.compose(*FAST, f"model={model}", f"system={system}", output_dir=tmp_path / "run",
-                          cache_dir=tmp_path / "cache"))
+    api.train(
+        api.compose(
+            *FAST, f"model={model}", f"system={system}", output_dir=tmp_path / "run", cache_dir=tmp_path / "cache"
+        )
+    )
     cli.control([str(tmp_path / "run"), "starts=6", "seed=3", "duration=3"])
     out = tmp_path / "run" / "control"
     saved = json.loads((out / "control_metrics.json").read_text())
@@ -128,8 +138,8 @@ def test_control_command_scores_a_tiny_trained_run(model, system, tmp_path, caps
 
 
 def test_control_prints_success_rate_in_percent_and_effort_with_its_unit():
-    from encons.tools.control import printed_rows
     from encons.systems.controlled import CartPole, ControlledPendulum
+    from encons.tools.control import printed_rows
 
     scores = {"control/success_rate": 0.93, "oracle/success_rate": 1.0, "control/effort": 4.5, "oracle/effort": 3.0}
     rows = dict(printed_rows(scores, ControlledPendulum()))
@@ -164,12 +174,17 @@ def test_score_control_is_exported_from_encons():
 def test_control_command_refuses_a_node_run_and_a_bad_option_in_one_line(tmp_path, capsys):
     from encons.entry import api
 
-    api.train(api.compose(*FAST, "model=node", "system=pendulum_control", output_dir=tmp_path / "run",
-                          cache_dir=tmp_path / "cache"))
+    api.train(
+        api.compose(
+            *FAST, "model=node", "system=pendulum_control", output_dir=tmp_path / "run", cache_dir=tmp_path / "cache"
+        )
+    )
     capsys.readouterr()
-    for args, expected in (([str(tmp_path / "run")], "encons: error: model._target_=encons.models.node.NODE gives no energy"),
-                           ([str(tmp_path / "run"), "starts=many"], "encons: error: starts=many is not an integer"),
-                           ([str(tmp_path / "run"), "steps=3"], "encons: error: steps=3 is not an option of encons.tools.control")):
+    for args, expected in (
+        ([str(tmp_path / "run")], "encons: error: model._target_=encons.models.node.NODE gives no energy"),
+        ([str(tmp_path / "run"), "starts=many"], "encons: error: starts=many is not an integer"),
+        ([str(tmp_path / "run"), "steps=3"], "encons: error: steps=3 is not an option of encons.tools.control"),
+    ):
         with pytest.raises(SystemExit) as stop:
             cli.control(args)
         assert stop.value.code == 2
@@ -183,11 +198,20 @@ def test_control_profile_lists_the_energy_models_with_inputs_on_both_systems_per
 
     cfg = compose(["profile=control"], config_name="benchmark")
     runs = expand(cfg)
-    models = ("lnode", "lnode-learned_g", "symo", "e2e_symo", "hnn_structure", "hnn_structure-learned_g",
-              "lnn_structure", "lnn_structure-learned_g")
+    models = (
+        "lnode",
+        "lnode-learned_g",
+        "symo",
+        "e2e_symo",
+        "hnn_structure",
+        "hnn_structure-learned_g",
+        "lnn_structure",
+        "lnn_structure-learned_g",
+    )
     assert cfg.control is True and len(runs) == 8 * 2 * 3 * 3
-    assert {(r.system, r.label, r.n_train) for r in runs} == {(s, m, n) for s in ("pendulum_control", "cartpole")
-                                                             for m in models for n in (8, 32, 128)}
+    assert {(r.system, r.label, r.n_train) for r in runs} == {
+        (s, m, n) for s in ("pendulum_control", "cartpole") for m in models for n in (8, 32, 128)
+    }
     for r in runs:  # per-step inputs on the cart-pole (benchmarks/reports/control-b), Santos et al.'s on the pendulum
         assert ("system.inputs=steps" in r.overrides) == (r.system == "cartpole")
         assert ("trainer.max_epochs=300" in r.overrides) == (r.system == "cartpole" or r.label == "symo")  # control-c
@@ -201,8 +225,18 @@ def test_control_profile_reports_the_controller_beside_the_oracle(tmp_path):
     from encons.entry.cli import benchmark as main
 
     out = tmp_path / "bench"
-    main(["profile=control", "seeds=[0]", "n_train=[8]", "n_train_models=[lnode]", "n_train_system=[pendulum_control]",
-          f"out={out}", f"cache_dir={tmp_path / 'cache'}", 'train=["debug=fast"]'])
+    main(
+        [
+            "profile=control",
+            "seeds=[0]",
+            "n_train=[8]",
+            "n_train_models=[lnode]",
+            "n_train_system=[pendulum_control]",
+            f"out={out}",
+            f"cache_dir={tmp_path / 'cache'}",
+            'train=["debug=fast"]',
+        ]
+    )
     row = json.loads(next((out / "runs").glob("*/result.json")).read_text())
     assert not row["error"] and row["test/oracle/success_rate"] >= 0.95
     assert 0 <= row["test/control/success_rate"] <= 1

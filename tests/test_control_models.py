@@ -9,7 +9,6 @@ import torch
 from torch import nn
 from torch.func import jvp, vjp
 
-from encons.tools import control
 from encons.infra.errors import ConfigError
 from encons.models.hnn import HNNStructure
 from encons.models.lnn import LNNStructure
@@ -17,6 +16,7 @@ from encons.models.lnode import LNode, forced_euler_lagrange
 from encons.models.parts import AngleEmbedding, embed_angles
 from encons.models.symo import SyMo
 from encons.systems.controlled import CartPole, ControlledPendulum
+from encons.tools import control
 
 SYSTEMS = {"pendulum": ControlledPendulum, "cartpole": CartPole}
 
@@ -39,7 +39,7 @@ def test_lnn_structure_field_under_inputs_is_the_forced_euler_lagrange_field_of_
     expected = forced_euler_lagrange(model.mass, model.potential, model.input_matrix, s, u)
     torch.testing.assert_close(model(torch.zeros(()), s, u), expected, rtol=1e-9, atol=1e-9)
     free = forced_euler_lagrange(model.mass, model.potential, model.input_matrix, s)
-    assert (expected - free).abs().max() > 1e-3   # u moves it
+    assert (expected - free).abs().max() > 1e-3  # u moves it
 
 
 @pytest.mark.parametrize("angular", [False, True], ids=["raw", "angular"])
@@ -52,11 +52,11 @@ def test_hnn_structure_momentum_rate_under_inputs_is_the_forced_euler_lagrange_o
     s, u = states_and_inputs(system)
     q, qd = s.chunk(2, -1)
     field = model(torch.zeros(()), model.to_internal(s), u)
-    qdd = forced_euler_lagrange(model.mass, model.potential, model.input_matrix, s, u)[..., system.n:]
+    qdd = forced_euler_lagrange(model.mass, model.potential, model.input_matrix, s, u)[..., system.n :]
     m, m_dot = jvp(model.mass, (q,), (qd,))
     p_dot = ((m_dot @ qd.unsqueeze(-1)) + m @ qdd.unsqueeze(-1)).squeeze(-1)
-    torch.testing.assert_close(field[..., :system.n], qd, rtol=1e-9, atol=1e-9)
-    torch.testing.assert_close(field[..., system.n:], p_dot, rtol=1e-8, atol=1e-8)
+    torch.testing.assert_close(field[..., : system.n], qd, rtol=1e-9, atol=1e-9)
+    torch.testing.assert_close(field[..., system.n :], p_dot, rtol=1e-8, atol=1e-8)
 
 
 class TrueMass(nn.Module):
@@ -80,7 +80,7 @@ def test_a_structured_model_with_the_true_m_v_b_gives_the_oracle_controller_gain
     torch.testing.assert_close(learned.gain, oracle.gain, rtol=0, atol=1e-6)
     torch.testing.assert_close(learned.cost, oracle.cost, rtol=1e-6, atol=1e-9)
     s = system.sample_initial(32, torch.Generator().manual_seed(5))
-    torch.testing.assert_close(learned(s), oracle(s), rtol=0, atol=1e-6)   # pumping too, not only the LQR
+    torch.testing.assert_close(learned(s), oracle(s), rtol=0, atol=1e-6)  # pumping too, not only the LQR
 
 
 def test_input_matrix_is_checked_in_one_line():
@@ -130,8 +130,10 @@ def test_a_system_without_inputs_gets_no_input_network():
 
 def linear_b_error(model, system) -> float:
     """b_rel_err: ‖B − B_true‖_F / ‖B_true‖_F of the linearisation at upright the LQR is built from."""
-    (_, b), (_, truth) = (control.linearise(plant, 1) for plant in
-                          (control.learned_plant(model, system, "model"), control.true_plant(system)))
+    (_, b), (_, truth) = (
+        control.linearise(plant, 1)
+        for plant in (control.learned_plant(model, system, "model"), control.true_plant(system))
+    )
     return float(torch.linalg.norm(b - truth) / torch.linalg.norm(truth))
 
 
@@ -144,9 +146,17 @@ def test_a_debug_sized_cartpole_lnode_with_per_step_inputs_and_learned_g_cuts_b_
     from encons.entry import api
     from encons.training.build import build
 
-    cfg = api.compose("debug=fast", "logger=none", "model=lnode", "system=cartpole", "system.inputs=steps",
-                      "model.input_matrix=learned", "optimizer.lr=3e-3", output_dir=tmp_path / "run",
-                      cache_dir=tmp_path / "cache")
+    cfg = api.compose(
+        "debug=fast",
+        "logger=none",
+        "model=lnode",
+        "system=cartpole",
+        "system.inputs=steps",
+        "model.input_matrix=learned",
+        "optimizer.lr=3e-3",
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
     data, module = build(cfg)
     before = linear_b_error(module.model, module.system)
     optimizer, loader, step = module.optimizer(module.parameters()), data.train_dataloader(), 0

@@ -125,7 +125,7 @@ def test_train_batches_are_windows_of_chunk_len(tmp_path):
     batch = next(iter(dm.train_dataloader()))
     assert set(batch) == {"states"} and batch["states"].shape == (5, 5, 4)
     i, start = next(iter(dm.train_dataloader().sampler))
-    assert torch.equal(batch["states"][0], dm.states["train"][i, start:start + 5])
+    assert torch.equal(batch["states"][0], dm.states["train"][i, start : start + 5])
 
 
 def write(path, **arrays):
@@ -133,12 +133,15 @@ def write(path, **arrays):
     return path
 
 
-@pytest.mark.parametrize("arrays, message", [
-    ({"t": np.arange(5.0)}, "lacks key"),
-    ({"t": np.arange(5.0), "train": np.zeros((2, 4, 4)), "test": np.zeros((2, 5, 4))}, "has shape"),
-    ({"t": np.array([0, 1, 3.0]), "train": np.zeros((2, 3, 2)), "test": np.zeros((2, 3, 2))}, "equally spaced"),
-    ({"t": np.arange(3.0), "train": np.full((2, 3, 2), np.nan), "test": np.zeros((2, 3, 2))}, "NaN"),
-])
+@pytest.mark.parametrize(
+    "arrays, message",
+    [
+        ({"t": np.arange(5.0)}, "lacks key"),
+        ({"t": np.arange(5.0), "train": np.zeros((2, 4, 4)), "test": np.zeros((2, 5, 4))}, "has shape"),
+        ({"t": np.array([0, 1, 3.0]), "train": np.zeros((2, 3, 2)), "test": np.zeros((2, 3, 2))}, "equally spaced"),
+        ({"t": np.arange(3.0), "train": np.full((2, 3, 2), np.nan), "test": np.zeros((2, 3, 2))}, "NaN"),
+    ],
+)
 def test_malformed_files_are_named(tmp_path, arrays, message):
     with pytest.raises(DataError, match=message):
         store.load(write(tmp_path / "bad.npz", **arrays))
@@ -156,8 +159,9 @@ def test_user_file_trains_end_to_end(tmp_path, train_run):
     system = NPendulum(1)
     t = torch.arange(21, dtype=torch.float64) * 0.03
     traj = simulate(system, system.sample_initial(20, torch.Generator().manual_seed(0)), t)
-    path = write(tmp_path / "mine.npz", t=t.numpy(), train=traj[:16].numpy(), test=traj[16:].numpy(),
-                 chart=np.array("angle"))
+    path = write(
+        tmp_path / "mine.npz", t=t.numpy(), train=traj[:16].numpy(), test=traj[16:].numpy(), chart=np.array("angle")
+    )
     results = train_run(["system=from_file", f"system.path={path}", "model=node"])
     assert np.isfinite(results["test/traj_rel_err"]) and "test/energy_abs_err" not in results
 
@@ -165,13 +169,16 @@ def test_user_file_trains_end_to_end(tmp_path, train_run):
 def test_val_batch_size_batches_the_same_validation_windows(tmp_path):
     """``val_batch_size`` regroups the validation windows (null: all in one batch); training batches
     and the windows themselves do not change."""
-    default, whole = make(tmp_path, chunk_len=21, batch_size=1, val_batch_size=1), make(tmp_path, chunk_len=21,
-                                                                                          batch_size=1)
+    default, whole = (
+        make(tmp_path, chunk_len=21, batch_size=1, val_batch_size=1),
+        make(tmp_path, chunk_len=21, batch_size=1),
+    )
     for dm in (default, whole):
         dm.prepare_data()
         dm.setup()
     small, one = list(default.val_dataloader()), list(whole.val_dataloader())
     assert [len(b["states"]) for b in small] == [1, 1, 1] and [len(b["states"]) for b in one] == [3]
     assert torch.equal(torch.cat([b["states"] for b in small]), one[0]["states"])
-    assert all(torch.equal(a["states"], b["states"]) for a, b in zip(default.train_dataloader(),
-                                                                   whole.train_dataloader()))
+    assert all(
+        torch.equal(a["states"], b["states"]) for a, b in zip(default.train_dataloader(), whole.train_dataloader())
+    )

@@ -16,8 +16,16 @@ RUN = ["model=node", "system=pendulum1", "debug=fast", "trainer.max_epochs=3"]
 
 
 def test_two_process_ddp_matches_one_process_with_the_whole_batch(train_run, tmp_path):
-    proc = run_cli(*RUN, "trainer=ddp", "trainer.accelerator=cpu", "trainer.devices=2", "data.batch_size=8",
-                   f"hydra.run.dir={tmp_path / 'ddp'}", cwd=tmp_path, env={"ENCONS_ROOT": str(tmp_path)})
+    proc = run_cli(
+        *RUN,
+        "trainer=ddp",
+        "trainer.accelerator=cpu",
+        "trainer.devices=2",
+        "data.batch_size=8",
+        f"hydra.run.dir={tmp_path / 'ddp'}",
+        cwd=tmp_path,
+        env={"ENCONS_ROOT": str(tmp_path)},
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "Initializing distributed: GLOBAL_RANK: 1, MEMBER: 2/2" in proc.stderr + proc.stdout
     ddp = json.loads((tmp_path / "ddp" / "test_metrics.json").read_text())
@@ -26,7 +34,7 @@ def test_two_process_ddp_matches_one_process_with_the_whole_batch(train_run, tmp
         assert value == pytest.approx(single[f"test/{key}"], rel=1e-5, abs=1e-8), key  # oracle/*: ~1e-10, float noise
     val = float(re.search(r"best/val/traj_rel_err\s*│\s*([0-9.e+-]+)", proc.stdout).group(1))  # 4 digits
     assert val == pytest.approx(single["best/val/traj_rel_err"], rel=1e-3)
-    last = r"epoch 3 of 3 \(step \d+\): train/loss ([0-9.e+-]+)"   # the mean over both ranks, not rank 0's half
+    last = r"epoch 3 of 3 \(step \d+\): train/loss ([0-9.e+-]+)"  # the mean over both ranks, not rank 0's half
     logged = float(re.search(last, (tmp_path / "ddp" / "train.log").read_text()).group(1))
     assert logged == pytest.approx(single["train/loss"], rel=1e-3)
     halves = train_run(RUN + ["data.batch_size=8"], name="two_steps")  # what DDP must not be
@@ -34,18 +42,27 @@ def test_two_process_ddp_matches_one_process_with_the_whole_batch(train_run, tmp
 
 
 #: One model per family (``DynamicsModel.family``), SyMo and GLNN, each on a system it trains on.
-FAMILIES = {"unstructured": ("node", "pendulum1"), "canonical": ("hnn", "pendulum1"),
-            "mass_matrix": ("hnn_structure", "pendulum1"), "lagrangian": ("lnn", "pendulum1"),
-            "constrained": ("chnn", "pendulum1"), "symplectic_form": ("nsf", "mass_spring"),
-            "symo": ("symo", "pendulum_control"), "glnn": ("glnn", "damped_oscillator")}
+FAMILIES = {
+    "unstructured": ("node", "pendulum1"),
+    "canonical": ("hnn", "pendulum1"),
+    "mass_matrix": ("hnn_structure", "pendulum1"),
+    "lagrangian": ("lnn", "pendulum1"),
+    "constrained": ("chnn", "pendulum1"),
+    "symplectic_form": ("nsf", "mass_spring"),
+    "symo": ("symo", "pendulum_control"),
+    "glnn": ("glnn", "damped_oscillator"),
+}
 STEPS = 2  # DDP reports a parameter that got no gradient at the forward after the step that missed it
 
 
 def _module(model: str, system: str, root):
     from encons.training.build import build, compose
 
-    cfg = compose([f"model={model}", f"system={system}", "debug=fast", "logger=none", "data.batch_size=8"],
-                  output_dir=root / f"{model}-{system}", cache_dir=root / "cache")
+    cfg = compose(
+        [f"model={model}", f"system={system}", "debug=fast", "logger=none", "data.batch_size=8"],
+        output_dir=root / f"{model}-{system}",
+        cache_dir=root / "cache",
+    )
     data, module = build(cfg)
     batches = iter(data.train_dataloader())
     return module, [next(batches) for _ in range(STEPS)]
@@ -122,5 +139,6 @@ def test_every_family_trains_under_ddp_with_the_gradient_of_the_whole_batch(tmp_
         for step, (one, two) in enumerate(zip(steps, ddp[family])):
             assert one.keys() == two.keys(), family
             for name in one:
-                torch.testing.assert_close(two[name], one[name], rtol=1e-4, atol=1e-6,
-                                           msg=lambda m: f"{family} step {step} {name}: {m}")
+                torch.testing.assert_close(
+                    two[name], one[name], rtol=1e-4, atol=1e-6, msg=lambda m: f"{family} step {step} {name}: {m}"
+                )

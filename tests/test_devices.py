@@ -27,8 +27,11 @@ FLAGSHIP = "gyroscope"
 SYSTEMS = [s if s == FLAGSHIP else pytest.param(s, marks=pytest.mark.slow) for s in simulated_systems()]
 #: On meta: a rigid body in both charts, controls and pixels; the other systems repeat the code paths of these
 #: (the models are the same classes), at ~25 s each.
-META_SYSTEMS = [s for s in SYSTEMS if (s if isinstance(s, str) else s.values[0]) in
-                {"gyroscope", "pendulum_control", "pixel_pendulum"}]
+META_SYSTEMS = [
+    s
+    for s in SYSTEMS
+    if (s if isinstance(s, str) else s.values[0]) in {"gyroscope", "pendulum_control", "pixel_pendulum"}
+]
 
 
 def meta_odeint(func, y0, t, method="rk4", options=None, **_):
@@ -58,8 +61,14 @@ def built_pairs(system: str, cache, device: str):
     """(model name, data, module) for every catalogue model that can serve ``system``."""
     for model in api.catalogue("model"):
         extra = ["model.train_iters=0"] if device == "meta" and "symo" in model else []
-        cfg = api.compose("debug=fast", f"model={model}", f"system={system}", *extra,
-                          output_dir=cache / "run", cache_dir=cache / "data")
+        cfg = api.compose(
+            "debug=fast",
+            f"model={model}",
+            f"system={system}",
+            *extra,
+            output_dir=cache / "run",
+            cache_dir=cache / "data",
+        )
         try:
             data, module = api.build(cfg)
         except ConfigError:  # a model that cannot serve this system (chart, controls, constraints)
@@ -101,8 +110,9 @@ def test_training_step_on_cuda_matches_cpu(system, cache, monkeypatch):
         batch = next(iter(data.train_dataloader()))
         on_gpu = copy.deepcopy(module).to("cuda")
         cpu_loss = step_loss(module, batch).detach()
-        exact = step_loss(copy.deepcopy(module).double(),
-                          {k: v.double() if v.is_floating_point() else v for k, v in batch.items()}).detach()
+        exact = step_loss(
+            copy.deepcopy(module).double(), {k: v.double() if v.is_floating_point() else v for k, v in batch.items()}
+        ).detach()
         gpu_loss = step_loss(on_gpu, {k: v.to("cuda") for k, v in batch.items()})
         gpu_loss.backward()
         assert gpu_loss.device.type == "cuda", model

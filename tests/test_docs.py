@@ -18,20 +18,25 @@ ROOT = Path(__file__).parents[1]
 
 def test_result_tables_equal_a_fresh_render_of_their_reports():
     stale = docs.stale(ROOT)
-    assert not stale, "\n".join(f"{doc}: the table from {source} differs from its report; run "
-                                f"python -m encons.report --docs" for doc, source in stale)
+    assert not stale, "\n".join(
+        f"{doc}: the table from {source} differs from its report; run python -m encons.report --docs"
+        for doc, source in stale
+    )
 
 
 def test_a_changed_report_value_fails_naming_the_file_and_the_table(tmp_path):
     shutil.copy(ROOT / "README.md", tmp_path / "README.md")
     shutil.copytree(ROOT / "docs", tmp_path / "docs")
-    shutil.copytree(ROOT / "benchmarks" / "reports", tmp_path / "benchmarks" / "reports",
-                    ignore=shutil.ignore_patterns("*.png", "*.npz"))
+    shutil.copytree(
+        ROOT / "benchmarks" / "reports",
+        tmp_path / "benchmarks" / "reports",
+        ignore=shutil.ignore_patterns("*.png", "*.npz"),
+    )
     assert docs.stale(tmp_path) == []
     csv = tmp_path / "benchmarks" / "reports" / "finzi-2000" / "summary.csv"
     text = csv.read_text()
     assert "2.1e-05" in text
-    csv.write_text(text.replace("2.1e-05", "2.2e-05", 1))   # Finzi et al.'s CHNN gyroscope cell
+    csv.write_text(text.replace("2.1e-05", "2.2e-05", 1))  # Finzi et al.'s CHNN gyroscope cell
     assert docs.stale(tmp_path) == [("README.md", "benchmarks/reports/finzi-2000/summary.csv")]
     docs.write(tmp_path)
     assert docs.stale(tmp_path) == [] and "| 2.2e-05 |" in (tmp_path / "README.md").read_text()
@@ -96,10 +101,11 @@ PYTHON_BLOCKS = {
 def test_every_fenced_command_runs_in_a_test_or_is_documentation_only():
     commands = fenced_commands()
     tested = {**doc_commands.RUN, **PYTHON_BLOCKS}
-    unlisted = [f"{doc}: {c}" for c, doc in commands.items()
-                if c not in tested and c not in doc_commands.DOC_ONLY]
-    assert not unlisted, ("fenced commands neither run by a test nor listed as documentation only "
-                          "(tests/doc_commands.py):\n" + "\n".join(unlisted))
+    unlisted = [f"{doc}: {c}" for c, doc in commands.items() if c not in tested and c not in doc_commands.DOC_ONLY]
+    assert not unlisted, (
+        "fenced commands neither run by a test nor listed as documentation only "
+        "(tests/doc_commands.py):\n" + "\n".join(unlisted)
+    )
     gone = [c for c in [*tested, *doc_commands.DOC_ONLY] if c not in commands]
     assert not gone, "tests/doc_commands.py lists commands the docs no longer have:\n" + "\n".join(gone)
     for command, node in tested.items():
@@ -110,8 +116,15 @@ def test_every_fenced_command_runs_in_a_test_or_is_documentation_only():
 
 @pytest.mark.slow
 def test_the_readme_small_sweep_runs_both_models(tmp_path, cli):
-    done = cli("-m", "model=node,hnn_angle", "system=pendulum1", "debug=fast",
-               f"hydra.sweep.dir={tmp_path}/multirun", f"paths.cache_dir={tmp_path}/cache", cwd=tmp_path)
+    done = cli(
+        "-m",
+        "model=node,hnn_angle",
+        "system=pendulum1",
+        "debug=fast",
+        f"hydra.sweep.dir={tmp_path}/multirun",
+        f"paths.cache_dir={tmp_path}/cache",
+        cwd=tmp_path,
+    )
     assert done.returncode == 0, done.stderr
     assert len(list((tmp_path / "multirun").glob("*/test_metrics.json"))) == 2
 
@@ -120,8 +133,17 @@ def test_the_readme_small_sweep_runs_both_models(tmp_path, cli):
 def test_symo_paper_composes_with_debug_fast_and_trains(train_run):
     """``experiment=symo_paper`` trains on whole trajectories (``data.chunk_len: null``), so ``debug=fast``'s
     10 steps give windows of 11 states instead of a refusal."""
-    m = train_run(["model=e2e_symo", "system=cartpole", "experiment=symo_paper", "optimizer.lr=1e-3",
-                   "trainer.max_epochs=1", "evaluators.santos.steps=10", "evaluators.santos.n_trajectories=2"])
+    m = train_run(
+        [
+            "model=e2e_symo",
+            "system=cartpole",
+            "experiment=symo_paper",
+            "optimizer.lr=1e-3",
+            "trainer.max_epochs=1",
+            "evaluators.santos.steps=10",
+            "evaluators.santos.n_trajectories=2",
+        ]
+    )
     assert m["test/traj_rel_err"] > 0
 
 
@@ -133,7 +155,7 @@ def test_the_readme_sweep_folder_is_not_named_after_a_model_it_does_not_run(tmp_
     from encons.training.build import compose
 
     cfg = compose(["model=node", "system=pendulum1"], output_dir=tmp_path)
-    raw = OmegaConf.to_container(cfg.hydra.sweep)   # unresolved: what Hydra resolves once per sweep, once per job
+    raw = OmegaConf.to_container(cfg.hydra.sweep)  # unresolved: what Hydra resolves once per sweep, once per job
     assert "name" not in raw["dir"] and "choices" not in raw["dir"], raw
     assert raw["subdir"] == "${hydra.job.num}-${name}"
     assert "multirun/" in (ROOT / "README.md").read_text().split("## Where outputs land")[1].split("\n## ")[0]

@@ -10,13 +10,19 @@ import pytest
 import torch
 
 from encons.entry import api
-
-from encons.training import ensemble
 from encons.infra.errors import ConfigError
+from encons.training import ensemble
 from tests.helpers import SANTOS_TINY
 
-TINY = ["debug=fast", "logger=csv", "trainer.enable_progress_bar=false", "trainer.enable_model_summary=false",
-        "evaluation.method=rk4", "data.n_test=2", "figures=false"]
+TINY = [
+    "debug=fast",
+    "logger=csv",
+    "trainer.enable_progress_bar=false",
+    "trainer.enable_model_summary=false",
+    "evaluation.method=rk4",
+    "data.n_test=2",
+    "figures=false",
+]
 
 
 @pytest.fixture(scope="module")
@@ -30,6 +36,7 @@ def run(tmp_path, cache):
     def train(name, overrides):
         cfg = api.compose(*TINY, *overrides, output_dir=tmp_path / name, cache_dir=cache)
         return api.train(cfg, summary=False)
+
     return train
 
 
@@ -48,18 +55,32 @@ def _assert_member_is(ens, seed, separate, folder):
     assert tests and {k: member.metrics[k] for k in tests} == pytest.approx(tests, rel=1e-4, nan_ok=True)
 
 
-@pytest.mark.parametrize("model, system, path, extra", [
-    pytest.param("node", "pendulum_control", "stacked", ["scheduler=plateau", "scheduler.patience=0", *SANTOS_TINY],
-                 marks=pytest.mark.slow),  # controls; ReduceLROnPlateau on each member's own val/loss
-    pytest.param("chnn", "gyroscope", "stacked", [], marks=pytest.mark.slow),  # per-member to_internal, no cache
-    pytest.param("lnn", "pendulum2", "stacked", [], marks=pytest.mark.slow),  # guarded_solve's per-sample mask
-    pytest.param("hnn_angle", "pendulum2", "stacked", [], marks=pytest.mark.slow),
-    pytest.param("node", "mass_spring", "stacked", ["regulariser=hamiltonian"], marks=pytest.mark.slow),
-    pytest.param("e2e_symo", "pendulum_control", "stacked", SANTOS_TINY, marks=pytest.mark.slow),
-    pytest.param("e2e_symo", "pendulum_control", "stacked", [*SANTOS_TINY, "trainer.gradient_clip_val=0.01"],
-                 marks=pytest.mark.slow, id="e2e_symo-clipped"),   # the control profile's clipping, per member
-    pytest.param("glnn", "damped_oscillator", "stacked", [], marks=pytest.mark.slow),
-])
+@pytest.mark.parametrize(
+    "model, system, path, extra",
+    [
+        pytest.param(
+            "node",
+            "pendulum_control",
+            "stacked",
+            ["scheduler=plateau", "scheduler.patience=0", *SANTOS_TINY],
+            marks=pytest.mark.slow,
+        ),  # controls; ReduceLROnPlateau on each member's own val/loss
+        pytest.param("chnn", "gyroscope", "stacked", [], marks=pytest.mark.slow),  # per-member to_internal, no cache
+        pytest.param("lnn", "pendulum2", "stacked", [], marks=pytest.mark.slow),  # guarded_solve's per-sample mask
+        pytest.param("hnn_angle", "pendulum2", "stacked", [], marks=pytest.mark.slow),
+        pytest.param("node", "mass_spring", "stacked", ["regulariser=hamiltonian"], marks=pytest.mark.slow),
+        pytest.param("e2e_symo", "pendulum_control", "stacked", SANTOS_TINY, marks=pytest.mark.slow),
+        pytest.param(
+            "e2e_symo",
+            "pendulum_control",
+            "stacked",
+            [*SANTOS_TINY, "trainer.gradient_clip_val=0.01"],
+            marks=pytest.mark.slow,
+            id="e2e_symo-clipped",
+        ),  # the control profile's clipping, per member
+        pytest.param("glnn", "damped_oscillator", "stacked", [], marks=pytest.mark.slow),
+    ],
+)
 def test_members_equal_their_separate_runs(tmp_path, run, monkeypatch, model, system, path, extra):
     """The stacked path forced (a run takes it only where it measures faster than the loop)."""
     monkeypatch.setattr(ensemble, "_module", lambda c, m, s, d, _, real=ensemble._module: real(c, m, s, d, True))
@@ -110,22 +131,28 @@ def test_a_members_best_checkpoint_is_a_single_seed_run(tmp_path, run):
     assert again == {k: v for k, v in member.metrics.items() if k.startswith("test/")}
 
 
-@pytest.mark.parametrize("bad, says", [
-    ("seeds=[0,0]", "seeds=[0, 0]; allowed: a non-empty list of distinct"),
-    ("seeds=[]", "seeds=[]; allowed"),
-    ("seeds=[0,-1]", "allowed: a non-empty list"),
-])
+@pytest.mark.parametrize(
+    "bad, says",
+    [
+        ("seeds=[0,0]", "seeds=[0, 0]; allowed: a non-empty list of distinct"),
+        ("seeds=[]", "seeds=[]; allowed"),
+        ("seeds=[0,-1]", "allowed: a non-empty list"),
+    ],
+)
 def test_bad_seeds_are_one_line(tmp_path, run, bad, says):
     with pytest.raises(ConfigError, match=says.replace("[", r"\[").replace("]", r"\]")):
         run("bad", ["model=node", "system=pendulum1", bad])
 
 
-@pytest.mark.parametrize("extra, says", [
-    (["trainer=ddp", "trainer.devices=2"], "allowed: trainer.devices=1"),
-    (["seed=3"], "allowed: one of seed=K or seeds"),
-    (["ckpt_path=x.ckpt"], "ckpt_path=.x.ckpt. does not exist"),
-    (["model=lnn", "plain_solve=true"], "allowed: plain_solve=false with seeds"),  # a model with the plain retry
-])
+@pytest.mark.parametrize(
+    "extra, says",
+    [
+        (["trainer=ddp", "trainer.devices=2"], "allowed: trainer.devices=1"),
+        (["seed=3"], "allowed: one of seed=K or seeds"),
+        (["ckpt_path=x.ckpt"], "ckpt_path=.x.ckpt. does not exist"),
+        (["model=lnn", "plain_solve=true"], "allowed: plain_solve=false with seeds"),  # a model with the plain retry
+    ],
+)
 def test_what_an_ensemble_cannot_be_is_refused(tmp_path, run, extra, says):
     with pytest.raises(ConfigError, match=says):
         run("bad", ["model=node", "system=pendulum1", "seeds=[0,1]", *extra])
@@ -136,8 +163,17 @@ def test_a_profile_folds_its_seeds_into_one_ensemble_per_cell(tmp_path, cache):
     from encons.entry.cli import benchmark
 
     out = tmp_path / "bench"
-    benchmark(["profile=smoke", "seeds=[0,1]", "models=[node]", "n_train=[]", f"out={out}", f"cache_dir={cache}",
-               'train=["evaluation.method=rk4","data.n_test=2"]'])
+    benchmark(
+        [
+            "profile=smoke",
+            "seeds=[0,1]",
+            "models=[node]",
+            "n_train=[]",
+            f"out={out}",
+            f"cache_dir={cache}",
+            'train=["evaluation.method=rk4","data.n_test=2"]',
+        ]
+    )
     with (out / "results.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert sorted(r["seed"] for r in rows) == ["0", "1"] and not any(r["error"] for r in rows)
@@ -167,6 +203,7 @@ def _stop_after_epoch(monkeypatch, epoch, stacked=None):
             own()
             if module.current_epoch + 1 == epoch:
                 os.kill(os.getpid(), signal.SIGTERM)
+
         module.on_train_epoch_end = on_train_epoch_end
         monkeypatch.setattr(ensemble, "_module", original)
         return module
@@ -181,8 +218,14 @@ def test_an_ensemble_stopped_by_sigterm_resumes_to_the_uninterrupted_result(tmp_
     member ends where the uninterrupted ensemble's does (its optimiser, schedule and best checkpoint came back)."""
     from encons.infra.errors import Interrupted
 
-    ovr = ["model=node", "system=pendulum1", "seeds=[0,1]", "trainer.max_epochs=4", "scheduler=plateau",
-           "scheduler.patience=0"]
+    ovr = [
+        "model=node",
+        "system=pendulum1",
+        "seeds=[0,1]",
+        "trainer.max_epochs=4",
+        "scheduler=plateau",
+        "scheduler.patience=0",
+    ]
     real = ensemble._module
     monkeypatch.setattr(ensemble, "_module", lambda c, m, s, d, _: real(c, m, s, d, stacked))
     whole = run("whole", ovr)
@@ -197,15 +240,23 @@ def test_an_ensemble_stopped_by_sigterm_resumes_to_the_uninterrupted_result(tmp_
         tests = {k: v for k, v in b.metrics.items() if k.startswith(("test/", "best/")) or k == "best_epoch"}
         assert {k: a.metrics[k] for k in tests} == pytest.approx(tests, rel=1e-6)
     assert _losses(tmp_path / "part", "seed1/train/loss")[-4:] == pytest.approx(
-        _losses(tmp_path / "whole", "seed1/train/loss")[-4:], rel=1e-6)
+        _losses(tmp_path / "whole", "seed1/train/loss")[-4:], rel=1e-6
+    )
 
 
 @pytest.mark.slow
 def test_a_benchmark_rerun_resumes_an_interrupted_ensemble(tmp_path, cache, monkeypatch, capsys):
     from encons.entry.cli import benchmark
 
-    args = ["profile=smoke", "seeds=[0,1]", "models=[node]", "n_train=[]", f"out={tmp_path / 'bench'}",
-            f"cache_dir={cache}", 'train=["evaluation.method=rk4","data.n_test=2","trainer.max_epochs=4"]']
+    args = [
+        "profile=smoke",
+        "seeds=[0,1]",
+        "models=[node]",
+        "n_train=[]",
+        f"out={tmp_path / 'bench'}",
+        f"cache_dir={cache}",
+        'train=["evaluation.method=rk4","data.n_test=2","trainer.max_epochs=4"]',
+    ]
     _stop_after_epoch(monkeypatch, 2)
     with pytest.raises(SystemExit) as stop:
         benchmark(args)
@@ -229,10 +280,13 @@ def test_a_members_best_checkpoint_is_refused_for_resuming_in_one_line(tmp_path,
 
 def test_the_spread_line_names_mean_sd_min_max_and_no_spread_where_there_is_none():
     metrics = ensemble.summarise({0: {"test/traj_rel_err": 0.5}, 1: {"test/traj_rel_err": 0.7}})
-    assert ensemble.spread_line(metrics, 2) == ("traj_rel_err 0.6 ± 0.14 (mean ± sample std over 2 members, "
-                                                "min 0.5, max 0.7)")
-    assert ensemble.spread_line(ensemble.summarise({0: {"test/traj_rel_err": 0.5}}), 1) == \
-        "traj_rel_err 0.5 (mean over 1 member, no spread)"
+    assert ensemble.spread_line(metrics, 2) == (
+        "traj_rel_err 0.6 ± 0.14 (mean ± sample std over 2 members, min 0.5, max 0.7)"
+    )
+    assert (
+        ensemble.spread_line(ensemble.summarise({0: {"test/traj_rel_err": 0.5}}), 1)
+        == "traj_rel_err 0.5 (mean over 1 member, no spread)"
+    )
     same = ensemble.summarise({0: {"test/geom_rel_err": 0.1 + 1e-17}, 1: {"test/geom_rel_err": 0.1}})
     assert "no spread" in ensemble.spread_line(same, 2)
 
@@ -247,7 +301,7 @@ def test_ensemble_figures_draw_the_members_band_around_their_mean():
     assert set(figures) == {"ensemble_rollout", "ensemble_relative_error"}
     ax = figures["ensemble_rollout"].axes[0]
     band = ax.collections[0].get_paths()[0].vertices[:, 1]
-    assert band.min() == pytest.approx(float(true[0, :, 0].min()), abs=1e-6)            # member 0: the lower edge
-    assert band.max() == pytest.approx(float(true[0, :, 0].max()) + 0.02, abs=1e-6)     # member 2: the upper edge
+    assert band.min() == pytest.approx(float(true[0, :, 0].min()), abs=1e-6)  # member 0: the lower edge
+    assert band.max() == pytest.approx(float(true[0, :, 0].max()) + 0.02, abs=1e-6)  # member 2: the upper edge
     assert "mean of 3 members" in [t.get_text() for t in figures["ensemble_rollout"].legends[0].get_texts()]
-    assert len(figures["ensemble_relative_error"].axes[0].lines) == 4                    # 3 members and their mean
+    assert len(figures["ensemble_relative_error"].axes[0].lines) == 4  # 3 members and their mean

@@ -48,7 +48,7 @@ def test_importing_the_modules_named_like_api_functions_leaves_the_functions_cal
     for name in ("build", "train", "evaluate"):
         module = importlib.import_module(f"encons.{name}")
         assert getattr(encons, name) is module and type(module).__call__ is getattr(api, name)
-    assert encons.training.build.build is api.build and encons.training.build.compose   # still the module too
+    assert encons.training.build.build is api.build and encons.training.build.compose  # still the module too
 
 
 def test_python_m_encons_names_its_commands_and_refuses_another(capsys):
@@ -59,20 +59,27 @@ def test_python_m_encons_names_its_commands_and_refuses_another(capsys):
     with pytest.raises(SystemExit) as stop:
         cli.main(["fly"])
     assert stop.value.code == 2
-    assert capsys.readouterr().err.strip() == ("encons: error: command 'fly' does not exist; allowed: "
-                                               + ", ".join(cli.COMMANDS))
+    assert capsys.readouterr().err.strip() == (
+        "encons: error: command 'fly' does not exist; allowed: " + ", ".join(cli.COMMANDS)
+    )
 
 
 def _python_m(*args: str, cwd: Path, env: dict | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, cwd=cwd, timeout=600,
-                          env={**os.environ, **(env or {})})
+    return subprocess.run(
+        [sys.executable, "-m", *args],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        timeout=600,
+        env={**os.environ, **(env or {})},
+    )
 
 
 @pytest.mark.slow
 def test_a_command_and_its_alias_do_the_same(tmp_path):
     """``python -m encons report DIR`` and ``python -m encons.report DIR``: the same one line and exit 2."""
     missing = str(tmp_path / "nothing")
-    runs = [_python_m(*entry, missing, cwd=tmp_path) for entry in (["encons", "report"], ["encons.tools.report"])]
+    runs = [_python_m(*entry, missing, cwd=tmp_path) for entry in (["encons", "report"], ["encons.report"])]
     assert [r.returncode for r in runs] == [2, 2]
     assert runs[0].stderr.strip().splitlines()[-1] == runs[1].stderr.strip().splitlines()[-1]
     assert runs[0].stderr.strip().splitlines()[-1].startswith("encons: error: ")
@@ -83,10 +90,20 @@ def test_the_parallel_launcher_sweep_of_the_manual_runs_two_trials(tmp_path):
     """The scale-out command ``python -m encons.train -m sweeps=hamiltonian_weight hydra/launcher=parallel
     hydra.sweeper.n_jobs=2``, shrunk to two tiny trials: its launcher's ``${encons_threads:...}`` resolves
     (registered at the entry), it exits 0 and the study stores both trials, complete."""
-    proc = _python_m("encons.train", "-m", "sweeps=hamiltonian_weight", "hydra/launcher=parallel",
-                     "hydra.sweeper.n_jobs=2", "hydra.sweeper.n_trials=2", "model.hidden=choice(16,32)",
-                     "debug=fast", "trainer.max_epochs=1", "test=false", cwd=tmp_path,
-                     env={"ENCONS_ROOT": str(tmp_path)})
+    proc = _python_m(
+        "encons.train",
+        "-m",
+        "sweeps=hamiltonian_weight",
+        "hydra/launcher=parallel",
+        "hydra.sweeper.n_jobs=2",
+        "hydra.sweeper.n_trials=2",
+        "model.hidden=choice(16,32)",
+        "debug=fast",
+        "trainer.max_epochs=1",
+        "test=false",
+        cwd=tmp_path,
+        env={"ENCONS_ROOT": str(tmp_path)},
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     folder = tmp_path / "multirun" / "hamiltonian_weight-mass_spring-node"
     trials = optuna.load_study(study_name=folder.name, storage=f"sqlite:///{folder / 'optuna.db'}").trials

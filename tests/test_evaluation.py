@@ -6,18 +6,18 @@ from __future__ import annotations
 import pytest
 import torch
 
-from encons.entry import api
-
-from encons.numerics import metrics
-from encons.training.build import build_system
 from encons.data.simulate import sample_trajectories
+from encons.entry import api
+from encons.numerics import metrics
 from encons.numerics.evaluation import Evaluation, TrueField
 from encons.numerics.integrators import Integrator, rollout
+from encons.training.build import build_system
 from tests.helpers import simulated_systems
 
 #: Systems scored on states (a pixel system is scored on frames: no state oracle).
-STATE_SYSTEMS = [s for s in simulated_systems()
-                 if api.compose(f"system={s}", output_dir=".").system.get("frame_size") is None]
+STATE_SYSTEMS = [
+    s for s in simulated_systems() if api.compose(f"system={s}", output_dir=".").system.get("frame_size") is None
+]
 #: Steps of the test horizon checked here: Lim & Kasim's and Xiao et al.'s horizons of 462–4759 steps cost
 #: minutes of ground-truth simulation and dopri5 each; the whole horizons are measured by
 #: ``benchmarks/evaluation_floor.py --long`` (benchmarks/reports/evaluation-floor/), where Lim & Kasim's chaotic
@@ -41,8 +41,11 @@ def floor(system, chart, t, true, u, evaluation: Evaluation) -> float:
     start = system.to_chart(true[:, 0], system.base_chart, chart)
     pred = evaluation.oracle(system, chart, start, t, None if u is None else u)
     common = system.to_chart(pred, chart, system.common_chart)
-    return metrics.geometric_mean_relative_error(common, system.to_chart(true, system.base_chart,
-                                                                         system.common_chart)).mean().item()
+    return (
+        metrics.geometric_mean_relative_error(common, system.to_chart(true, system.base_chart, system.common_chart))
+        .mean()
+        .item()
+    )
 
 
 @pytest.mark.parametrize("name", STATE_SYSTEMS)
@@ -65,8 +68,12 @@ def test_float64_rollout_leaves_the_model_alone():
     model.register_parameter("w", torch.nn.Parameter(torch.ones(1)))
     pred = Evaluation().rollout(model, true[:, 0].float(), t)
     assert pred.dtype == torch.float64 and model.w.dtype == torch.float32
-    assert torch.equal(pred, rollout(TrueField(system, "angle"), true[:, 0].float().double(), t,
-                                     Integrator("dopri5", rtol=1e-10, atol=1e-12)))
+    assert torch.equal(
+        pred,
+        rollout(
+            TrueField(system, "angle"), true[:, 0].float().double(), t, Integrator("dopri5", rtol=1e-10, atol=1e-12)
+        ),
+    )
 
 
 def test_where_the_adaptive_solver_gives_up_rk4_takes_over():

@@ -8,7 +8,6 @@ import json
 import re
 import shutil
 import sys
-import textwrap
 from pathlib import Path
 
 import pytest
@@ -42,13 +41,17 @@ def test_the_example_system_and_model_train_through_the_cli_with_debug_fast(exam
     proc = cli(*args, f"hydra.run.dir={example_project / 'run'}", cwd=example_project)
     assert proc.returncode == 0, proc.stderr[-2000:]
     metrics = json.loads((example_project / "run" / "test_metrics.json").read_text())
-    assert metrics["traj_rel_err"] > 0 and "energy_abs_err" in metrics     # the system's own energy is scored
+    assert metrics["traj_rel_err"] > 0 and "energy_abs_err" in metrics  # the system's own energy is scored
     assert "linear_newton on duffing" in proc.stdout
 
 
 def test_a_preset_key_set_on_the_command_line_is_still_refused(example_project, cli):
-    proc = cli(*readme_command(example_project), "model.hidden=8", f"hydra.run.dir={example_project / 'run'}",
-               cwd=example_project)
+    proc = cli(
+        *readme_command(example_project),
+        "model.hidden=8",
+        f"hydra.run.dir={example_project / 'run'}",
+        cwd=example_project,
+    )
     assert proc.returncode == 2 and "unexpected keyword argument 'hidden'" in proc.stderr, proc.stderr
 
 
@@ -59,5 +62,6 @@ def test_super_init_without_the_system_names_the_real_cause(example_project, cli
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     assert proc.stderr.startswith(
         "encons: error: model._target_=encons_examples.linear_newton.LinearNewton: its __init__ calls "
-        "super().__init__() with system=None; allowed: super().__init__(system, chart)"), proc.stderr
+        "super().__init__() with system=None; allowed: super().__init__(system, chart)"
+    ), proc.stderr
     assert "model.stiffness" not in proc.stderr

@@ -8,27 +8,40 @@ from pathlib import Path
 import pytest
 
 import encons
-from encons.training.build import compose
 from encons.infra.errors import ConfigError
+from encons.training.build import compose
 
 
 def test_a_users_optimizer_and_scheduler_from_a_searchpath_yaml_train(tmp_path):
     """``optimizer`` and ``scheduler`` are ``_partial_`` configs: a user's YAML swaps them, no code."""
     import torch
 
-    for group, name, text in [("optimizer", "sgd", "_target_: torch.optim.SGD\n_partial_: true\nlr: 0.01\nmomentum: 0.9\n"),
-                              ("scheduler", "halving", "_target_: torch.optim.lr_scheduler.StepLR\n_partial_: true\n"
-                                                       "step_size: 1\ngamma: 0.5\n")]:
+    for group, name, text in [
+        ("optimizer", "sgd", "_target_: torch.optim.SGD\n_partial_: true\nlr: 0.01\nmomentum: 0.9\n"),
+        (
+            "scheduler",
+            "halving",
+            "_target_: torch.optim.lr_scheduler.StepLR\n_partial_: true\nstep_size: 1\ngamma: 0.5\n",
+        ),
+    ]:
         (tmp_path / "myconf" / group).mkdir(parents=True)
         (tmp_path / "myconf" / group / f"{name}.yaml").write_text(text)
-    cfg = encons.compose("debug=fast", "logger=none", "model=node", "system=pendulum1",
-                         f"hydra.searchpath=[file://{tmp_path / 'myconf'}]", "optimizer=sgd", "scheduler=halving",
-                         output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    cfg = encons.compose(
+        "debug=fast",
+        "logger=none",
+        "model=node",
+        "system=pendulum1",
+        f"hydra.searchpath=[file://{tmp_path / 'myconf'}]",
+        "optimizer=sgd",
+        "scheduler=halving",
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
     run = encons.train(cfg)
     optimizer = run.module.trainer.optimizers[0]
     assert type(optimizer) is torch.optim.SGD and optimizer.defaults["momentum"] == 0.9
     epochs = cfg.trainer.max_epochs
-    assert optimizer.param_groups[0]["lr"] == pytest.approx(0.01 * 0.5 ** epochs)   # stepped once an epoch
+    assert optimizer.param_groups[0]["lr"] == pytest.approx(0.01 * 0.5**epochs)  # stepped once an epoch
     assert run.metrics["test/traj_rel_err"] > 0
 
 
@@ -39,7 +52,7 @@ def test_santos_one_step_targets_are_every_state_from_two_on_for_any_history(his
 
     from encons.evaluators.santos import one_step_windows
 
-    states = torch.arange(6.0).reshape(1, 6, 1)           # state k holds the value k
+    states = torch.arange(6.0).reshape(1, 6, 1)  # state k holds the value k
     windows = one_step_windows(states, history)
     assert windows.shape == (len(targets), history + 1, 1)
     assert windows[:, -1, 0].tolist() == targets
@@ -47,12 +60,13 @@ def test_santos_one_step_targets_are_every_state_from_two_on_for_any_history(his
 
 
 def test_every_objective_a_model_declares_is_registered():
+    from encons.config.trust import locate
     from encons.training.build import catalogue
     from encons.training.objectives import OBJECTIVES
-    from encons.config.trust import locate
 
-    declared = {o for name in catalogue("model")
-                for o in locate(compose([f"model={name}"], ".").model._target_).objectives}
+    declared = {
+        o for name in catalogue("model") for o in locate(compose([f"model={name}"], ".").model._target_).objectives
+    }
     assert declared == set(OBJECTIVES)
 
 
@@ -72,15 +86,29 @@ def test_one_writer_saves_the_test_metrics_once_with_every_evaluators_results(tm
     per test, by one writer; so are test_curves.npz and each evaluator's figures."""
     import json
 
-    cfg = encons.compose("debug=fast", "model=lnode", "system=pendulum_control", "evaluators.santos.steps=10",
-                         "evaluators.santos.n_trajectories=2", output_dir=tmp_path / "run", cache_dir=tmp_path / "c")
+    cfg = encons.compose(
+        "debug=fast",
+        "model=lnode",
+        "system=pendulum_control",
+        "evaluators.santos.steps=10",
+        "evaluators.santos.n_trajectories=2",
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "c",
+    )
     assert list(cfg.evaluators) == ["states", "santos"]
     run = encons.train(cfg)
-    results = [p.relative_to(tmp_path / "run") for p in written if p.suffix in (".json", ".npz", ".png")
-               and tmp_path / "run" in p.parents]
-    assert sorted(map(str, results)) == sorted(map(str, set(results)))      # each file once
-    assert {Path("test_metrics.json"), Path("test_curves.npz"), Path("figures/integration.png"),
-            Path("figures/rollout.png")} <= set(results)
+    results = [
+        p.relative_to(tmp_path / "run")
+        for p in written
+        if p.suffix in (".json", ".npz", ".png") and tmp_path / "run" in p.parents
+    ]
+    assert sorted(map(str, results)) == sorted(map(str, set(results)))  # each file once
+    assert {
+        Path("test_metrics.json"),
+        Path("test_curves.npz"),
+        Path("figures/integration.png"),
+        Path("figures/rollout.png"),
+    } <= set(results)
     saved = json.loads((tmp_path / "run" / "test_metrics.json").read_text())
     assert {"traj_rel_err", "oracle/geom_rel_err", "mse_integration", "mse_test"} <= set(saved)
     assert saved == {k.removeprefix("test/"): v for k, v in run.metrics.items() if k.startswith("test/")}
@@ -118,12 +146,20 @@ def test_a_users_evaluator_from_a_searchpath_yaml_adds_its_metric(tmp_path, monk
     (tmp_path / "mypkg" / "largest.py").write_text(USER_EVALUATOR)
     (tmp_path / "myconf" / "evaluators").mkdir(parents=True)
     (tmp_path / "myconf" / "evaluators" / "largest.yaml").write_text(
-        "# @package evaluators.largest\n_target_: mypkg.largest.LargestState\nscale: 2.0\n")
+        "# @package evaluators.largest\n_target_: mypkg.largest.LargestState\nscale: 2.0\n"
+    )
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setenv("ENCONS_TRUSTED_TARGETS", "mypkg.*")
-    cfg = encons.compose("debug=fast", "logger=none", "model=node", "system=pendulum1",
-                         f"hydra.searchpath=[file://{tmp_path / 'myconf'}]", "evaluators=[states,largest]",
-                         output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    cfg = encons.compose(
+        "debug=fast",
+        "logger=none",
+        "model=node",
+        "system=pendulum1",
+        f"hydra.searchpath=[file://{tmp_path / 'myconf'}]",
+        "evaluators=[states,largest]",
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
     run = encons.train(cfg)
     assert [p.name for p in written].count("test_metrics.json") == 1
     saved = json.loads((tmp_path / "run" / "test_metrics.json").read_text())
@@ -136,10 +172,19 @@ def test_a_users_evaluator_from_a_searchpath_yaml_adds_its_metric(tmp_path, monk
 
 @pytest.mark.parametrize("chosen", ["states", "santos"])
 def test_an_evaluator_that_does_not_apply_is_refused_in_one_line(tmp_path, chosen):
-    cfg = encons.compose("debug=fast", "logger=none", "system=pixel_pendulum", f"evaluators=[{chosen}]",
-                         output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
-    with pytest.raises(ConfigError, match=rf"^evaluators.{chosen} does not apply to observation=Autoencoder .*; "
-                                          r"allowed: evaluators=\[pixels\]$"):
+    cfg = encons.compose(
+        "debug=fast",
+        "logger=none",
+        "system=pixel_pendulum",
+        f"evaluators=[{chosen}]",
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
+    with pytest.raises(
+        ConfigError,
+        match=rf"^evaluators.{chosen} does not apply to observation=Autoencoder .*; "
+        r"allowed: evaluators=\[pixels\]$",
+    ):
         encons.entry.api.build(cfg)
 
 
@@ -152,8 +197,14 @@ def test_two_evaluators_giving_one_metric_name_are_refused(tmp_path):
         def compute(self, module):
             return Result({"traj_rel_err": 0.0})
 
-    cfg = encons.compose("debug=fast", "logger=none", "model=node", "system=pendulum1",
-                         output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    cfg = encons.compose(
+        "debug=fast",
+        "logger=none",
+        "model=node",
+        "system=pendulum1",
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
     data, module = encons.entry.api.build(cfg)
     module.evaluators["twice"] = Twice()
     trainer = pl.Trainer(logger=False, enable_progress_bar=False, enable_checkpointing=False)

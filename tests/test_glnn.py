@@ -42,8 +42,13 @@ def test_glnn_without_force_is_lnn_on_a_conservative_system():
     system = NPendulum(2, masses=[1.0, 1.5], lengths=[1.0, 0.8])
     s = system.sample_initial(64, torch.Generator().manual_seed(4))
     t = torch.zeros(())
-    glnn, lnn = GLNN(system, hidden=16, depth=2, guard=0.0).double(), LNN(system, hidden=16, depth=2, guard=0.0).double()
-    glnn.lagrangian_derivatives = lnn.lagrangian_derivatives = partial(lagrangian_derivatives, _pendulum_lagrangian(system))
+    glnn, lnn = (
+        GLNN(system, hidden=16, depth=2, guard=0.0).double(),
+        LNN(system, hidden=16, depth=2, guard=0.0).double(),
+    )
+    glnn.lagrangian_derivatives = lnn.lagrangian_derivatives = partial(
+        lagrangian_derivatives, _pendulum_lagrangian(system)
+    )
     glnn.force = lambda x: torch.zeros_like(x[..., :2])
     torch.testing.assert_close(glnn(t, s), lnn(t, s), rtol=0, atol=1e-12)
     torch.testing.assert_close(glnn(t, s), system.vector_field(s, "angle"), rtol=0, atol=1e-10)
@@ -65,6 +70,7 @@ def _pendulum_lagrangian(system):
         q, qd = s[..., :2], s[..., 2:]
         kinetic = 0.5 * (qd[..., None, :] @ system.mass_matrix(q) @ qd[..., :, None])[..., 0, 0]
         return kinetic - system.potential(q)
+
     return lagrangian
 
 
@@ -74,7 +80,9 @@ def test_second_order_is_a_field_of_q_dot_and_the_network():
     s = states(system, 10)
     field = model(torch.zeros(()), s)
     torch.testing.assert_close(field[..., :2], s[..., 2:])
-    torch.testing.assert_close(field[..., 2:], model.net(torch.cat([s[..., :2].cos(), s[..., :2].sin(), s[..., 2:]], -1)))
+    torch.testing.assert_close(
+        field[..., 2:], model.net(torch.cat([s[..., :2].cos(), s[..., :2].sin(), s[..., 2:]], -1))
+    )
 
 
 def damped_oscillator_solution(system, s0, t):
@@ -108,8 +116,12 @@ def test_compound_pendulum_energy_decays_at_the_friction_rate():
     de_dt = torch.func.jvp(lambda x: system.energy(x, "angle"), (s,), (system.vector_field(s, "angle"),))[1]
     qd = s[..., 2:]
     torch.testing.assert_close(de_dt, -0.5 * qd[..., 0] ** 2 - 0.5 * (qd[..., 0] - qd[..., 1]) ** 2, rtol=0, atol=1e-10)
-    traj = simulate(system, system.sample_initial(8, torch.Generator().manual_seed(1)),
-                    torch.arange(201, dtype=torch.float64) * 0.02, substeps=10)
+    traj = simulate(
+        system,
+        system.sample_initial(8, torch.Generator().manual_seed(1)),
+        torch.arange(201, dtype=torch.float64) * 0.02,
+        substeps=10,
+    )
     assert bool((system.energy(traj, "angle").diff(dim=-1) <= 1e-12).all())
 
 
@@ -126,8 +138,16 @@ def _evaluated(tmp_path, system: str, model_of) -> dict[str, float]:
     from encons.entry import api
     from encons.training.runs import Run
 
-    cfg = api.compose("debug=fast", f"system={system}", "model=second_order", "data.n_test=3", "data.n_steps=20",
-                      "data.test_steps=40", output_dir=tmp_path / system, cache_dir=tmp_path / "cache")
+    cfg = api.compose(
+        "debug=fast",
+        f"system={system}",
+        "model=second_order",
+        "data.n_test=3",
+        "data.n_steps=20",
+        "data.test_steps=40",
+        output_dir=tmp_path / system,
+        cache_dir=tmp_path / "cache",
+    )
     data, module = api.build(cfg)
     module.model = model_of(module.system)
     return api.evaluate(Run(module, data, cfg, tmp_path / system))
@@ -136,6 +156,7 @@ def _evaluated(tmp_path, system: str, model_of) -> dict[str, float]:
 @pytest.mark.parametrize("name", SYSTEMS)
 def test_accel_mse_of_the_true_field_is_zero(tmp_path, name):
     """GLNN fed the true L and F (the true field, by the model's own code path) scores accel_mse ~0."""
+
     def true_glnn(system):
         model = GLNN(system, hidden=8, depth=2, guard=0.0)
         model.lagrangian_derivatives = partial(lagrangian_derivatives, system.lagrangian)
@@ -149,6 +170,7 @@ def test_accel_mse_of_the_true_field_is_zero(tmp_path, name):
 def test_accel_mse_of_zero_acceleration_is_the_mean_square_of_the_true_q_ddot(tmp_path):
     """q̈ ≡ 0 scores the mean over the held-out states (the test trajectories' first n_steps + 1) of
     q̈² = (a q̇ + k² q)², the damped oscillator's closed form, and not of the states beyond that span."""
+
     def zero(system):
         model = SecondOrder(system, hidden=8, depth=2)
         torch.nn.init.zeros_(model.net[-1].weight), torch.nn.init.zeros_(model.net[-1].bias)
@@ -157,8 +179,15 @@ def test_accel_mse_of_zero_acceleration_is_the_mean_square_of_the_true_q_ddot(tm
     metrics = _evaluated(tmp_path, "damped_oscillator", zero)
     from encons.entry import api
 
-    cfg = api.compose("debug=fast", "system=damped_oscillator", "model=second_order", "data.n_test=3",
-                      "data.n_steps=20", "data.test_steps=40", cache_dir=tmp_path / "cache")
+    cfg = api.compose(
+        "debug=fast",
+        "system=damped_oscillator",
+        "model=second_order",
+        "data.n_test=3",
+        "data.n_steps=20",
+        "data.test_steps=40",
+        cache_dir=tmp_path / "cache",
+    )
     data = api.build(cfg)[0]
     data.setup()
     s = data.arrays["test"]["states"]

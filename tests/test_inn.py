@@ -7,9 +7,9 @@ from torch import Tensor, nn
 from torch.func import grad, jacrev, vmap
 from torchdiffeq import odeint
 
-from encons.numerics.integrators import Integrator, rollout, state_derivative
 from encons.models.inn import INNNODE, InvertibleNet
 from encons.models.nsf import NSF
+from encons.numerics.integrators import Integrator, rollout, state_derivative
 from encons.numerics.regularisers import Hamiltonian, field_jacobian, hamiltonian_violation
 from encons.systems.base import split_state
 from encons.systems.mass_spring import MassSpring

@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from encons.numerics.integrators import FIXED_STEP, Integrator, rollout
 from encons.models.base import DynamicsModel
+from encons.numerics.integrators import FIXED_STEP, Integrator, rollout
 from encons.systems.pendulum import NPendulum
 
 

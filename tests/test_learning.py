@@ -17,10 +17,22 @@ class ValHistory(pl.Callback):
 
 def test_short_run_cuts_validation_error_fivefold(tmp_path):
     """CHNN on the 1-pendulum at its default optimiser (warm-up + cosine, lr 1e-2), 12 epochs."""
-    cfg = api.compose("model=chnn", "system=pendulum1", "debug=fast", "data.n_train=32", "data.n_val=8",
-                         "data.n_test=4", "data.n_steps=20", "data.batch_size=8", "model.hidden=32",
-                         "trainer.max_epochs=12", "test=false", "~callbacks", output_dir=tmp_path / "run",
-                      cache_dir=tmp_path / "cache")
+    cfg = api.compose(
+        "model=chnn",
+        "system=pendulum1",
+        "debug=fast",
+        "data.n_train=32",
+        "data.n_val=8",
+        "data.n_test=4",
+        "data.n_steps=20",
+        "data.batch_size=8",
+        "model.hidden=32",
+        "trainer.max_epochs=12",
+        "test=false",
+        "~callbacks",
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
     data, module = api.build(cfg)
     trainer, _ = api.build_trainer(cfg)
     history = ValHistory()
@@ -32,10 +44,22 @@ def test_short_run_cuts_validation_error_fivefold(tmp_path):
 
 def test_hnn_drifts_less_in_energy_than_node(train_run):
     """Lim & Kasim Task 1 protocol at a tiny budget: 462-step test rollouts of the mass-spring."""
-    budget = ["system=mass_spring", "logger=none", "data.n_train=64", "data.n_val=8", "data.n_test=16",
-              "data.batch_size=16", "model.hidden=32", "model.depth=2", "trainer.max_epochs=15",
-              "objective=derivative", "optimizer.lr=1e-2", "trainer.enable_progress_bar=false",
-              "evaluation.rtol=1e-7", "evaluation.atol=1e-9"]  # a floor far below both models' errors, at 1/3 the cost
+    budget = [
+        "system=mass_spring",
+        "logger=none",
+        "data.n_train=64",
+        "data.n_val=8",
+        "data.n_test=16",
+        "data.batch_size=16",
+        "model.hidden=32",
+        "model.depth=2",
+        "trainer.max_epochs=15",
+        "objective=derivative",
+        "optimizer.lr=1e-2",
+        "trainer.enable_progress_bar=false",
+        "evaluation.rtol=1e-7",
+        "evaluation.atol=1e-9",
+    ]  # a floor far below both models' errors, at 1/3 the cost
     hnn = train_run(["model=hnn", *budget], name="hnn", fast=False)
     node = train_run(["model=node", *budget], name="node", fast=False)
     assert hnn["test/energy_rmse_median"] * 3 < node["test/energy_rmse_median"], (hnn, node)

@@ -10,13 +10,13 @@ from hydra.utils import instantiate
 from torch.func import jvp
 from torchdiffeq import odeint
 
-from encons.training.build import compose
 from encons.data import store
 from encons.data.datamodule import TrajectoryDataModule
 from encons.data.simulate import simulate
 from encons.systems.damped_pendulum import DampedPendulum
 from encons.systems.mass_spring import MassSpring
 from encons.systems.pendulum import NPendulum
+from encons.training.build import compose
 
 
 def test_mass_spring_follows_the_closed_form():
@@ -34,8 +34,9 @@ def test_mass_spring_follows_the_closed_form():
 def test_damped_pendulum_fields_agree_across_charts_and_dissipate_energy():
     system = DampedPendulum(damping=0.05)
     angle = torch.randn(64, 2, dtype=torch.float64)
-    cart, pushed = jvp(lambda s: system.to_chart(s, "angle", "cartesian"), (angle,),
-                       (system.vector_field(angle, "angle"),))
+    cart, pushed = jvp(
+        lambda s: system.to_chart(s, "angle", "cartesian"), (angle,), (system.vector_field(angle, "angle"),)
+    )
     assert torch.allclose(system.vector_field(cart, "cartesian"), pushed, atol=1e-10)
     assert torch.allclose(system.vector_field(angle, "angle")[:, 1], -torch.sin(angle[:, 0]) - 0.05 * angle[:, 1])
     for chart, s in (("angle", angle), ("cartesian", cart)):
@@ -48,16 +49,26 @@ def test_damped_pendulum_simulated_in_cartesian_matches_the_angle_chart():
     s0 = system.sample_initial(4, torch.Generator().manual_seed(0))
     t = torch.arange(8, dtype=torch.float64) * 2 * math.pi / 29
     cart = simulate(system, s0, t)
-    ref = odeint(lambda _, s: system.vector_field(s, "angle"), system.to_chart(s0, "cartesian", "angle"), t,
-                 method="rk4", options={"step_size": t[1].item() / 10}).movedim(0, 1)
+    ref = odeint(
+        lambda _, s: system.vector_field(s, "angle"),
+        system.to_chart(s0, "cartesian", "angle"),
+        t,
+        method="rk4",
+        options={"step_size": t[1].item() / 10},
+    ).movedim(0, 1)
     assert torch.allclose(cart, system.to_chart(ref, "angle", "cartesian"), atol=1e-6)
     assert system.constraints(cart[..., :2]).abs().max() < 1e-6
 
 
-@pytest.mark.parametrize("name, dt, steps, test_t", [
-    ("mass_spring", 2 * math.pi / 29, 29, 100.0), ("pendulum", 2 * math.pi / 29, 29, 100.0),
-    ("double_pendulum", 2 * math.pi / 299, 299, 100.0), ("damped_pendulum", 2 * math.pi / 29, 29, 100.0),
-])
+@pytest.mark.parametrize(
+    "name, dt, steps, test_t",
+    [
+        ("mass_spring", 2 * math.pi / 29, 29, 100.0),
+        ("pendulum", 2 * math.pi / 29, 29, 100.0),
+        ("double_pendulum", 2 * math.pi / 299, 299, 100.0),
+        ("damped_pendulum", 2 * math.pi / 29, 29, 100.0),
+    ],
+)
 def test_system_configs_follow_the_paper_protocol(tmp_path, name, dt, steps, test_t):
     cfg = compose([f"system={name}"], tmp_path)
     assert cfg.data.dt == pytest.approx(dt, rel=1e-12) and cfg.data.n_steps == steps
@@ -71,9 +82,22 @@ def test_system_configs_follow_the_paper_protocol(tmp_path, name, dt, steps, tes
 
 
 def derivative_data(tmp_path, system, chart, **kwargs) -> TrajectoryDataModule:
-    dm = TrajectoryDataModule(system, chart, n_train=6, n_val=2, n_test=2, n_steps=40, dt=0.01, noise=0.0,
-                              substeps=2, chunk_len=5, batch_size=6, cache_dir=str(tmp_path),
-                              objective="derivative", **kwargs)
+    dm = TrajectoryDataModule(
+        system,
+        chart,
+        n_train=6,
+        n_val=2,
+        n_test=2,
+        n_steps=40,
+        dt=0.01,
+        noise=0.0,
+        substeps=2,
+        chunk_len=5,
+        batch_size=6,
+        cache_dir=str(tmp_path),
+        objective="derivative",
+        **kwargs,
+    )
     dm.prepare_data()
     dm.setup()
     return dm

@@ -8,10 +8,10 @@ import torch
 
 from encons.data.simulate import simulate
 from encons.infra.errors import ConfigError
-from encons.numerics.integrators import Integrator, rollout, state_derivative
 from encons.models.base import DynamicsModel
 from encons.models.hnn import HNN
 from encons.models.node import NODE
+from encons.numerics.integrators import Integrator, rollout, state_derivative
 from encons.systems.pendulum import NPendulum
 
 
@@ -72,6 +72,7 @@ def test_a_rollout_starts_at_its_start_and_maps_back_only_the_later_states(syste
 
 def test_a_model_defining_the_old_encode_is_refused_with_the_new_names():
     with pytest.raises(ConfigError, match=r"defines encode/decode; allowed: to_internal\(s\)/from_internal\(z\)"):
+
         class Old(DynamicsModel):
             def encode(self, s):
                 return s

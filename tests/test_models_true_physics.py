@@ -19,15 +19,17 @@ from torch.func import jvp
 
 from encons.infra.batching import batched_grad
 from encons.infra.errors import ConfigError
-from encons.numerics.integrators import Integrator, rollout, state_derivative
 from encons.models.constrained import CHNN, CLNN, CartesianModel
 from encons.models.hnn import HNN, HNNStructure
 from encons.models.lnn import LNN, LNNStructure, euler_lagrange_terms, lagrangian_derivatives
+from encons.numerics.integrators import Integrator, rollout, state_derivative
 from encons.systems.base import split_state
 from encons.systems.gyroscope import Gyroscope
 from encons.systems.pendulum import NPendulum
 
-ANGLE_MODELS = [partial(cls, angular=angular) for cls in (HNN, HNNStructure, LNN, LNNStructure) for angular in (False, True)]
+ANGLE_MODELS = [
+    partial(cls, angular=angular) for cls in (HNN, HNNStructure, LNN, LNNStructure) for angular in (False, True)
+]
 MODELS = ANGLE_MODELS + [CHNN, CLNN]
 
 
@@ -36,6 +38,8 @@ def model_id(cls) -> str:
     if isinstance(cls, partial):
         return cls.func.__name__ + ("_angle" if cls.keywords.get("angular") else "")
     return cls.__name__
+
+
 SYSTEMS = {"pendulum2": lambda: NPendulum(2, masses=[1.0, 1.5], lengths=[1.0, 0.8]), "gyroscope": Gyroscope}
 
 
@@ -77,8 +81,9 @@ def with_true_physics(model, system, potential_scale=1.0):
         model.lagrangian_derivatives = partial(lagrangian_derivatives, model.lagrangian)
     elif isinstance(model, HNN):
         model.mass = mass
-        model.hamiltonian = lambda z: kinetic(split_state(z)[0], mass.solve(*split_state(z))) + potential(
-            split_state(z)[0])
+        model.hamiltonian = lambda z: (
+            kinetic(split_state(z)[0], mass.solve(*split_state(z))) + potential(split_state(z)[0])
+        )
     else:
         model.mass = mass
         model.factor_potential = lambda q: (mass.cholesky(q), potential(q))
@@ -177,7 +182,12 @@ def test_cartesian_model_on_a_system_without_constraints(tmp_path, train_run, mo
     system = NPendulum(1)
     traj = system.to_chart(system.sample_initial(8, torch.Generator().manual_seed(0)), "angle", "cartesian")
     path = tmp_path / "points.npz"
-    np.savez(path, t=np.arange(2) * 0.03, train=traj[:, None].repeat(1, 2, 1).numpy(),
-             test=traj[:, None].repeat(1, 2, 1).numpy(), chart=np.array("cartesian"))
+    np.savez(
+        path,
+        t=np.arange(2) * 0.03,
+        train=traj[:, None].repeat(1, 2, 1).numpy(),
+        test=traj[:, None].repeat(1, 2, 1).numpy(),
+        chart=np.array("cartesian"),
+    )
     with pytest.raises(ConfigError, match=r"needs holonomic constraints.*'from_file'"):
         train_run(["system=from_file", f"system.path={path}", f"model={model}"])

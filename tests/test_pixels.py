@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from encons.entry import api
 from encons.data import store
 from encons.data.simulate import sample_trajectories
+from encons.entry import api
 from encons.infra.errors import ConfigError, DataError
 from encons.models.observation import Autoencoder
 from encons.systems.damped_pendulum import DampedPendulum
@@ -33,20 +33,20 @@ def test_renderer_is_deterministic_and_the_centroid_gives_the_angle_to_a_pixel()
     states = torch.stack([theta, torch.zeros_like(theta)], -1)
     frames = system.render(states, "angle")
     assert frames.shape == (72, SIZE, SIZE) and frames.dtype == torch.float32
-    assert torch.equal(frames, system.render(states.clone(), "angle"))           # bitwise, run to run
-    assert torch.equal(frames[5], system.render(states[5:6], "angle")[0])          # independent of the batch
+    assert torch.equal(frames, system.render(states.clone(), "angle"))  # bitwise, run to run
+    assert torch.equal(frames[5], system.render(states[5:6], "angle")[0])  # independent of the batch
     assert 0 <= frames.min() and frames.max() <= 1
     rows, cols = torch.meshgrid(torch.arange(SIZE.__float__()), torch.arange(SIZE.__float__()), indexing="ij")
     mass = frames.double().sum((-1, -2))
     centroid = torch.stack([(frames * cols).sum((-1, -2)) / mass, (frames * rows).sum((-1, -2)) / mass], -1)
     midpoint = to_pixels(torch.stack([0.5 * torch.sin(theta), -0.5 * torch.cos(theta)], -1), SIZE, MARGIN)
-    assert (centroid - midpoint).norm(dim=-1).max() < 1.0                           # within one pixel
+    assert (centroid - midpoint).norm(dim=-1).max() < 1.0  # within one pixel
     pivot = to_pixels(torch.zeros(2, dtype=torch.float64), SIZE, MARGIN)
     rel = centroid - pivot
-    recovered = torch.atan2(rel[:, 0], rel[:, 1])                                  # column right, row down
+    recovered = torch.atan2(rel[:, 0], rel[:, 1])  # column right, row down
     error = torch.remainder(recovered - theta + math.pi, 2 * math.pi) - math.pi
-    half_rod = 0.5 * SIZE / (2 * MARGIN)                                            # l/2 in pixels
-    assert (error.abs() * half_rod).max() < 1.0                                     # arc error below a pixel
+    half_rod = 0.5 * SIZE / (2 * MARGIN)  # l/2 in pixels
+    assert (error.abs() * half_rod).max() < 1.0  # arc error below a pixel
 
 
 def test_damped_system_renders_from_its_cartesian_chart_like_the_conservative_one():
@@ -58,13 +58,21 @@ def test_damped_system_renders_from_its_cartesian_chart_like_the_conservative_on
 
 
 def test_frames_are_cached_beside_the_states(tmp_path):
-    cfg = api.compose("system=pixel_pendulum", "model=node", "data.n_train=6", "data.n_val=2", "data.n_test=2",
-                      "data.n_steps=8", output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    cfg = api.compose(
+        "system=pixel_pendulum",
+        "model=node",
+        "data.n_train=6",
+        "data.n_val=2",
+        "data.n_test=2",
+        "data.n_steps=8",
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
     data, _ = api.build(cfg)
     with np.load(data.cache_file) as f:
         assert f["obs_train"].shape == (6, 9, SIZE, SIZE) and f["train"].shape == (6, 9, 2)
         again = data.system.render(torch.from_numpy(f["test"]), "angle").numpy()
-        assert np.array_equal(f["obs_test"], again)                                  # the true angle beside its frame
+        assert np.array_equal(f["obs_test"], again)  # the true angle beside its frame
     batch = next(iter(data.train_dataloader()))
     assert batch["obs"].shape == (6, 5, SIZE, SIZE) and batch["states"].shape == (6, 5, 2)
 
@@ -95,8 +103,16 @@ def test_autoencoder_loss_terms_are_the_documented_ones():
     system = NPendulum(1, g=1.0, frame_size=8)
     torch.manual_seed(0)
     x = torch.rand(3, 5, 8, 8)
-    only = lambda **w: Autoencoder(system, latent=4, **{"weight_reconstruction": 0.0, "weight_prediction": 0.0,  # noqa: E731
-                                                        "weight_velocity": 0.0, **w})
+    only = lambda **w: Autoencoder(
+        system,
+        latent=4,
+        **{
+            "weight_reconstruction": 0.0,
+            "weight_prediction": 0.0,  # noqa: E731
+            "weight_velocity": 0.0,
+            **w,
+        },
+    )
     ae = only(weight_velocity=2.0)
     s, pred = ae.encode(x), torch.randn(3, 5, 4)
     q, p = s[..., :2], s[..., 2:]
@@ -105,7 +121,7 @@ def test_autoencoder_loss_terms_are_the_documented_ones():
     assert torch.allclose(ae.loss(x, ae.encode(x), pred), (ae.decode(pred) - x).square().sum((-1, -2)).mean())
     ae = only(weight_reconstruction=1.0)
     s = ae.encode(x)
-    windows = torch.stack([x[:, :-1], x[:, 1:]], 2)                                   # (x_t, x_{t+1})
+    windows = torch.stack([x[:, :-1], x[:, 1:]], 2)  # (x_t, x_{t+1})
     assert torch.allclose(ae.loss(x, s, pred), (ae.decode_stack(s) - windows).square().sum((-1, -2, -3)).mean())
 
 
@@ -116,11 +132,19 @@ def _write(path, obs_train, obs_test=None, n_train=4, steps=6):
     np.savez(path, t=t, train=states, test=states[:2], chart=np.array("angle"), obs_train=obs_train, obs_test=obs_test)
 
 
-@pytest.mark.parametrize("shape, test_shape, needle", [
-    ((4, 6, SIZE), None, "'obs_train' has shape (4, 6, 28)"),
-    ((3, 6, SIZE, SIZE), None, "allowed: (4, 6, H, W)"),
-    ((4, 6, SIZE, 20), (2, 6, SIZE, SIZE), "'obs_test' has shape (2, 6, 28, 28); allowed: (2, 6, H, W) frames of "
-                                           "the 2 'test' trajectories × 6 times, H × W = 28 × 20 as the other splits")])
+@pytest.mark.parametrize(
+    "shape, test_shape, needle",
+    [
+        ((4, 6, SIZE), None, "'obs_train' has shape (4, 6, 28)"),
+        ((3, 6, SIZE, SIZE), None, "allowed: (4, 6, H, W)"),
+        (
+            (4, 6, SIZE, 20),
+            (2, 6, SIZE, SIZE),
+            "'obs_test' has shape (2, 6, 28, 28); allowed: (2, 6, H, W) frames of "
+            "the 2 'test' trajectories × 6 times, H × W = 28 × 20 as the other splits",
+        ),
+    ],
+)
 def test_frames_of_the_wrong_shape_are_one_line(tmp_path, shape, test_shape, needle):
     path = tmp_path / "videos.npz"
     _write(path, np.zeros(shape, np.float32), None if test_shape is None else np.zeros(test_shape, np.float32))
@@ -133,40 +157,75 @@ def test_frames_of_the_wrong_shape_are_one_line(tmp_path, shape, test_shape, nee
 def test_own_videos_through_from_file(tmp_path):
     path = tmp_path / "videos.npz"
     _write(path, np.zeros((4, 6, 20, 20), np.uint8))
-    cfg = api.compose("system=from_file", f"system.path={path}", "observation=autoencoder", "model=node",
-                      "observation.frame_shape=[28,28]", "data.chunk_len=3", output_dir=tmp_path / "run",
-                      cache_dir=tmp_path / "cache")
+    cfg = api.compose(
+        "system=from_file",
+        f"system.path={path}",
+        "observation=autoencoder",
+        "model=node",
+        "observation.frame_shape=[28,28]",
+        "data.chunk_len=3",
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
     with pytest.raises(DataError, match=r"frames are \(20, 20\) pixels; allowed: observation.frame_shape=\[28, 28\]"):
         api.build(cfg)
-    cfg = api.compose("system=from_file", f"system.path={path}", "observation=autoencoder", "model=node",
-                      output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    cfg = api.compose(
+        "system=from_file",
+        f"system.path={path}",
+        "observation=autoencoder",
+        "model=node",
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
     with pytest.raises(ConfigError, match="observation.frame_shape=null and system"):
         api.build(cfg)
-    cfg = api.compose("system=from_file", f"system.path={path}", "observation=autoencoder", "model=hnn",
-                      "observation.frame_shape=[20,20]", "data.chunk_len=3", output_dir=tmp_path / "run",
-                      cache_dir=tmp_path / "cache")
-    data, module = api.build(cfg)                       # the user's videos, uint8 read as /255
+    cfg = api.compose(
+        "system=from_file",
+        f"system.path={path}",
+        "observation=autoencoder",
+        "model=hnn",
+        "observation.frame_shape=[20,20]",
+        "data.chunk_len=3",
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
+    data, module = api.build(cfg)  # the user's videos, uint8 read as /255
     assert data.arrays["train"]["obs"].shape == (3, 6, 20, 20) and data.arrays["val"]["obs"].shape[0] == 1
-    assert module.model.n == 1 and module.model.chart == "angle"   # the latent size, not the file's states
+    assert module.model.n == 1 and module.model.chart == "angle"  # the latent size, not the file's states
 
 
-@pytest.mark.parametrize("overrides, needle", [
-    (["objective=derivative"], "objective=derivative does not apply to observation=autoencoder"),
-    (["observation.latent=3"], "observation.latent=3; allowed: an even integer"),
-    (["observation.hidden=0"], "observation.hidden=0; allowed: a positive integer"),
-    (["data.chunk_len=2", "observation.stack=3"], "data.chunk_len=2 is shorter than observation.stack=3"),
-])
+@pytest.mark.parametrize(
+    "overrides, needle",
+    [
+        (["objective=derivative"], "objective=derivative does not apply to observation=autoencoder"),
+        (["observation.latent=3"], "observation.latent=3; allowed: an even integer"),
+        (["observation.hidden=0"], "observation.hidden=0; allowed: a positive integer"),
+        (["data.chunk_len=2", "observation.stack=3"], "data.chunk_len=2 is shorter than observation.stack=3"),
+    ],
+)
 def test_observation_config_errors_are_one_line(tmp_path, overrides, needle):
-    cfg = api.compose("system=pixel_pendulum", "model=node", "debug=fast", *overrides, output_dir=tmp_path / "run",
-                      cache_dir=tmp_path / "cache")
+    cfg = api.compose(
+        "system=pixel_pendulum",
+        "model=node",
+        "debug=fast",
+        *overrides,
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
     with pytest.raises(ConfigError) as err:
         api.build(cfg)
     assert needle in str(err.value) and "\n" not in str(err.value)
 
 
 def test_observation_none_trains_on_the_states_of_a_pixel_system(tmp_path):
-    cfg = api.compose("system=pixel_damped_pendulum", "model=node", "observation=none", "debug=fast",
-                      output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    cfg = api.compose(
+        "system=pixel_damped_pendulum",
+        "model=node",
+        "observation=none",
+        "debug=fast",
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
     data, module = api.build(cfg)
     assert module.observation.identity and module.model.n == 2 and data.chart == "cartesian"
 
@@ -183,9 +242,20 @@ LATENT_MODELS = {
 @pytest.mark.parametrize("name", LATENT_MODELS)
 def test_every_latent_model_trains_on_pixels(train_run, tmp_path, name):
     system, extra = LATENT_MODELS[name]
-    metrics = train_run([f"model={name.split('+')[0]}", f"system={system}", "data.n_train=6", "data.n_val=2",
-                         "data.n_test=2", "data.n_steps=8", "horizon=4", "trainer.max_epochs=1", *extra],
-                        figures=name == "node")  # the figures depend on the system, not the latent model: drawn once
+    metrics = train_run(
+        [
+            f"model={name.split('+')[0]}",
+            f"system={system}",
+            "data.n_train=6",
+            "data.n_val=2",
+            "data.n_test=2",
+            "data.n_steps=8",
+            "horizon=4",
+            "trainer.max_epochs=1",
+            *extra,
+        ],
+        figures=name == "node",
+    )  # the figures depend on the system, not the latent model: drawn once
     for key in ("test/pixel_mse", "test/pixel_mse_final", "test/traj_rel_err", "best/val/traj_rel_err"):
         assert math.isfinite(metrics[key]), key
     if extra:
@@ -200,12 +270,31 @@ def test_pixel_scores_stand_beside_a_still_first_frame_and_the_autoencoder_floor
     """``baseline_constant/`` is each test video's first frame held (0 at t = 0, then the true motion's own
     pixel change); ``autoencoder/`` decodes the encoded true frames — at t = 0 the rollout starts from the
     first encoded state, so there the model's pixel MSE is exactly the floor."""
-    metrics = train_run(["model=node", "system=pixel_pendulum", "data.n_train=6", "data.n_val=2", "data.n_test=3",
-                         "data.n_steps=8", "horizon=4", "trainer.max_epochs=1"], figures=True)
+    metrics = train_run(
+        [
+            "model=node",
+            "system=pixel_pendulum",
+            "data.n_train=6",
+            "data.n_val=2",
+            "data.n_test=3",
+            "data.n_steps=8",
+            "horizon=4",
+            "trainer.max_epochs=1",
+        ],
+        figures=True,
+    )
     curves = np.load(tmp_path / "run" / "test_curves.npz")
     still, floor, mse = (curves[k] for k in ("baseline_constant/pixel_mse", "autoencoder/pixel_mse", "pixel_mse"))
-    cfg = api.compose("debug=fast", "system=pixel_pendulum", "data.n_train=6", "data.n_val=2", "data.n_test=3",
-                      "data.n_steps=8", output_dir=tmp_path / "again", cache_dir=tmp_path / "cache")
+    cfg = api.compose(
+        "debug=fast",
+        "system=pixel_pendulum",
+        "data.n_train=6",
+        "data.n_val=2",
+        "data.n_test=3",
+        "data.n_steps=8",
+        output_dir=tmp_path / "again",
+        cache_dir=tmp_path / "cache",
+    )
     data, _ = api.build(cfg)
     data.setup("test")
     frames = next(iter(data.test_dataloader()))["obs"].double()
@@ -223,8 +312,16 @@ def test_pixel_rollouts_of_a_briefly_trained_model_stay_within_the_frames_range(
     latent rollouts of the test videos to t = 100 — and latents far outside anything encoded — give
     pixel values in [0, 1] (an unbounded decoder gave 1e5 and more where a rollout left the encoded region)."""
     torch.manual_seed(0)
-    cfg = api.compose("system=pixel_pendulum", "model=node", "data.n_train=6", "data.n_val=2", "data.n_test=3",
-                      "logger=none", output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    cfg = api.compose(
+        "system=pixel_pendulum",
+        "model=node",
+        "data.n_train=6",
+        "data.n_val=2",
+        "data.n_test=3",
+        "logger=none",
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
     data, module = api.build(cfg)
     data.setup("fit")
     opt = torch.optim.Adam(module.parameters(), 1e-3)
@@ -260,8 +357,8 @@ def test_a_late_time_pixel_mse_ranks_a_pendulum_at_rest_above_one_that_drifts_in
         return system.render(torch.stack([theta, -amp * freq * torch.sin(freq * t + phase)], -1), "angle").double()
 
     truth = video(omega)
-    drift = video(omega + math.pi / t[-1].item())     # half a period behind (ahead) at t = 100
-    still = video(omega, amp=0.0)                      # the pendulum at rest, hanging down
+    drift = video(omega + math.pi / t[-1].item())  # half a period behind (ahead) at t = 100
+    still = video(omega, amp=0.0)  # the pendulum at rest, hanging down
     mse = {name: (v - truth).square().mean((0, -1, -2)) for name, v in (("drift", drift), ("still", still))}
-    assert mse["still"][-1] < mse["drift"][-1]                       # the late-time number prefers standing still
+    assert mse["still"][-1] < mse["drift"][-1]  # the late-time number prefers standing still
     assert mse["drift"][:25].mean() < 0.5 * mse["still"][:25].mean()  # the curve shows which model follows the motion

@@ -11,14 +11,13 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from encons.entry import api
-
-from encons.training import attempts, runs
-from encons.tools.benchmark import resume_or_clear
-from encons.training.build import Request, catalogue, compose
 from encons.config.check import apply_presets
+from encons.entry import api
 from encons.infra.errors import DivergenceError
 from encons.models.lnn import LNN
+from encons.tools.benchmark import resume_or_clear
+from encons.training import attempts, runs
+from encons.training.build import Request, catalogue, compose
 
 PAPER = ["experiment=paper", "debug=fast", "system=pendulum1"]
 
@@ -34,15 +33,27 @@ def test_experiment_paper_with_debug_fast_composes_both():
     assert (cfg.trainer.max_epochs, cfg.model.hidden, cfg.model.depth, cfg.data.n_train) == (2, 16, 2, 16)
     assert cfg.model.activation == "softplus" and cfg.optimizer.lr == 1e-3 and not cfg.scheduler  # not chnn's own
     assert cfg.plain_solve is True
-    assert OmegaConf.to_container(cfg.preset_keys) == {"debug": ["model.hidden", "model.depth"],
-                                                       "experiment": ["model.hidden", "model.depth", "model.activation"]}
+    assert OmegaConf.to_container(cfg.preset_keys) == {
+        "debug": ["model.hidden", "model.depth"],
+        "experiment": ["model.hidden", "model.depth", "model.activation"],
+    }
 
 
-@pytest.mark.parametrize("presets", [{"debug": ["model.hidden"], "experiment": ["model.activation"]},
-                                     ["model.hidden", "model.activation"]])  # the list of a config saved before
+@pytest.mark.parametrize(
+    "presets", [{"debug": ["model.hidden"], "experiment": ["model.activation"]}, ["model.hidden", "model.activation"]]
+)  # the list of a config saved before
 def test_every_groups_presets_are_dropped_where_the_constructor_lacks_them(presets):
-    cfg = OmegaConf.create({"model": {"_target_": "encons.numerics.evaluation.Evaluation", "hidden": 3, "activation": "tanh",
-                                      "substeps": 2}, "preset_keys": presets})
+    cfg = OmegaConf.create(
+        {
+            "model": {
+                "_target_": "encons.numerics.evaluation.Evaluation",
+                "hidden": 3,
+                "activation": "tanh",
+                "substeps": 2,
+            },
+            "preset_keys": presets,
+        }
+    )
     apply_presets(cfg, Request())
     assert OmegaConf.to_container(cfg.model) == {"_target_": "encons.numerics.evaluation.Evaluation", "substeps": 2}
 
@@ -64,14 +75,21 @@ def test_only_models_with_a_guard_get_the_plain_attempt_first():
 
 def test_a_singular_hessian_at_guard_0_stops_training_as_a_divergence(tmp_path):
     """No NaN trained on: the first step's loss is NaN and Lightning's fit ends in a DivergenceError."""
-    cfg = api.compose("model=lnn", "system=pendulum1", "debug=fast", "model.guard=0", output_dir=tmp_path / "run",
-                      cache_dir=tmp_path / "cache")
+    cfg = api.compose(
+        "model=lnn",
+        "system=pendulum1",
+        "debug=fast",
+        "model.guard=0",
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
     data, module = api.build(cfg)
     with torch.no_grad():
         for p in module.model.lagrangian_net.parameters():
             p.zero_()  # L constant: ∇²_q̇L = 0 everywhere
-    trainer = pl.Trainer(max_steps=3, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-                         enable_model_summary=False)
+    trainer = pl.Trainer(
+        max_steps=3, logger=False, enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False
+    )
     with pytest.raises(DivergenceError, match=r"loss is nan at epoch 1, step 0"):
         trainer.fit(module, datamodule=data)
 
@@ -119,9 +137,18 @@ def test_a_table_marks_a_metric_a_model_does_not_report_apart_from_a_failed_run(
     from encons.tools.report import markdown
 
     base = {"system": "pendulum2", "n_train": 800, "data_efficiency": False, "runs": 1, "optimiser": ""}
-    summary = [{**base, "model": "lnn", "failed": 0, "test/traj_rel_err": 1.0, "test/traj_rel_err_sd": 0.0,
-                "test/plain_inverse": 1.0, "test/plain_inverse_sd": 0.0},
-               {**base, "model": "hnn", "failed": 0, "test/traj_rel_err": 2.0, "test/traj_rel_err_sd": 0.0},
-               {**base, "model": "node", "failed": 1}]
+    summary = [
+        {
+            **base,
+            "model": "lnn",
+            "failed": 0,
+            "test/traj_rel_err": 1.0,
+            "test/traj_rel_err_sd": 0.0,
+            "test/plain_inverse": 1.0,
+            "test/plain_inverse_sd": 0.0,
+        },
+        {**base, "model": "hnn", "failed": 0, "test/traj_rel_err": 2.0, "test/traj_rel_err_sd": 0.0},
+        {**base, "model": "node", "failed": 1},
+    ]
     rows = {line.split(" | ")[1]: line.split(" | ")[4:6] for line in markdown(summary, {}).splitlines()[2:5]}
-    assert rows == {"lnn": ["1", "1"], "hnn": ["2", "—"], "node": ["failed", "failed"]}   # one run: no "± 0"
+    assert rows == {"lnn": ["1", "1"], "hnn": ["2", "—"], "node": ["failed", "failed"]}  # one run: no "± 0"

@@ -21,21 +21,30 @@ def test_every_prose_number_is_tied_to_a_file_or_marked():
     verdict = pn.check(ROOT)
     listed = pending()
     untied = [u for u in verdict.untied if verdict.where[u] not in listed]
-    assert not untied, ("numbers not in any committed file the paragraph names (name the file, correct the "
-                        "number, or mark it <!-- not-a-result: REASON N -->):\n" + "\n".join(untied))
+    assert not untied, (
+        "numbers not in any committed file the paragraph names (name the file, correct the "
+        "number, or mark it <!-- not-a-result: REASON N -->):\n" + "\n".join(untied)
+    )
     gone = sorted(listed - verdict.paragraphs)
-    assert not gone, ("tests/prose_numbers_pending.txt lists paragraphs that are tied now or no longer exist; "
-                      "remove them:\n" + "\n".join(gone))
-    print(f"prose numbers: {verdict.tied} tied to files, {verdict.recorded} in reports' own tables, "
-          f"{verdict.settings} settings by their word, {verdict.marked} marked not-a-result, "
-          f"{len(verdict.untied)} in {len(listed)} pending paragraphs")
+    assert not gone, (
+        "tests/prose_numbers_pending.txt lists paragraphs that are tied now or no longer exist; "
+        "remove them:\n" + "\n".join(gone)
+    )
+    print(
+        f"prose numbers: {verdict.tied} tied to files, {verdict.recorded} in reports' own tables, "
+        f"{verdict.settings} settings by their word, {verdict.marked} marked not-a-result, "
+        f"{len(verdict.untied)} in {len(listed)} pending paragraphs"
+    )
 
 
 def _copy(tmp_path: Path) -> Path:
     shutil.copy(ROOT / "README.md", tmp_path / "README.md")
     shutil.copytree(ROOT / "docs", tmp_path / "docs")
-    shutil.copytree(ROOT / "benchmarks" / "reports", tmp_path / "benchmarks" / "reports",
-                    ignore=shutil.ignore_patterns("*.png", "*.npz"))
+    shutil.copytree(
+        ROOT / "benchmarks" / "reports",
+        tmp_path / "benchmarks" / "reports",
+        ignore=shutil.ignore_patterns("*.png", "*.npz"),
+    )
     return tmp_path
 
 
@@ -89,8 +98,10 @@ def test_dates_equations_and_a_list_lead_in(tmp_path):
     (tmp_path / "data" / "r.csv").write_text("x\n1.77\n")
     doc = tmp_path / "docs" / "page.md"
     doc.parent.mkdir()
-    doc.write_text("Run on 27 November 2026 at 01:11–01:18 (2026-11-26 before), by eq. 15 and Theorem 1.\n\n"
-                   "Measured (`data/r.csv`):\n\n- ratio 1.77× at K = 2;\n- ratio 1.78× at K = 4.\n\n"
-                   "After the list: 1.77× again.\n")
+    doc.write_text(
+        "Run on 27 November 2026 at 01:11–01:18 (2026-11-26 before), by eq. 15 and Theorem 1.\n\n"
+        "Measured (`data/r.csv`):\n\n- ratio 1.77× at K = 2;\n- ratio 1.78× at K = 4.\n\n"
+        "After the list: 1.77× again.\n"
+    )
     untied = [u.split(" not in ")[0] for u in pn.check(tmp_path, [doc]).untied]
     assert untied == ["docs/page.md:6: 1.78", "docs/page.md:8: 1.77"]

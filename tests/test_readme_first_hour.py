@@ -18,7 +18,7 @@ README = (ROOT / "README.md").read_text()
 def test_one_python_form_after_activating_the_venv():
     top = README[: README.index("## From Python")]
     assert "source .venv/bin/activate" in top
-    assert not re.search(r"^\s*\.venv/bin/python -m", README, re.M)       # one form: python -m after activation
+    assert not re.search(r"^\s*\.venv/bin/python -m", README, re.M)  # one form: python -m after activation
     assert "python -m encons.train model=hnn_angle system=pendulum1 debug=fast" in top
 
 
@@ -33,12 +33,21 @@ def test_every_console_script_is_named_in_the_readme_and_has_a_main():
 
 def test_the_docs_state_measured_durations_with_their_load():
     speed = (ROOT / "docs" / "speed.md").read_text()
-    section = speed[speed.index("## How long things take"):speed.index("## Training step against its floor")]
+    section = speed[speed.index("## How long things take") : speed.index("## Training step against its floor")]
     assert re.search(r"load average \d+–\d+", section) and "benchmarks/reports/durations/README.md" in section
-    rows = [line.split("|")[1:5] for line in section.splitlines() if line.startswith("| python") or line.startswith("| the")]
+    rows = [
+        line.split("|")[1:5] for line in section.splitlines() if line.startswith("| python") or line.startswith("| the")
+    ]
     assert len(rows) >= 8 and all(re.fullmatch(r" [\d.]+ ", cell) for _, *cells in rows for cell in cells), rows
-    for command in ("debug=fast", "system=pendulum2", "model=chnn system=gyroscope", "encons.evaluate",
-                    "profile=smoke", "encons.tools.report", "-m model=node"):
+    for command in (
+        "debug=fast",
+        "system=pendulum2",
+        "model=chnn system=gyroscope",
+        "encons.evaluate",
+        "profile=smoke",
+        "encons.report",
+        "-m model=node",
+    ):
         assert command in section, command
     for command in ("make install", "make test-fast", "make test"):
         assert command in section, command
@@ -59,8 +68,11 @@ def test_the_committed_example_results_rebuild_with_the_report(tmp_path):
     # issue 51: every file the README's report command writes is the committed one, so a clone stays clean; the
     # command itself, in a fresh process as a user runs it (matplotlib's text rendering keeps process-wide state,
     # so figures drawn after other tests' in one worker can differ in a few pixels)
-    subprocess.run([sys.executable, "-m", "encons.tools.report", str(out)], check=True, capture_output=True, timeout=300)
+    subprocess.run([sys.executable, "-m", "encons.report", str(out)], check=True, capture_output=True, timeout=300)
     committed = ROOT / "examples" / "results" / "smoke"
-    changed = [p.name for p in files if p.read_bytes().replace(str(out).encode(), b"examples/results/smoke")
-               != (committed / p.name).read_bytes()]       # results.csv names each run's folder as the README's run
+    changed = [
+        p.name
+        for p in files
+        if p.read_bytes().replace(str(out).encode(), b"examples/results/smoke") != (committed / p.name).read_bytes()
+    ]  # results.csv names each run's folder as the README's run
     assert not changed, f"examples/results/smoke is stale; rebuild it with python -m encons.report: {changed}"

@@ -13,8 +13,14 @@ from encons.infra.batching import batched
 from encons.infra.errors import ConfigError
 from encons.models.networks import mlp
 from encons.models.node import NODE
-from encons.numerics.regularisers import (Dissipative, Hamiltonian, dissipative_violation, field_jacobian, from_paper_weight,
-                                 hamiltonian_violation)
+from encons.numerics.regularisers import (
+    Dissipative,
+    Hamiltonian,
+    dissipative_violation,
+    field_jacobian,
+    from_paper_weight,
+    hamiltonian_violation,
+)
 from encons.systems.base import split_state
 from encons.systems.mass_spring import MassSpring
 from encons.systems.pendulum import NPendulum
@@ -77,8 +83,9 @@ def rotation_block(sigma: float, omega: float) -> Tensor:
 def similar(blocks: Tensor, seed: int = 0) -> Tensor:
     """P B P⁻¹ for a random well-conditioned P: same eigenvalues as B."""
     gen = torch.Generator().manual_seed(seed)
-    p = torch.eye(len(blocks), dtype=torch.float64) + 0.3 * torch.randn(len(blocks), len(blocks), generator=gen,
-                                                                         dtype=torch.float64)
+    p = torch.eye(len(blocks), dtype=torch.float64) + 0.3 * torch.randn(
+        len(blocks), len(blocks), generator=gen, dtype=torch.float64
+    )
     return p @ blocks @ torch.linalg.inv(p)
 
 
@@ -137,14 +144,18 @@ def test_bad_regulariser_settings_are_config_errors():
     assert math.isclose(Dissipative(weight=2).weight, 2.0)
 
 
-@pytest.mark.parametrize("constraint, violation", [("hamiltonian", hamiltonian_violation),
-                                                   ("dissipative", lambda a: dissipative_violation(a, torch.zeros(())))])
+@pytest.mark.parametrize(
+    "constraint, violation",
+    [("hamiltonian", hamiltonian_violation), ("dissipative", lambda a: dissipative_violation(a, torch.zeros(())))],
+)
 def test_paper_weight_makes_the_papers_entry_mean_loss_proportional_to_encons_sum(constraint, violation):
     gen = torch.Generator().manual_seed(0)
     d, w = 4, 1e3
-    err, jac = torch.randn(16, d, generator=gen, dtype=torch.float64), torch.randn(16, d, d, generator=gen,
-                                                                                 dtype=torch.float64)
+    err, jac = (
+        torch.randn(16, d, generator=gen, dtype=torch.float64),
+        torch.randn(16, d, d, generator=gen, dtype=torch.float64),
+    )
     entries = d * d if constraint == "hamiltonian" else d  # what the authors' code averages over
-    paper = (err ** 2).mean(-1).mean() + w * (violation(jac) / entries).mean()
-    ours = (err ** 2).sum(-1).mean() + from_paper_weight(w, constraint, d) * violation(jac).mean()
+    paper = (err**2).mean(-1).mean() + w * (violation(jac) / entries).mean()
+    ours = (err**2).sum(-1).mean() + from_paper_weight(w, constraint, d) * violation(jac).mean()
     assert float(ours) == pytest.approx(float(d * paper), rel=1e-12)

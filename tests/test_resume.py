@@ -37,7 +37,9 @@ def test_divergence_raises_and_keeps_last_good_checkpoint(train_run, tmp_path, m
     with pytest.raises(DivergenceError, match="training diverged") as err:
         train_run(RUN, name="nan")
     # the message names the checkpoint that exists (it said "no checkpoint was written" before)
-    assert f"{tmp_path / 'nan' / 'checkpoints' / 'last.ckpt'} holds the last good weights (epoch 2)" in str(err.value)   # epochs from 1
+    assert f"{tmp_path / 'nan' / 'checkpoints' / 'last.ckpt'} holds the last good weights (epoch 2)" in str(
+        err.value
+    )  # epochs from 1
     ckpt = torch.load(tmp_path / "nan" / "checkpoints" / "last.ckpt", weights_only=False)
     assert ckpt["epoch"] == 1
     assert all(torch.isfinite(v).all() for v in ckpt["state_dict"].values())

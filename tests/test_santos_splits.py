@@ -10,12 +10,18 @@ from tests.helpers import SANTOS_TINY
 
 
 def test_lnode_mse_train_and_mse_test_come_from_disjoint_splits(tmp_path):
-    cfg = api.compose("debug=fast", "model=lnode", "system=pendulum_control", "figures=false",
-                      *SANTOS_TINY,
-                      output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    cfg = api.compose(
+        "debug=fast",
+        "model=lnode",
+        "system=pendulum_control",
+        "figures=false",
+        *SANTOS_TINY,
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
     run = api.train(cfg, summary=False)
     train, test = (run.data.arrays[k]["states"] for k in ("train", "test"))
     starts = torch.cdist(train[:, 0].double(), test[:, 0])  # test states are served in float64
-    assert float(starts.min()) > 1e-3                                 # no test trajectory is a training one
+    assert float(starts.min()) > 1e-3  # no test trajectory is a training one
     assert not torch.equal(run.data.arrays["train"]["u"][: len(test)], run.data.arrays["test"]["u"])
     assert run.metrics["test/mse_train"] != run.metrics["test/mse_test"]

@@ -11,14 +11,14 @@ import torch
 from omegaconf import open_dict
 from torch import Tensor, nn
 
-from encons.training.build import compose
 from encons.data import store
 from encons.infra.errors import ConfigError, DataError
-from encons.numerics.integrators import Integrator, rollout
 from encons.models.base import DiscreteModel, DynamicsModel
+from encons.numerics.integrators import Integrator, rollout
 from encons.systems.base import System, split_state
+from encons.training.build import compose
 
-K, MASS = 2.0, 0.5   # ForcedSpring: m q̈ = −k q + u
+K, MASS = 2.0, 0.5  # ForcedSpring: m q̈ = −k q + u
 
 
 class ForcedSpring(System):
@@ -38,7 +38,7 @@ class ForcedSpring(System):
 
     def energy(self, s: Tensor, chart: str) -> Tensor:
         q, qd = split_state(s)
-        return (0.5 * MASS * qd ** 2 + 0.5 * K * q ** 2).squeeze(-1)
+        return (0.5 * MASS * qd**2 + 0.5 * K * q**2).squeeze(-1)
 
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
         return torch.randn(n, 2, generator=generator, dtype=torch.float64)
@@ -71,7 +71,7 @@ class VerletStepper(DiscreteModel):
         self.a, self.b = nn.Parameter(torch.zeros(())), nn.Parameter(torch.zeros(()))
 
     def step(self, q_prev, q, u, h):
-        return 2 * q - q_prev + h ** 2 * (self.a * q + self.b * u)
+        return 2 * q - q_prev + h**2 * (self.a * q + self.b * u)
 
     def residual(self, states, t, u=None):
         q, h = states[..., :1], float(t[1] - t[0])
@@ -113,19 +113,30 @@ def test_store_round_trips_constant_and_per_step_inputs(tmp_path):
     _, loaded, _ = store.load(tmp_path / "a.npz")
     inputs = store.load_inputs(tmp_path / "a.npz", loaded, 2)
     assert torch.equal(inputs["train"], per_step) and inputs["test"].shape == (2, 4, 2)
-    np.savez(tmp_path / "b.npz", t=t.numpy(), train=np.zeros((3, 4, 2)), test=np.zeros((2, 4, 2)),
-             u_train=np.array([[1.0], [2.0], [3.0]]), u_test=np.ones((2, 1)))
+    np.savez(
+        tmp_path / "b.npz",
+        t=t.numpy(),
+        train=np.zeros((3, 4, 2)),
+        test=np.zeros((2, 4, 2)),
+        u_train=np.array([[1.0], [2.0], [3.0]]),
+        u_test=np.ones((2, 1)),
+    )
     _, loaded, _ = store.load(tmp_path / "b.npz")
-    assert torch.equal(store.load_inputs(tmp_path / "b.npz", loaded, 1)["train"][:, :, 0],
-                       torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64)[:, None].expand(3, 4))
+    assert torch.equal(
+        store.load_inputs(tmp_path / "b.npz", loaded, 1)["train"][:, :, 0],
+        torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64)[:, None].expand(3, 4),
+    )
 
 
-@pytest.mark.parametrize("arrays, match", [
-    ({}, "lacks 'u_train'"),
-    ({"u_train": np.ones((3, 2)), "u_test": np.ones((2, 1))}, "u_train' has shape"),
-    ({"u_train": np.ones((3, 5, 1)), "u_test": np.ones((2, 1))}, "u_train' has shape"),
-    ({"u_train": np.full((3, 1), np.nan), "u_test": np.ones((2, 1))}, "NaN"),
-])
+@pytest.mark.parametrize(
+    "arrays, match",
+    [
+        ({}, "lacks 'u_train'"),
+        ({"u_train": np.ones((3, 2)), "u_test": np.ones((2, 1))}, "u_train' has shape"),
+        ({"u_train": np.ones((3, 5, 1)), "u_test": np.ones((2, 1))}, "u_train' has shape"),
+        ({"u_train": np.full((3, 1), np.nan), "u_test": np.ones((2, 1))}, "NaN"),
+    ],
+)
 def test_bad_inputs_in_a_file_are_one_clear_error(tmp_path, arrays, match):
     t = np.arange(4.0)
     np.savez(tmp_path / "c.npz", t=t, train=np.zeros((3, 4, 2)), test=np.zeros((2, 4, 2)), **arrays)
@@ -159,8 +170,13 @@ def test_controlled_data_reach_training_rollouts_and_regularisers(tmp_path):
     data.setup()
     test = next(iter(data.test_dataloader()))
     # the served test states are the simulator's under the served inputs
-    truth = rollout(TrueField(ForcedSpring()), test["states"][:, 0].double(),
-                    torch.arange(11, dtype=torch.float64) * data.dt, Integrator("rk4", substeps=10), test["u"].double())
+    truth = rollout(
+        TrueField(ForcedSpring()),
+        test["states"][:, 0].double(),
+        torch.arange(11, dtype=torch.float64) * data.dt,
+        Integrator("rk4", substeps=10),
+        test["u"].double(),
+    )
     assert torch.allclose(truth, test["states"], atol=1e-5)  # test states are served in float64
     results = train(toy_config(tmp_path, "node", "regulariser=hamiltonian")).metrics
     assert math.isfinite(results["test/traj_rel_err"]) and math.isfinite(results["train/regulariser"])
@@ -187,12 +203,15 @@ def test_a_discrete_model_learns_its_force_from_the_residual(tmp_path):
     assert (pred[..., 0] - batch["states"][..., 0]).abs().max() < 1e-3  # positions; q̇ is a crude difference
 
 
-@pytest.mark.parametrize("model, overrides, match", [
-    ("VerletStepper", ["objective=derivative"], "objective=derivative does not apply"),
-    ("VerletStepper", ["regulariser=hamiltonian"], "needs a vector field"),
-    ("VerletStepper", ["integrator=euler"], "integrator=euler does not apply"),
-    ("TrueField", ["objective=residual"], "objective=residual does not apply"),
-])
+@pytest.mark.parametrize(
+    "model, overrides, match",
+    [
+        ("VerletStepper", ["objective=derivative"], "objective=derivative does not apply"),
+        ("VerletStepper", ["regulariser=hamiltonian"], "needs a vector field"),
+        ("VerletStepper", ["integrator=euler"], "integrator=euler does not apply"),
+        ("TrueField", ["objective=residual"], "objective=residual does not apply"),
+    ],
+)
 def test_what_a_model_does_not_support_is_one_error_naming_the_key(tmp_path, model, overrides, match):
     from encons.entry.api import build
 
@@ -215,7 +234,11 @@ PINNED = {
     ("model=node", "system=pendulum1"): 1.5838478803634644,
     ("model=hnn", "system=pendulum2"): 4.321069717407227,
     ("model=chnn", "system=gyroscope", "optimizer=adamw", "scheduler=none"): 7.340567588806152,  # the optimiser of then
-    ("model=lnn_structure_angle", "system=pendulum1", "model.shared_trunk=false"): 1.467573642730713,  # the two networks of then
+    (
+        "model=lnn_structure_angle",
+        "system=pendulum1",
+        "model.shared_trunk=false",
+    ): 1.467573642730713,  # the two networks of then
     ("model=node", "system=mass_spring", "regulariser=hamiltonian", "objective=derivative"): 2.1088972091674805,
     ("model=inn_node", "system=damped_pendulum", "regulariser=dissipative"): 3.886685371398926,
 }

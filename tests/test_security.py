@@ -11,12 +11,10 @@ import torch
 from omegaconf import OmegaConf
 
 from encons.entry import api
-
-from encons.tools import benchmark
-
 from encons.infra import checkpoints
-from encons.training.build import build, compose, run_config
 from encons.infra.errors import ConfigError
+from encons.tools import benchmark
+from encons.training.build import build, compose, run_config
 
 
 class WritesMarker:
@@ -32,6 +30,7 @@ class WritesMarker:
 @pytest.fixture
 def evil_ckpt(tmp_path):
     """``(path, marker)``: a checkpoint-shaped file whose pickle would create ``marker``."""
+
     def plant(path):
         path.parent.mkdir(parents=True, exist_ok=True)
         torch.save({"state_dict": {}, "epoch": 0, "payload": WritesMarker(tmp_path / "pwned")}, path)
@@ -41,8 +40,9 @@ def evil_ckpt(tmp_path):
 
 
 def fast(tmp_path, *overrides, out="run"):
-    return compose(["debug=fast", "model=node", "system=pendulum1", *overrides], tmp_path / "runs" / out,
-                   tmp_path / "cache")
+    return compose(
+        ["debug=fast", "model=node", "system=pendulum1", *overrides], tmp_path / "runs" / out, tmp_path / "cache"
+    )
 
 
 def test_the_one_reader_refuses_a_pickle_that_runs_code(tmp_path, evil_ckpt):
@@ -93,11 +93,13 @@ def test_evaluate_and_load_refuse_it(tmp_path, evil_ckpt, route):
 def evil_module(tmp_path, monkeypatch):
     """A module ``evilmod`` on ``sys.path`` that creates a marker file when imported."""
     marker = tmp_path / "imported"
-    (tmp_path / "evilmod.py").write_text(textwrap.dedent(f"""
+    (tmp_path / "evilmod.py").write_text(
+        textwrap.dedent(f"""
         open({str(marker)!r}, "w").close()
         class Model:
             pass
-    """))
+    """)
+    )
     monkeypatch.syspath_prepend(str(tmp_path))
     return marker
 
@@ -122,7 +124,8 @@ def test_a_checkpoints_saved_config_is_checked_before_any_import(tmp_path, evil_
 def test_a_searchpath_config_cannot_widen_trust(tmp_path, evil_module, cli):
     group = tmp_path / "extra" / "widen"
     group.mkdir(parents=True)
-    (group / "all.yaml").write_text(textwrap.dedent("""
+    (group / "all.yaml").write_text(
+        textwrap.dedent("""
         # @package _global_
         hydra:
           job:
@@ -130,9 +133,16 @@ def test_a_searchpath_config_cannot_widen_trust(tmp_path, evil_module, cli):
               ENCONS_TRUSTED_TARGETS: evilmod.*
         model:
           _target_: evilmod.Model
-    """))
-    result = cli("debug=fast", "logger=none", f"hydra.searchpath=[file://{tmp_path / 'extra'}]", "+widen=all",
-                 f"hydra.run.dir={tmp_path / 'out'}", f"paths.cache_dir={tmp_path / 'cache'}")
+    """)
+    )
+    result = cli(
+        "debug=fast",
+        "logger=none",
+        f"hydra.searchpath=[file://{tmp_path / 'extra'}]",
+        "+widen=all",
+        f"hydra.run.dir={tmp_path / 'out'}",
+        f"paths.cache_dir={tmp_path / 'cache'}",
+    )
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert lines[-1].startswith("encons: error: hydra.job.env_set.ENCONS_TRUSTED_TARGETS is set by a config")
@@ -140,10 +150,13 @@ def test_a_searchpath_config_cannot_widen_trust(tmp_path, evil_module, cli):
     assert not evil_module.exists()
 
 
-@pytest.mark.parametrize("target, why", [
-    ("encons.config.trust.os.system", "os is a module reached by attribute"),
-    ("encons.training.build.Path", "not encons's"),
-])
+@pytest.mark.parametrize(
+    "target, why",
+    [
+        ("encons.config.trust.os.system", "os is a module reached by attribute"),
+        ("encons.training.build.Path", "not encons's"),
+    ],
+)
 def test_an_alias_of_a_trusted_name_is_refused(tmp_path, target, why):
     with pytest.raises(ConfigError) as err:
         build(fast(tmp_path, f"model._target_={target}"))

@@ -16,7 +16,6 @@ from encons.systems.gyroscope import Gyroscope
 from encons.systems.pendulum import NPendulum
 
 
-
 def _script(name: str):
     spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "benchmarks" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
@@ -55,7 +54,19 @@ def test_time_to_accuracy_stops_at_the_target(tmp_path):
 
 def test_time_to_accuracy_reports_a_target_not_reached(tmp_path):
     out = tmp_path / "tta.csv"
-    rows = tta.main(["--runs", "node/pendulum2", "--max-epochs", "2", "--out", str(out), "debug=fast",
-                     "data.n_train=4", "data.n_val=2", "data.n_test=2"])
+    rows = tta.main(
+        [
+            "--runs",
+            "node/pendulum2",
+            "--max-epochs",
+            "2",
+            "--out",
+            str(out),
+            "debug=fast",
+            "data.n_train=4",
+            "data.n_val=2",
+            "data.n_test=2",
+        ]
+    )
     assert [(r["reached"], r["time_to_target_s"], r["epochs"]) for r in rows] == [(False, None, 2)]
     assert "not in 2 epochs" in out.with_suffix(".md").read_text()

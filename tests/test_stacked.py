@@ -9,7 +9,6 @@ import pytest
 import torch
 
 from encons.entry import api
-
 from encons.training import ensemble, stacked
 from encons.training.build import build
 
@@ -25,8 +24,12 @@ FAMILIES = [
     ("chnn", "gyroscope", [], "vmap"),
     ("clnn", "gyroscope", [], "vmap"),
     ("nsf", "mass_spring", ["objective=derivative"], "vmap"),
-    ("node", "mass_spring", ["objective=derivative", "regulariser=hamiltonian", "regulariser.weight=10"],
-     "ensemble dimension"),
+    (
+        "node",
+        "mass_spring",
+        ["objective=derivative", "regulariser=hamiltonian", "regulariser.weight=10"],
+        "ensemble dimension",
+    ),
     ("inn_node", "mass_spring", ["objective=derivative", "regulariser=hamiltonian", "regulariser.weight=10"], "vmap"),
     ("node", "damped_pendulum", ["objective=derivative", "regulariser=dissipative"], "ensemble dimension"),
     ("lnode", "pendulum_control", ["evaluators.santos.steps=20"], "ensemble dimension"),
@@ -41,8 +44,21 @@ def cache(tmp_path_factory):
 
 
 def _members(model, system, extra, cache, tmp_path, k=2):
-    built = [build(api.compose(f"model={model}", f"system={system}", "debug=fast", "logger=none", *extra,
-                               f"seed={s}", output_dir=tmp_path / f"m{s}", cache_dir=cache)) for s in range(k)]
+    built = [
+        build(
+            api.compose(
+                f"model={model}",
+                f"system={system}",
+                "debug=fast",
+                "logger=none",
+                *extra,
+                f"seed={s}",
+                output_dir=tmp_path / f"m{s}",
+                cache_dir=cache,
+            )
+        )
+        for s in range(k)
+    ]
     return built[0][0], [m for _, m in built]
 
 
@@ -53,9 +69,16 @@ def test_stacked_steps_equal_each_members_own(tmp_path, cache, model, system, ex
     entry by entry: Adam turns the rounding noise of a gradient that is ~0, e.g. of a weight LNN's separable start
     zeroes, into a step of ±lr.)"""
     data, members = _members(model, system, extra, cache, tmp_path)
-    _, twins = _members(model, system, extra, cache, tmp_path)          # the separate runs, trained apart
-    cfg = api.compose(f"model={model}", f"system={system}", "debug=fast", "logger=none", *extra,
-                      output_dir=tmp_path / "ens", cache_dir=cache)
+    _, twins = _members(model, system, extra, cache, tmp_path)  # the separate runs, trained apart
+    cfg = api.compose(
+        f"model={model}",
+        f"system={system}",
+        "debug=fast",
+        "logger=none",
+        *extra,
+        output_dir=tmp_path / "ens",
+        cache_dir=cache,
+    )
     module = ensemble._module(cfg, members, [0, 1], data, True)
     assert module.path == f"stacked ({way})", module.path
     opt = stacked.optimizer(members[0].optimizer, list(module.stacked.parameters()))
@@ -80,7 +103,10 @@ def test_stacked_steps_equal_each_members_own(tmp_path, cache, model, system, ex
 def test_a_loop_is_kept_only_with_its_reason(tmp_path, cache):
     """The pixel models train an encoder beside the model: the loop, saying so in full."""
     data, members = _members("node", "pixel_pendulum", [], cache, tmp_path)
-    cfg = api.compose("model=node", "system=pixel_pendulum", "debug=fast", "logger=none", output_dir=tmp_path / "e",
-                      cache_dir=cache)
-    assert ensemble._module(cfg, members, [0, 1], data, None).path == \
-        "loop: observation=Autoencoder trains an encoder beside the model"
+    cfg = api.compose(
+        "model=node", "system=pixel_pendulum", "debug=fast", "logger=none", output_dir=tmp_path / "e", cache_dir=cache
+    )
+    assert (
+        ensemble._module(cfg, members, [0, 1], data, None).path
+        == "loop: observation=Autoencoder trains an encoder beside the model"
+    )

@@ -12,23 +12,23 @@ from pathlib import Path
 import pytest
 
 import encons
-from encons.training.build import build_model, build_system, compose
 from encons.config.check import Request
 from encons.infra.errors import ConfigError
+from encons.training.build import build_model, build_system, compose
 
 #: Lowest first: one package per layer (docs/architecture.md draws them). A module may import from its own package
 #: and those before it, never from a later one; every import counts.
 LAYERS = [
-    ["infra"],         # errors, declared bounds, paths, atomic files, checkpoints, threads, progress, compat
-    ["systems"],       # the true physics
-    ["models"],        # networks with physical structure
-    ["numerics"],      # rollouts, the evaluation pipeline, metrics, regularisers, the Learner protocol
-    ["data"],          # trajectories: simulated, recorded, from files
-    ["evaluators"],    # what reads a Learner: test metrics and one run's figures
-    ["config"],        # the one validation pass (Request, Checked) and target trust
-    ["training"],      # the LightningModule, objectives, callbacks, builders, runs and ensembles
-    ["tools"],         # the commands' libraries: benchmark, sweep, report, docs, control
-    ["entry"],         # the Python API, the one room for every command's argv, --help
+    ["infra"],  # errors, declared bounds, paths, atomic files, checkpoints, threads, progress, compat
+    ["systems"],  # the true physics
+    ["models"],  # networks with physical structure
+    ["numerics"],  # rollouts, the evaluation pipeline, metrics, regularisers, the Learner protocol
+    ["data"],  # trajectories: simulated, recorded, from files
+    ["evaluators"],  # what reads a Learner: test metrics and one run's figures
+    ["config"],  # the one validation pass (Request, Checked) and target trust
+    ["training"],  # the LightningModule, objectives, callbacks, builders, runs and ensembles
+    ["tools"],  # the commands' libraries: benchmark, sweep, report, docs, control
+    ["entry"],  # the Python API, the one room for every command's argv, --help
     ["__init__", "__main__", "train", "evaluate", "benchmark", "report", "sweep", "control"],  # encons, commands
 ]
 PACKAGE = Path(encons.__file__).parent
@@ -44,8 +44,10 @@ def layer(module: str) -> int:
 
 def modules(package: Path) -> dict[str, Path]:
     """Every module of ``package`` by its name inside it (``models.base``, ``__init__``, ``__main__``)."""
-    return {".".join(p.relative_to(package).with_suffix("").parts).removesuffix(".__init__"): p
-            for p in sorted(package.rglob("*.py"))}
+    return {
+        ".".join(p.relative_to(package).with_suffix("").parts).removesuffix(".__init__"): p
+        for p in sorted(package.rglob("*.py"))
+    }
 
 
 def encons_imports(path: Path, known: dict[str, Path] | None = None) -> set[str]:
@@ -54,8 +56,12 @@ def encons_imports(path: Path, known: dict[str, Path] | None = None) -> set[str]
     known = modules(PACKAGE) if known is None else known
     found = set()
     for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0 and \
-                (node.module == "encons" or node.module.startswith("encons.")):
+        if (
+            isinstance(node, ast.ImportFrom)
+            and node.module
+            and node.level == 0
+            and (node.module == "encons" or node.module.startswith("encons."))
+        ):
             base = node.module.removeprefix("encons").removeprefix(".")
             for alias in node.names:
                 sub = f"{base}.{alias.name}" if base else alias.name
@@ -88,8 +94,8 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
             elif w in stack:
                 low[v] = min(low[v], index[w])
         if low[v] == index[v]:
-            component = stack[stack.index(v):]
-            del stack[stack.index(v):]
+            component = stack[stack.index(v) :]
+            del stack[stack.index(v) :]
             if len(component) > 1:
                 found.append(sorted(component))
 
@@ -112,24 +118,32 @@ def test_a_planted_import_cycle_fails_the_structure_test(tmp_path):
     copy = tmp_path / "encons"
     shutil.copytree(PACKAGE, copy, ignore=shutil.ignore_patterns("__pycache__"))
     assert_no_import_cycle(copy)
-    (copy / "planted_a.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
-                                       "    from encons.planted_b import B\n")
-    (copy / "planted_b.py").write_text("class B:\n    pass\n\nif __name__ == '__main__':\n"
-                                       "    from encons import planted_a\n")
+    (copy / "planted_a.py").write_text(
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from encons.planted_b import B\n"
+    )
+    (copy / "planted_b.py").write_text(
+        "class B:\n    pass\n\nif __name__ == '__main__':\n    from encons import planted_a\n"
+    )
     with pytest.raises(AssertionError):
         assert_no_import_cycle(copy)
     assert cycles(import_graph(copy)) == [["planted_a", "planted_b"]]
 
 
 def test_no_module_imports_from_a_layer_above_it():
-    arrows = [f"encons.{module} -> encons.{imported}" for module, imported_set in sorted(import_graph(PACKAGE).items())
-              for imported in sorted(imported_set) if layer(imported) > layer(module)]
+    arrows = [
+        f"encons.{module} -> encons.{imported}"
+        for module, imported_set in sorted(import_graph(PACKAGE).items())
+        for imported in sorted(imported_set)
+        if layer(imported) > layer(module)
+    ]
     assert arrows == []
 
 
 def test_the_layer_check_sees_a_back_arrow_also_under_type_checking(tmp_path):
     bad = tmp_path / "bad.py"
-    bad.write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from encons.tools.report import write_report\n")
+    bad.write_text(
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from encons.tools.report import write_report\n"
+    )
     assert layer(next(iter(encons_imports(bad)))) > layer("systems")
 
 
@@ -152,7 +166,7 @@ def test_checking_one_config_after_composing_another_gives_its_own_error(tmp_pat
     plain = compose(["model=symo", "system=pendulum_control"], tmp_path / "c")
     with pytest.raises(ConfigError, match=r"^integrator=euler does not apply to model=symo: a discrete model"):
         build_model(symo, build_system(symo), request=Request.of(symo))
-    build_model(plain, build_system(plain), request=Request.of(plain))   # no integrator override: fine
+    build_model(plain, build_system(plain), request=Request.of(plain))  # no integrator override: fine
     assert node.name == "pendulum_control-node" and symo.name == "pendulum_control-symo"
 
 

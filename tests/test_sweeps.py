@@ -15,8 +15,8 @@ import pytest
 import yaml
 from optuna.trial import TrialState
 
-from tests.helpers import run_cli
 from encons.training.build import compose
+from tests.helpers import run_cli
 
 TINY = ["system=pendulum1", "debug=fast", "test=false"]
 NODE = ["model=node", *TINY]
@@ -32,8 +32,11 @@ def cli(cli, tmp_path, monkeypatch):
 
 def sweep(tmp_path: Path, *args: str, cli=None) -> str:
     """A multirun's stdout: in this process through the ``cli`` fixture when given, else a real process."""
-    proc = (cli("-m", *args, cwd=tmp_path) if cli is not None
-            else run_cli("-m", *args, cwd=tmp_path, env={"ENCONS_ROOT": str(tmp_path)}))
+    proc = (
+        cli("-m", *args, cwd=tmp_path)
+        if cli is not None
+        else run_cli("-m", *args, cwd=tmp_path, env={"ENCONS_ROOT": str(tmp_path)})
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     return proc.stdout
 
@@ -81,9 +84,18 @@ def _processes_with_env(needle: str) -> list[int]:
 @pytest.mark.slow
 def test_pruned_and_diverged_trials_are_recorded_and_wandb_logs_every_trial_offline(tmp_path):
     wandb_dir = os.environ["WANDB_DIR"]
-    out = sweep(tmp_path, *NODE, "sweeps=optuna", "logger=wandb", "trainer.max_epochs=3", "hydra.sweeper.n_trials=3",
-                "optimizer.lr=tag(log,interval(1e-4,10.0))", "sweeps.pruner.n_startup_trials=1",
-                "sweeps.pruner.n_warmup_steps=0", "hydra.sweeper.enqueue=[{optimizer.lr:1e-3},{optimizer.lr:3.0},{optimizer.lr:1e9}]")
+    out = sweep(
+        tmp_path,
+        *NODE,
+        "sweeps=optuna",
+        "logger=wandb",
+        "trainer.max_epochs=3",
+        "hydra.sweeper.n_trials=3",
+        "optimizer.lr=tag(log,interval(1e-4,10.0))",
+        "sweeps.pruner.n_startup_trials=1",
+        "sweeps.pruner.n_warmup_steps=0",
+        "hydra.sweeper.enqueue=[{optimizer.lr:1e-3},{optimizer.lr:3.0},{optimizer.lr:1e9}]",
+    )
     folder = tmp_path / "multirun" / "optuna-pendulum1-node"
     good, bad, nan = stored(folder, "optuna-pendulum1-node")
     assert good.state == TrialState.COMPLETE and sorted(good.intermediate_values) == [0, 1, 2]
@@ -109,35 +121,63 @@ def test_pruned_and_diverged_trials_are_recorded_and_wandb_logs_every_trial_offl
 
 @pytest.mark.slow
 def test_model_grid_runs_every_model_and_seed(tmp_path, cli):
-    sweep(tmp_path, *TINY, "sweeps=model_grid", "hydra.sweeper.params.model='node,hnn'", "hydra.sweeper.params.seed='0,1'",
-          "trainer.max_epochs=1", cli=cli)
+    sweep(
+        tmp_path,
+        *TINY,
+        "sweeps=model_grid",
+        "hydra.sweeper.params.model='node,hnn'",
+        "hydra.sweeper.params.seed='0,1'",
+        "trainer.max_epochs=1",
+        cli=cli,
+    )
     folder = next((tmp_path / "multirun" / "model_grid-pendulum1").iterdir())
     runs = {p.name: yaml.safe_load((p / ".hydra" / "config.yaml").read_text()) for p in folder.iterdir() if p.is_dir()}
     assert sorted(runs) == ["hnn-seed0", "hnn-seed1", "node-seed0", "node-seed1"]
     assert {(c["model"]["_target_"].rsplit(".", 1)[-1], c["seed"]) for c in runs.values()} == {
-        ("NODE", 0), ("NODE", 1), ("HNN", 0), ("HNN", 1)}
+        ("NODE", 0),
+        ("NODE", 1),
+        ("HNN", 0),
+        ("HNN", 1),
+    }
     assert all((folder / name / "checkpoints" / "last.ckpt").is_file() for name in runs)
 
 
 @pytest.mark.slow
 def test_shared_schedule_trains_every_model_under_the_swept_optimiser(tmp_path, cli):
-    sweep(tmp_path, "sweeps=shared_schedule", "debug=fast", "figures=false", "trainer.max_epochs=1",
-          "hydra.sweeper.params.model='node,chnn'", "optimizer.lr=3e-3", cli=cli)
+    sweep(
+        tmp_path,
+        "sweeps=shared_schedule",
+        "debug=fast",
+        "figures=false",
+        "trainer.max_epochs=1",
+        "hydra.sweeper.params.model='node,chnn'",
+        "optimizer.lr=3e-3",
+        cli=cli,
+    )
     folder = next((tmp_path / "multirun" / "shared_schedule").iterdir())
     runs = {p.name: yaml.safe_load((p / ".hydra" / "config.yaml").read_text()) for p in folder.iterdir() if p.is_dir()}
-    assert sorted(runs) == ["chnn-cosine-lr0.003-ep1", "chnn-none-lr0.003-ep1", "node-cosine-lr0.003-ep1",
-                            "node-none-lr0.003-ep1"]
+    assert sorted(runs) == [
+        "chnn-cosine-lr0.003-ep1",
+        "chnn-none-lr0.003-ep1",
+        "node-cosine-lr0.003-ep1",
+        "node-none-lr0.003-ep1",
+    ]
     for name, c in runs.items():  # CHNN's own adamw_peak at 1e-2 is overridden like every model's optimiser
         assert c["optimizer"]["_target_"] == "torch.optim.AdamW" and c["optimizer"]["lr"] == 3e-3
-        assert c["scheduler"].get("_target_") == ("encons.training.schedules.WarmupCosine" if "cosine" in name else None)
+        assert c["scheduler"].get("_target_") == (
+            "encons.training.schedules.WarmupCosine" if "cosine" in name else None
+        )
         assert c["system"]["n_links"] == 2 and c["trainer"]["max_epochs"] == 1 and c["evaluation"]["method"] == "rk4"
         assert "traj_rel_err" in yaml.safe_load((folder / name / "test_metrics.json").read_text())
 
 
-@pytest.mark.parametrize("launcher, target, parallel_key", [
-    ("parallel", "joblib_launcher.JoblibLauncher", "n_jobs"),
-    ("slurm", "submitit_launcher.SlurmLauncher", "array_parallelism"),
-])
+@pytest.mark.parametrize(
+    "launcher, target, parallel_key",
+    [
+        ("parallel", "joblib_launcher.JoblibLauncher", "n_jobs"),
+        ("slurm", "submitit_launcher.SlurmLauncher", "array_parallelism"),
+    ],
+)
 def test_launcher_configs_follow_the_sweepers_batch_size(tmp_path, launcher, target, parallel_key):
     cfg = compose(["sweeps=optuna", f"hydra/launcher={launcher}", "hydra.sweeper.n_jobs=3"], tmp_path)
     assert cfg.hydra.launcher._target_.endswith(target)

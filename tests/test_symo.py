@@ -19,8 +19,11 @@ from encons.models.symo import E2ESyMo, SyMo
 from encons.systems.controlled import CartPole, ControlledPendulum
 from encons.systems.pendulum import NPendulum
 
-SYSTEMS = {"pendulum_control": ControlledPendulum, "cartpole": CartPole,
-           "pendulum3": lambda: NPendulum(3, masses=[1.0, 0.7, 0.5], lengths=[1.0, 0.8, 0.6])}
+SYSTEMS = {
+    "pendulum_control": ControlledPendulum,
+    "cartpole": CartPole,
+    "pendulum3": lambda: NPendulum(3, masses=[1.0, 0.7, 0.5], lengths=[1.0, 0.8, 0.6]),
+}
 
 
 class TrueCholesky(nn.Module):
@@ -57,8 +60,11 @@ def true_symo(system, **newton):
 
 def exact(system, s0, t, u=None):
     """Trajectories (N, T, 2n) by RK4 with 50 substeps per step (float64), constant inputs u (N, m)."""
-    field = (lambda _, s: system.vector_field(s, "angle", u)) if u is not None else (
-        lambda _, s: system.vector_field(s, "angle"))
+    field = (
+        (lambda _, s: system.vector_field(s, "angle", u))
+        if u is not None
+        else (lambda _, s: system.vector_field(s, "angle"))
+    )
     return odeint(field, s0, t, method="rk4", options={"step_size": float(t[1] - t[0]) / 50}).movedim(0, 1)
 
 
@@ -189,9 +195,13 @@ def test_newton_step_matches_the_closed_form_del_root_of_the_pendulum():
     dv = lambda q: -mgl2 * math.sin(q)  # noqa: E731 - V'(q)
     for i in range(len(s0)):
         q0, q1, f = start[i, 0, 0].item(), start[i, 1, 0].item(), u[i, 0].item()
-        del_eq = lambda q2: (inertia * (q1 - q0) / h - 0.5 * h * dv(0.5 * (q0 + q1))  # noqa: E731 - D₂L_d(q0, q1)
-                             - inertia * (q2 - q1) / h - 0.5 * h * dv(0.5 * (q1 + q2))   # D₁L_d(q1, q2)
-                             + 0.5 * h * (f + f))                                         # (h/2) B (u0 + u1)
+        del_eq = lambda q2: (
+            inertia * (q1 - q0) / h
+            - 0.5 * h * dv(0.5 * (q0 + q1))  # noqa: E731 - D₂L_d(q0, q1)
+            - inertia * (q2 - q1) / h
+            - 0.5 * h * dv(0.5 * (q1 + q2))  # D₁L_d(q1, q2)
+            + 0.5 * h * (f + f)
+        )  # (h/2) B (u0 + u1)
         root = brentq(del_eq, 2 * q1 - q0 - 1.0, 2 * q1 - q0 + 1.0, xtol=1e-15)
         assert abs(pred[i, 2, 0].item() - root) < 1e-10
     assert model.diagnostics() == {"newton_unconverged": 0.0}
@@ -233,8 +243,17 @@ def test_newton_backtracking_never_raises_the_residual():
 
 def test_newton_failures_reach_the_test_metrics(train_run):
     """End to end: a starved Newton shows up in the run's test metrics and §7 integration metrics."""
-    results = train_run(["model=symo", "system=pendulum_control", "model.eval_iters=1", "model.eval_tol=1e-15",
-                         "evaluators.santos.steps=6", "evaluators.santos.n_trajectories=2", "trainer.max_epochs=1"])
+    results = train_run(
+        [
+            "model=symo",
+            "system=pendulum_control",
+            "model.eval_iters=1",
+            "model.eval_tol=1e-15",
+            "evaluators.santos.steps=6",
+            "evaluators.santos.n_trajectories=2",
+            "trainer.max_epochs=1",
+        ]
+    )
     assert results["test/newton_unconverged"] == 1.0
     assert results["test/newton_unconverged_integration"] == 1.0
 
@@ -297,8 +316,15 @@ def test_newton_speedups_leave_roots_losses_and_gradients_unchanged(tol):
         with torch.no_grad():
             model.eval()
             pred = model.rollout(batch["states"][:, :2], t.float(), batch["u"])
-        outcomes.append((loss.detach(), [p.grad for p in model.parameters() if p.grad is not None], pred,
-                         model.newton_unconverged, iterations))
+        outcomes.append(
+            (
+                loss.detach(),
+                [p.grad for p in model.parameters() if p.grad is not None],
+                pred,
+                model.newton_unconverged,
+                iterations,
+            )
+        )
     (loss, grads, pred, failed, its), (ref_loss, ref_grads, ref_pred, ref_failed, ref_its) = outcomes
     assert torch.equal(loss, ref_loss) and torch.equal(pred, ref_pred) and failed == ref_failed
     assert len(grads) == len(ref_grads) > 0 and all(torch.equal(a, b) for a, b in zip(grads, ref_grads))

@@ -28,17 +28,20 @@ def test_model_trains_end_to_end_with_the_section_7_metrics(train_run, model, sy
     assert ("test/mass_mse" in results) == (name != "node")  # models with a learned M(q)
 
 
-@pytest.mark.parametrize("overrides, match", [
-    (["model=symo", "integrator=midpoint"], "integrator=midpoint does not apply to model=symo"),
-    (["model=e2e_symo", "objective=derivative"], "objective=derivative does not apply to model=e2e_symo"),
-    (["model=lnode", "objective=residual"], "objective=residual does not apply to model=lnode"),
-    (["model=symo", "model.train_tol=0"], "model.train_tol=0"),
-    (["model=symo", "system=cartpole", "system.u_max=-1"], "system.u_max=-1"),
-    (["model=hnn", "system=cartpole"], "cannot take control inputs"),
-])
+@pytest.mark.parametrize(
+    "overrides, match",
+    [
+        (["model=symo", "integrator=midpoint"], "integrator=midpoint does not apply to model=symo"),
+        (["model=e2e_symo", "objective=derivative"], "objective=derivative does not apply to model=e2e_symo"),
+        (["model=lnode", "objective=residual"], "objective=residual does not apply to model=lnode"),
+        (["model=symo", "model.train_tol=0"], "model.train_tol=0"),
+        (["model=symo", "system=cartpole", "system.u_max=-1"], "system.u_max=-1"),
+        (["model=hnn", "system=cartpole"], "cannot take control inputs"),
+    ],
+)
 def test_incompatible_santos_configs_are_one_line_errors(tmp_path, overrides, match):
-    from encons.training.build import compose
     from encons.entry.api import build
+    from encons.training.build import compose
 
     with pytest.raises(ConfigError, match=match):
         build(compose(["debug=fast", "system=pendulum_control", *overrides], tmp_path / "run", tmp_path / "c"))
@@ -47,13 +50,23 @@ def test_incompatible_santos_configs_are_one_line_errors(tmp_path, overrides, ma
 def test_symo_learns_the_true_inertia_of_the_pendulum(tmp_path):
     """From 32 noiseless trajectories, the DEL residual (eq. (15)) fixes M = m l²/3 (the known
     controls set the scale of L); 400 Adam steps on whole trajectories bring M(q) within 1e-3."""
-    from encons.training.build import compose
     from encons.entry.api import build
+    from encons.training.build import compose
 
     torch.manual_seed(0)
-    cfg = compose(["model=symo", "system=pendulum_control", "logger=none", "data.n_train=32",
-                         "data.chunk_len=33", "data.batch_size=32", "model.hidden=32"],
-                        tmp_path / "run", tmp_path / "c")
+    cfg = compose(
+        [
+            "model=symo",
+            "system=pendulum_control",
+            "logger=none",
+            "data.n_train=32",
+            "data.chunk_len=33",
+            "data.batch_size=32",
+            "model.hidden=32",
+        ],
+        tmp_path / "run",
+        tmp_path / "c",
+    )
     data, module = build(cfg)
     batch = next(iter(data.train_dataloader()))
     first = module.loss(batch).item()
@@ -74,9 +87,17 @@ def test_onestep_objective_is_the_mse_of_each_state_from_the_true_states_before_
     from encons.entry import api
 
     torch.manual_seed(0)
-    cfg = api.compose(f"model={model}", "system=pendulum_control", "experiment=symo_paper", "logger=none",
-                      "data.n_train=3", "data.batch_size=3", "model.hidden=8", output_dir=tmp_path / "run",
-                      cache_dir=tmp_path / "cache")
+    cfg = api.compose(
+        f"model={model}",
+        "system=pendulum_control",
+        "experiment=symo_paper",
+        "logger=none",
+        "data.n_train=3",
+        "data.batch_size=3",
+        "model.hidden=8",
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
     data, module = api.build(cfg)
     data.setup("fit")
     batch = next(iter(data.train_dataloader()))
@@ -84,7 +105,7 @@ def test_onestep_objective_is_the_mse_of_each_state_from_the_true_states_before_
     assert module.objective == "onestep" and states.shape[1] == 33
     errors = []
     for k in range(h, states.shape[1]):
-        one = {"states": states[:, k - h: k + 1], "u": u[:, k - h: k + 1]}
+        one = {"states": states[:, k - h : k + 1], "u": u[:, k - h : k + 1]}
         errors.append((module.predict(one)[:, -1] - states[:, k]).square())
     with torch.no_grad():
         assert torch.allclose(module.loss(batch), torch.stack(errors).mean(), rtol=1e-5)

@@ -15,19 +15,22 @@ import torch
 from encons.data.from_file import FileSystem
 from encons.infra.errors import PhysicsError
 from encons.systems.base import PointSystem
-from encons.systems.latent import LatentSystem
-from encons.systems.mass_spring import MassSpring
 from encons.systems.damped_pendulum import DampedPendulum
 from encons.systems.gyroscope import Gyroscope
+from encons.systems.latent import LatentSystem
+from encons.systems.mass_spring import MassSpring
 from encons.systems.pendulum import NPendulum
 
 REFERENCE = Path(__file__).parent / "data" / "point_systems_main.npz"
 
 
 def systems() -> dict:
-    return {"pendulum2": NPendulum(n_links=2),
-            "pendulum4": NPendulum(n_links=4, masses=[1.0, 2.0, 1.5, 1.0], lengths=[1.0, 0.5, 1.0, 0.7], g=3.0),
-            "damped_pendulum": DampedPendulum(), "gyroscope": Gyroscope()}
+    return {
+        "pendulum2": NPendulum(n_links=2),
+        "pendulum4": NPendulum(n_links=4, masses=[1.0, 2.0, 1.5, 1.0], lengths=[1.0, 0.5, 1.0, 0.7], g=3.0),
+        "damped_pendulum": DampedPendulum(),
+        "gyroscope": Gyroscope(),
+    }
 
 
 def values() -> dict[str, np.ndarray]:
@@ -67,8 +70,12 @@ def test_missing_physics_is_one_error_type_everywhere(tmp_path):
     np.savez(path, t=np.arange(3) * 0.1, train=traj, test=traj)
     s, gen = torch.zeros(1, 2, dtype=torch.float64), torch.Generator()
     for system in (FileSystem(str(path)), LatentSystem(2, NPendulum(1))):
-        for ask in (lambda: system.vector_field(s, "angle"), lambda: system.energy(s, "angle"),
-                    lambda: system.sample_initial(1, gen), lambda: system.mass_matrix(s[..., :1])):
+        for ask in (
+            lambda: system.vector_field(s, "angle"),
+            lambda: system.energy(s, "angle"),
+            lambda: system.sample_initial(1, gen),
+            lambda: system.mass_matrix(s[..., :1]),
+        ):
             with pytest.raises(PhysicsError, match=f"^system '{system.name}' has no known "):
                 ask()
     with pytest.raises(PhysicsError, match="has no known holonomic constraints"):

@@ -12,11 +12,10 @@ import pytest
 import torch
 
 from encons.entry import api
-
 from encons.infra import threads
+from encons.infra.errors import ConfigError
 from encons.tools.benchmark import expand
 from encons.training.build import compose
-from encons.infra.errors import ConfigError
 
 #: a subprocess that builds a tiny run through the API and prints torch's threads before and after
 BUILD = """
@@ -36,8 +35,9 @@ def _without_thread_env(**extra: str) -> dict:
 
 def _build_threads(tmp_path, *overrides: str, env: dict) -> tuple[int, int]:
     """torch's threads in a new process before and after ``encons.training.build`` of a tiny run."""
-    done = subprocess.run([sys.executable, "-c", BUILD, str(tmp_path), *overrides], capture_output=True,
-                          text=True, env=env, timeout=300)
+    done = subprocess.run(
+        [sys.executable, "-c", BUILD, str(tmp_path), *overrides], capture_output=True, text=True, env=env, timeout=300
+    )
     assert done.returncode == 0, done.stderr
     before, after = map(int, done.stdout.split()[-2:])
     return before, after
@@ -54,9 +54,24 @@ def torch_threads():
 @pytest.mark.slow
 def test_cli_run_without_thread_setting_uses_policy_default(tmp_path):
     done = subprocess.run(
-        [sys.executable, "-m", "encons.train", "debug=fast", "system=pendulum1", "model=hnn_angle",
-         "logger=none", "test=false", f"hydra.run.dir={tmp_path / 'run'}", f"paths.cache_dir={tmp_path / 'cache'}"],
-        capture_output=True, text=True, cwd=tmp_path, env=_without_thread_env(), timeout=300)
+        [
+            sys.executable,
+            "-m",
+            "encons.train",
+            "debug=fast",
+            "system=pendulum1",
+            "model=hnn_angle",
+            "logger=none",
+            "test=false",
+            f"hydra.run.dir={tmp_path / 'run'}",
+            f"paths.cache_dir={tmp_path / 'cache'}",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env=_without_thread_env(),
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr
     row = next(line for line in done.stdout.splitlines() if " threads " in line)
     assert row.split("│")[2].strip() == str(threads.DEFAULT)
@@ -111,8 +126,9 @@ def test_cli_bad_threads_is_one_line(cli, tmp_path):
 def test_parallel_launcher_gives_each_worker_the_policy_number(monkeypatch, tmp_path, threads_key, expected):
     for key in threads.ENV_KEYS:
         monkeypatch.delenv(key, raising=False)
-    cfg = api.compose("hydra/launcher=parallel", "hydra.launcher.n_jobs=2", f"threads={threads_key}",
-                      output_dir=tmp_path)
+    cfg = api.compose(
+        "hydra/launcher=parallel", "hydra.launcher.n_jobs=2", f"threads={threads_key}", output_dir=tmp_path
+    )
     want = max(1, threads.cores() // 2) if expected is None else expected
     assert cfg.hydra.launcher.inner_max_num_threads == want
 

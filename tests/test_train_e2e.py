@@ -17,6 +17,7 @@ import functools
 import math
 
 import pytest
+
 from encons.entry import api
 from encons.infra.errors import ConfigError
 from tests.helpers import SANTOS_TINY, simulated_systems
@@ -32,16 +33,23 @@ def _santos(system: str) -> bool:
 def composed(model: str, system: str, tmp_path, figures: bool = False):
     """The tiny run of ``model`` on ``system``, composed once for the build check and the training."""
     extra = SANTOS_TINY if _santos(system) else []
-    return api.compose("debug=fast", f"figures={str(figures).lower()}", f"model={model}", f"system={system}", *extra,
-                       output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    return api.compose(
+        "debug=fast",
+        f"figures={str(figures).lower()}",
+        f"model={model}",
+        f"system={system}",
+        *extra,
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
 
 
 def builds(cfg) -> str | None:
     """None when the run's model can serve its system, else the one-line reason."""
     from hydra.utils import execution_whitelist
 
-    from encons.training.build import build_model, build_system
     from encons.config.trust import trusted_targets
+    from encons.training.build import build_model, build_system
 
     try:
         with execution_whitelist(trusted_targets()):
@@ -79,8 +87,10 @@ FIGURES = {"gyroscope", "pendulum_control", "pixel_pendulum", "compound_pendulum
 @pytest.mark.slow
 @pytest.mark.parametrize("system", simulated_systems())
 def test_every_system_trains(tmp_path, system):
-    cfg = next((c for m in api.catalogue("model") if builds(c := composed(m, system, tmp_path, system in FIGURES))
-                is None), None)
+    cfg = next(
+        (c for m in api.catalogue("model") if builds(c := composed(m, system, tmp_path, system in FIGURES)) is None),
+        None,
+    )
     assert cfg is not None, f"no catalogue model serves {system}"
     trains(cfg)
     assert bool(list((tmp_path / "run" / "figures").glob("*.png"))) == (system in FIGURES)

@@ -5,8 +5,11 @@ device). The two-process check is tests/test_ddp.py."""
 def test_train_loss_is_logged_with_sync_dist(tmp_path, monkeypatch):
     from encons.training.build import build, compose
 
-    cfg = compose(["model=node", "system=pendulum1", "debug=fast", "logger=none"], output_dir=tmp_path / "run",
-                  cache_dir=tmp_path / "cache")
+    cfg = compose(
+        ["model=node", "system=pendulum1", "debug=fast", "logger=none"],
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
     data, module = build(cfg)
     logged = {}
     monkeypatch.setattr(module, "log", lambda name, value, **kw: logged.setdefault(name, kw))

@@ -9,13 +9,13 @@ import pytest
 import torch
 from hydra.utils import execution_whitelist
 
-from encons.entry import api
-from encons.training.build import build_model, build_system
 from encons.config.trust import trusted_targets
+from encons.entry import api
 from encons.models.glnn import GLNN
 from encons.models.lnn import LNN, guarded_solve, lagrangian_derivatives
 from encons.models.networks import cranmer_init_, mlp
 from encons.systems.base import split_state
+from encons.training.build import build_model, build_system
 
 SYSTEMS = ["pendulum1", "pendulum2", "pendulum4", "gyroscope", "damped_oscillator", "compound_pendulum"]
 
@@ -24,6 +24,7 @@ def true_lagrangian(system):
     def lagrangian(s):
         q, qd = split_state(s)
         return 0.5 * (qd.unsqueeze(-2) @ system.mass_matrix(q) @ qd.unsqueeze(-1))[..., 0, 0] - system.potential(q)
+
     return lagrangian
 
 
@@ -57,14 +58,19 @@ def test_true_lagrangian_gives_the_true_acceleration_at_default_settings(model_n
 
 
 def test_the_guard_acts_where_the_hessian_is_near_singular_and_bounds_the_solution():
-    h = torch.tensor([[[2.0, 0.0], [0.0, 1e-7]], [[2.0, 0.0], [0.0, 1.0]], [[1.0, 0.0], [0.0, 0.0]]],
-                     dtype=torch.float64, requires_grad=True)
+    h = torch.tensor(
+        [[[2.0, 0.0], [0.0, 1e-7]], [[2.0, 0.0], [0.0, 1.0]], [[1.0, 0.0], [0.0, 0.0]]],
+        dtype=torch.float64,
+        requires_grad=True,
+    )
     r = torch.ones(3, 2, dtype=torch.float64)
     x = guarded_solve(h, r, 1e-4)
     lam = 1e-4 * h.detach().flatten(-2).norm(dim=-1)
-    assert torch.equal(x[1], torch.tensor([0.5, 1.0], dtype=torch.float64))       # well conditioned: exact
-    assert (x[0].norm() <= r[0].norm() / (2 * lam[0])) and x[0, 0].item() == pytest.approx(0.5)  # damped on the small σ only
-    assert x[2].tolist() == pytest.approx([1.0, 0.0]) and x[2, 1] == 0            # singular: finite, not NaN
+    assert torch.equal(x[1], torch.tensor([0.5, 1.0], dtype=torch.float64))  # well conditioned: exact
+    assert (x[0].norm() <= r[0].norm() / (2 * lam[0])) and x[0, 0].item() == pytest.approx(
+        0.5
+    )  # damped on the small σ only
+    assert x[2].tolist() == pytest.approx([1.0, 0.0]) and x[2, 1] == 0  # singular: finite, not NaN
     x.sum().backward()
     assert h.grad.isfinite().all()
     assert guarded_solve(1e6 * h.detach()[:2], 1e6 * r[:2], 1e-4).allclose(x[:2].detach())  # scale-free
@@ -114,8 +120,14 @@ def test_fresh_networks_take_their_first_steps_without_nan(tmp_path, model_name,
     and glnn on Lim & Kasim's pendulum (seed 0), lnn_angle on the gyroscope (seed 2)."""
     from encons.training.build import build
 
-    cfg = api.compose("debug=fast", f"model={model_name}", f"system={name}", f"seed={seed}", output_dir=tmp_path,
-                      cache_dir=tmp_path / "cache")
+    cfg = api.compose(
+        "debug=fast",
+        f"model={model_name}",
+        f"system={name}",
+        f"seed={seed}",
+        output_dir=tmp_path,
+        cache_dir=tmp_path / "cache",
+    )
     with execution_whitelist(trusted_targets()):
         data, module = build(cfg)
     optimizer = module.optimizer(module.parameters())

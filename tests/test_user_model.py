@@ -30,8 +30,15 @@ class Linear(DynamicsModel):
 
 
 # debug=fast without its model.hidden/depth (the user's model has neither)
-TINY = ["logger=none", "data.n_train=16", "data.n_val=4", "data.n_test=4", "data.n_steps=10", "data.batch_size=8",
-        "trainer.max_epochs=2"]
+TINY = [
+    "logger=none",
+    "data.n_train=16",
+    "data.n_val=4",
+    "data.n_test=4",
+    "data.n_steps=10",
+    "data.batch_size=8",
+    "trainer.max_epochs=2",
+]
 
 
 @pytest.fixture
@@ -42,7 +49,8 @@ def user_project(tmp_path):
     (tmp_path / "mypkg" / "linear.py").write_text(textwrap.dedent(MODEL))
     (tmp_path / "myconf" / "model").mkdir(parents=True)
     (tmp_path / "myconf" / "model" / "linear.yaml").write_text(
-        "# A linear field ż = A z (a user's model)\n_target_: mypkg.linear.Linear\nchart: null\nscale: 0.1\n")
+        "# A linear field ż = A z (a user's model)\n_target_: mypkg.linear.Linear\nchart: null\nscale: 0.1\n"
+    )
     path = os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])
     return tmp_path, {"PYTHONPATH": path, "ENCONS_ROOT": str(tmp_path)}
 
@@ -50,8 +58,13 @@ def user_project(tmp_path):
 @pytest.mark.slow
 def test_user_model_trains_through_the_cli(user_project, cli):
     root, env = user_project
-    args = ["model=linear", "system=pendulum1", *TINY, f"hydra.searchpath=[file://{root / 'myconf'}]",
-            f"hydra.run.dir={root / 'run'}"]
+    args = [
+        "model=linear",
+        "system=pendulum1",
+        *TINY,
+        f"hydra.searchpath=[file://{root / 'myconf'}]",
+        f"hydra.run.dir={root / 'run'}",
+    ]
     proc = run_cli(*args, cwd=root, env={**env, "ENCONS_TRUSTED_TARGETS": "mypkg.*"})
     assert proc.returncode == 0, proc.stderr[-2000:]
     metrics = json.loads((root / "run" / "test_metrics.json").read_text())
@@ -61,8 +74,10 @@ def test_user_model_trains_through_the_cli(user_project, cli):
     # refused on the string, before any import: no trust variable, so no run (in this process)
     untrusted = cli(*args[:-1], f"hydra.run.dir={root / 'run2'}", cwd=root)
     assert untrusted.returncode == 2 and "Traceback" not in untrusted.stderr
-    assert ("encons: error: model._target_='mypkg.linear.Linear' is not a trusted target; allowed: encons.*"
-            in untrusted.stderr)
+    assert (
+        "encons: error: model._target_='mypkg.linear.Linear' is not a trusted target; allowed: encons.*"
+        in untrusted.stderr
+    )
 
 
 def test_a_missing_target_gives_one_line(cli, tmp_path):
@@ -83,8 +98,10 @@ def test_a_benchmarks_searchpath_reaches_every_run(user_project, monkeypatch):
     monkeypatch.syspath_prepend(str(root))
     monkeypatch.setenv("ENCONS_TRUSTED_TARGETS", "mypkg.*")
     monkeypatch.delitem(sys.modules, "mypkg", raising=False)
-    cfg = compose([f"hydra.searchpath=[file://{root / 'myconf'}]", "models=[node,linear]", "systems=[pendulum1]"],
-                  config_name="benchmark")
+    cfg = compose(
+        [f"hydra.searchpath=[file://{root / 'myconf'}]", "models=[node,linear]", "systems=[pendulum1]"],
+        config_name="benchmark",
+    )
     runs = benchmark.expand(cfg)
     targets = {compose(r.overrides).model._target_ for r in runs}
     assert {"encons.models.node.NODE", "mypkg.linear.Linear"} <= targets

@@ -12,7 +12,8 @@ from omegaconf.errors import ReadonlyConfigError
 
 import encons
 from encons import build
-from encons.config import check as config, trust
+from encons.config import check as config
+from encons.config import trust
 from encons.training import runs
 
 
@@ -31,8 +32,15 @@ def lookups(monkeypatch) -> Counter:
 
 
 def fast(tmp_path, *overrides):
-    return encons.compose("model=hnn", "system=pendulum1", "debug=fast", "logger=none", *overrides,
-                          output_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    return encons.compose(
+        "model=hnn",
+        "system=pendulum1",
+        "debug=fast",
+        "logger=none",
+        *overrides,
+        output_dir=tmp_path / "run",
+        cache_dir=tmp_path / "cache",
+    )
 
 
 @pytest.mark.parametrize("extra", [[], ["seeds=[0,1]"]])  # a run; a seed ensemble (its members derive from it)
@@ -86,7 +94,7 @@ def test_validation_writes_no_folder_changes_no_key_and_its_value_is_frozen(tmp_
     assert OmegaConf.to_yaml(cfg) == before and not (tmp_path / "run").exists() and not (tmp_path / "cache").exists()
     with pytest.raises(ReadonlyConfigError):
         checked.cfg.model.hidden = 3
-    cfg.model.hidden = 3   # the user's config stays theirs
+    cfg.model.hidden = 3  # the user's config stays theirs
     assert checked.cfg.model.hidden == 16
 
 

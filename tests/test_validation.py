@@ -26,8 +26,18 @@ class Seen(pl.Callback):
 def fit(tmp_path, *overrides: str):
     from encons.training.build import build, build_trainer
 
-    cfg = api.compose("debug=fast", "model=hnn", "system=pendulum2", "data.n_train=8", "model.hidden=8",
-                      "trainer.max_epochs=12", "test=false", *overrides, output_dir=tmp_path, cache_dir=tmp_path / "c")
+    cfg = api.compose(
+        "debug=fast",
+        "model=hnn",
+        "system=pendulum2",
+        "data.n_train=8",
+        "model.hidden=8",
+        "trainer.max_epochs=12",
+        "test=false",
+        *overrides,
+        output_dir=tmp_path,
+        cache_dir=tmp_path / "c",
+    )
     data, module = build(cfg)
     trainer, _ = build_trainer(cfg)
     seen = Seen()
@@ -50,15 +60,23 @@ def test_every_5_validates_on_epochs_5_10_and_the_best_checkpoint_sees_each(tmp_
 
 
 def test_objective_criterion_logs_the_objective_and_plateau_steps_only_after_validations(tmp_path):
-    trainer, seen = fit(tmp_path, "validation.every=3", "validation.criterion=objective", "objective=derivative",
-                        "optimized_metric=val/loss", "scheduler=plateau", "scheduler.patience=0", "scheduler.factor=0.5")
+    trainer, seen = fit(
+        tmp_path,
+        "validation.every=3",
+        "validation.criterion=objective",
+        "objective=derivative",
+        "optimized_metric=val/loss",
+        "scheduler=plateau",
+        "scheduler.patience=0",
+        "scheduler.factor=0.5",
+    )
     assert seen.epochs == [3, 6, 9, 12]
     assert "val/traj_rel_err" not in trainer.callback_metrics
     config = trainer.lr_scheduler_configs[0]
     assert config.frequency == 3
     # patience 0: each validation that does not improve halves the lr; epochs without one do not step it
     worse = sum(b >= a for a, b in zip(seen.values, seen.values[1:]))
-    assert trainer.optimizers[0].param_groups[0]["lr"] == pytest.approx(1e-3 * 0.5 ** worse)
+    assert trainer.optimizers[0].param_groups[0]["lr"] == pytest.approx(1e-3 * 0.5**worse)
 
 
 def test_none_runs_no_validation(tmp_path):
@@ -66,12 +84,15 @@ def test_none_runs_no_validation(tmp_path):
     assert seen.epochs == []
 
 
-@pytest.mark.parametrize("overrides, says", [
-    (["validation.criterion=objective"], "validation.criterion=objective logs no val/traj_rel_err"),
-    (["validation.criterion=none"], "validation.criterion=none logs no val/traj_rel_err"),
-    (["validation.every=0"], "validation.every=0; allowed: an integer >= 1"),
-    (["validation.criterion=onestep"], "validation.criterion=onestep; allowed: rollout, objective, none"),
-])
+@pytest.mark.parametrize(
+    "overrides, says",
+    [
+        (["validation.criterion=objective"], "validation.criterion=objective logs no val/traj_rel_err"),
+        (["validation.criterion=none"], "validation.criterion=none logs no val/traj_rel_err"),
+        (["validation.every=0"], "validation.every=0; allowed: an integer >= 1"),
+        (["validation.criterion=onestep"], "validation.criterion=onestep; allowed: rollout, objective, none"),
+    ],
+)
 def test_bad_validation_is_refused_in_one_line(tmp_path, overrides, says):
     from encons.config.check import validate
 

@@ -39,13 +39,13 @@ def group_parameters(group: str) -> frozenset[str]:
     names: set[str] = set()
     for option in (CONF / group).glob("*.yaml"):
         node = yaml.safe_load(option.read_text()) or {}
-        node = node.get(group, node) if isinstance(node.get(group), dict) else node   # a @package _global_ option
+        node = node.get(group, node) if isinstance(node.get(group), dict) else node  # a @package _global_ option
         names |= set(node)
         target = node.get("_target_")
         if target:
             module, _, attr = target.rpartition(".")
             obj = getattr(importlib.import_module(module), attr)
-            for cls in (obj.__mro__ if inspect.isclass(obj) else [obj]):
+            for cls in obj.__mro__ if inspect.isclass(obj) else [obj]:
                 try:
                     names |= set(inspect.signature(cls).parameters)
                 except (TypeError, ValueError):
@@ -63,12 +63,12 @@ def unread(key: str, tree: dict | None = None) -> bool:
     ``_target_`` nodes declare what their keys feed)."""
     key = key.lstrip("+~")
     if "/" in key or (CONF / key).is_dir() or key.startswith("preset_keys.") or _has(base(), key):
-        return False   # a group choice (model, hydra/launcher), a preset's key list, a key of the config
+        return False  # a group choice (model, hydra/launcher), a preset's key list, a key of the config
     parts = key.split(".")
     node = tree or {}
     for i, part in enumerate(parts[:-1]):
         node = node.get(part) if isinstance(node, dict) else None
-        if isinstance(node, dict) and "_target_" in node:   # a node this file instantiates itself
+        if isinstance(node, dict) and "_target_" in node:  # a node this file instantiates itself
             return parts[i + 1] not in {"_target_", "_partial_", *_signature(node["_target_"])}
     head, _, param = key.partition(".")
     if head == "trainer":
@@ -80,8 +80,11 @@ def unread(key: str, tree: dict | None = None) -> bool:
 
 def flat(tree: dict, prefix: str = "") -> list[str]:
     """Dotted keys of the leaves of a nested mapping (a list or an empty mapping is a leaf)."""
-    return [k for key, value in tree.items()
-            for k in (flat(value, f"{prefix}{key}.") if isinstance(value, dict) and value else [f"{prefix}{key}"])]
+    return [
+        k
+        for key, value in tree.items()
+        for k in (flat(value, f"{prefix}{key}.") if isinstance(value, dict) and value else [f"{prefix}{key}"])
+    ]
 
 
 def run_config_keys(path: Path) -> list[str]:

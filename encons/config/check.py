@@ -17,9 +17,8 @@ from typing import TYPE_CHECKING, Any
 
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from encons.infra import bounds
-
 from encons.config import trust
+from encons.infra import bounds
 from encons.infra.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -67,14 +66,16 @@ class Checked:
     def derived(self, cfg: DictConfig) -> Checked:
         """The same checked run with ``cfg``, a copy of this one's config that a policy changed within its
         checked bounds (``encons.training.attempts``: ``model.guard=0``, ``ckpt_path=null``); not checked again."""
-        return Checked(_frozen(cfg), run_config(cfg), self.request, self.trusted, self.targets, self.model,
-                       self.objective)
+        return Checked(
+            _frozen(cfg), run_config(cfg), self.request, self.trusted, self.targets, self.model, self.objective
+        )
 
 
 def run_config(cfg: DictConfig) -> DictConfig:
     """The resolved run config without Hydra's own node: what a run is rebuilt from."""
-    return OmegaConf.create(OmegaConf.to_container(
-        OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"]), resolve=True))
+    return OmegaConf.create(
+        OmegaConf.to_container(OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"]), resolve=True)
+    )
 
 
 def _frozen(cfg: DictConfig) -> DictConfig:
@@ -84,8 +85,17 @@ def _frozen(cfg: DictConfig) -> DictConfig:
 
 
 #: The nodes :func:`validate` checks by the declarations of their target (and ``encons.infra.bounds.DECLARED``).
-NODES = ("system", "model", "regulariser", "observation", "optimizer", "scheduler", "integrator", "evaluation",
-         "trainer")
+NODES = (
+    "system",
+    "model",
+    "regulariser",
+    "observation",
+    "optimizer",
+    "scheduler",
+    "integrator",
+    "evaluation",
+    "trainer",
+)
 #: The groups whose every entry is a node built by its target.
 GROUPS = ("logger", "callbacks", "evaluators")
 
@@ -99,7 +109,9 @@ def validate(cfg: DictConfig, request: Request | None = None) -> Checked:
 
     request = Request.of(cfg) if request is None else request
     task = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])
-    missing = sorted(OmegaConf.missing_keys(task), key=lambda k: not _is_unset(task, k))  # "???" before what refers to it
+    missing = sorted(
+        OmegaConf.missing_keys(task), key=lambda k: not _is_unset(task, k)
+    )  # "???" before what refers to it
     if missing:
         raise ConfigError(f"{missing[0]} has no value; allowed: give it one ({missing[0]}=...)")
     resolved = run_config(cfg)
@@ -112,8 +124,10 @@ def validate(cfg: DictConfig, request: Request | None = None) -> Checked:
     for key in keys:
         check_node(cfg, key, targets=targets)
     if cfg.data.get("n_val") == 0 and str(cfg.optimized_metric).startswith("val/"):
-        raise ConfigError(f"data.n_val=0 leaves no validation set for optimized_metric={cfg.optimized_metric}; "
-                          f"allowed: data.n_val >= 1, or optimized_metric=train/loss")
+        raise ConfigError(
+            f"data.n_val=0 leaves no validation set for optimized_metric={cfg.optimized_metric}; "
+            f"allowed: data.n_val >= 1, or optimized_metric=train/loss"
+        )
     check_validation(cfg)
     check_ckpt_path(cfg, request)
     model = targets[cfg.model._target_]
@@ -152,16 +166,24 @@ def check_validation(cfg: DictConfig) -> None:
         raise ConfigError(f"validation.every={every}; allowed: an integer >= 1 (epochs between validations)")
     if criterion not in CRITERIA:
         raise ConfigError(f"validation.criterion={criterion}; allowed: {', '.join(CRITERIA)}")
-    monitors = [cb.monitor for cb in (cfg.get("callbacks") or {}).values()
-                if isinstance(cb, DictConfig) and str(cb.get("monitor") or "").startswith("val/")]
+    monitors = [
+        cb.monitor
+        for cb in (cfg.get("callbacks") or {}).values()
+        if isinstance(cb, DictConfig) and str(cb.get("monitor") or "").startswith("val/")
+    ]
     if "plateau" in str((cfg.get("scheduler") or {}).get("_target_", "")).lower():
         monitors.append("val/loss")
     logged = {"rollout": ("val/loss", "val/traj_rel_err"), "objective": ("val/loss",), "none": ()}[criterion]
     if missed := [m for m in monitors if m not in logged]:
-        raise ConfigError(f"validation.criterion={criterion} logs no {missed[0]}, which this run monitors "
-                          f"(optimized_metric or scheduler=plateau); allowed: "
-                          + (f"optimized_metric={' or '.join(logged)}" if logged else
-                             "validation.criterion=rollout or objective, or no monitor (~callbacks.best, scheduler=none)"))
+        raise ConfigError(
+            f"validation.criterion={criterion} logs no {missed[0]}, which this run monitors "
+            f"(optimized_metric or scheduler=plateau); allowed: "
+            + (
+                f"optimized_metric={' or '.join(logged)}"
+                if logged
+                else "validation.criterion=rollout or objective, or no monitor (~callbacks.best, scheduler=none)"
+            )
+        )
 
 
 def _is_unset(cfg: DictConfig, key: str) -> bool:
@@ -198,8 +220,9 @@ def apply_presets(cfg: DictConfig, request: Request) -> None:
     replace each other (``experiment=paper debug=fast``); a list is one group's (a config saved before)."""
     presets = cfg.get("preset_keys") or {}
     located: dict[str, Any] = {}  # node key -> its target, each looked up once
-    for full in dict.fromkeys(k for keys in (presets.values() if isinstance(presets, DictConfig) else [presets])
-                              for k in keys or ()):
+    for full in dict.fromkeys(
+        k for keys in (presets.values() if isinstance(presets, DictConfig) else [presets]) for k in keys or ()
+    ):
         node_key, _, name = str(full).rpartition(".")
         node = OmegaConf.select(cfg, node_key)
         if isinstance(node, DictConfig) and name in node and node_key not in located:
@@ -221,8 +244,10 @@ def objective_of(cfg: DictConfig) -> str:
 def check_observation(cls: type, objective: str) -> None:
     """Refuse an objective the observation model (class ``cls``, ``encons.models.observation``) cannot train."""
     if cls.objectives is not None and objective not in cls.objectives:
-        raise ConfigError(f"objective={objective} does not apply to observation={cls.__name__.lower()} (no true "
-                          f"latent derivatives); allowed: {', '.join(cls.objectives)}")
+        raise ConfigError(
+            f"objective={objective} does not apply to observation={cls.__name__.lower()} (no true "
+            f"latent derivatives); allowed: {', '.join(cls.objectives)}"
+        )
 
 
 def check_model(cfg: DictConfig, cls: type[DynamicsModel], objective: str, request: Request) -> None:
@@ -233,17 +258,24 @@ def check_model(cfg: DictConfig, cls: type[DynamicsModel], objective: str, reque
     if objective not in cls.objectives:
         raise ConfigError(f"objective={objective} does not apply to model={name}; allowed: {', '.join(cls.objectives)}")
     if cfg.get("compile") and (cls.discrete or cfg.get("regulariser")):
-        reason = f"model={name} is discrete (no field)" if cls.discrete else \
-            "the regularisers take Jacobians of the field by torch.func, which is not tested on a compiled one"
+        reason = (
+            f"model={name} is discrete (no field)"
+            if cls.discrete
+            else "the regularisers take Jacobians of the field by torch.func, which is not tested on a compiled one"
+        )
         raise ConfigError(f"compile=true compiles the model's vector field, and {reason}; allowed: compile=false")
     if cfg.get("regulariser") and cls.discrete:
-        raise ConfigError(f"regulariser={cfg.regulariser._target_.rsplit('.', 1)[-1].lower()} needs a vector field "
-                          f"and model={name} is discrete (it steps itself); allowed: regulariser=none")
+        raise ConfigError(
+            f"regulariser={cfg.regulariser._target_.rsplit('.', 1)[-1].lower()} needs a vector field "
+            f"and model={name} is discrete (it steps itself); allowed: regulariser=none"
+        )
     if cls.discrete:
         overridden = [o for o in request.overrides if o.lstrip("+~").startswith("integrator")]
         if overridden:
-            raise ConfigError(f"{overridden[0]} does not apply to model={name}: a discrete model advances by its "
-                              f"own step; allowed: no integrator override")
+            raise ConfigError(
+                f"{overridden[0]} does not apply to model={name}: a discrete model advances by its "
+                f"own step; allowed: no integrator override"
+            )
 
 
 def check_fit(cfg: DictConfig, cls: type[DynamicsModel], system: System, request: Request) -> None:
@@ -252,14 +284,20 @@ def check_fit(cfg: DictConfig, cls: type[DynamicsModel], system: System, request
     name = request.choices.get("model") or cls.__name__
     chart = cfg.model.get("chart") or getattr(cls, "default_chart", None) or system.base_chart
     if chart not in system.charts:
-        raise ConfigError(f"model {cls.__name__} needs the '{chart}' chart, which system '{system.name}' "
-                          f"lacks; allowed: a model for its charts {list(system.charts)}")
+        raise ConfigError(
+            f"model {cls.__name__} needs the '{chart}' chart, which system '{system.name}' "
+            f"lacks; allowed: a model for its charts {list(system.charts)}"
+        )
     if getattr(cls, "needs_constraints", False) and system.layout is None:
-        raise ConfigError(f"model {cls.__name__} needs holonomic constraints, which system '{system.name}' "
-                          f"does not declare; allowed: a model in generalised coordinates")
+        raise ConfigError(
+            f"model {cls.__name__} needs holonomic constraints, which system '{system.name}' "
+            f"does not declare; allowed: a model in generalised coordinates"
+        )
     if system.n_controls and not cls.supports_controls:
-        raise ConfigError(f"model={name} cannot take control inputs, and system '{system.name}' has "
-                          f"{system.n_controls}; allowed: a model that supports controls (e.g. node, lnode, symo)")
+        raise ConfigError(
+            f"model={name} cannot take control inputs, and system '{system.name}' has "
+            f"{system.n_controls}; allowed: a model that supports controls (e.g. node, lnode, symo)"
+        )
 
 
 def check_capabilities(cfg: DictConfig, cls: type[DynamicsModel], system: System, request: Request) -> None:

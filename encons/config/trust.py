@@ -34,8 +34,10 @@ def is_trusted(target: str, trusted: tuple[str, ...]) -> bool:
 
 def _refuse_untrusted(target: str, key: str, trusted: tuple[str, ...]) -> None:
     if not is_trusted(target, trusted):
-        raise ConfigError(f"{key}._target_={target!r} is not a trusted target; allowed: {', '.join(trusted)} "
-                          f"(trust your package with {TRUST_VARIABLE}=yourpkg.*)".removeprefix("."))
+        raise ConfigError(
+            f"{key}._target_={target!r} is not a trusted target; allowed: {', '.join(trusted)} "
+            f"(trust your package with {TRUST_VARIABLE}=yourpkg.*)".removeprefix(".")
+        )
 
 
 def locate(target: str, key: str = "", trusted: tuple[str, ...] | None = None) -> Any:
@@ -70,8 +72,10 @@ def locate(target: str, key: str = "", trusted: tuple[str, ...] | None = None) -
 
 
 def _refuse_alias(target: str, key: str, why: str) -> None:
-    raise ConfigError(f"{key}._target_={target!r} is an alias ({why}); allowed: the name where the object is "
-                      f"defined, in a trusted package".removeprefix("."))
+    raise ConfigError(
+        f"{key}._target_={target!r} is an alias ({why}); allowed: the name where the object is "
+        f"defined, in a trusted package".removeprefix(".")
+    )
 
 
 def targets(node: Any, key: str = "") -> Iterator[tuple[str, str]]:
@@ -100,6 +104,8 @@ def check_targets(cfg: Mapping, trusted: tuple[str, ...] | None = None) -> dict[
             continue
         located[target] = locate(target, key, trusted)
         if located[target] is None:
-            raise ConfigError(f"{key}._target_={target!r} cannot be imported; allowed: an importable "
-                              f"module.Class (your own package on PYTHONPATH)".removeprefix("."))
+            raise ConfigError(
+                f"{key}._target_={target!r} cannot be imported; allowed: an importable "
+                f"module.Class (your own package on PYTHONPATH)".removeprefix(".")
+            )
     return located

@@ -100,18 +100,37 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
 
     config_key = "data"
 
-    def __init__(self, system: System, chart: str, system_config: dict | None = None, path: str | None = None,
-                 n_train: Size = 800, n_val: Annotated[int, Range(ge=0)] = 100, n_test: Size = 100,
-                 n_steps: Size = 100, test_steps: int | None = None, dt: Positive = 0.03,
-                 noise: NonNegative = 0.01, substeps: Size = 10, chunk_len: int | None = 5, batch_size: Size = 200,
-                 val_batch_size: Size | None = None, seed: Seed = 0, cache_dir: str = ".cache/encons", objective: str | None = "rollout",
-                 recording: dict | None = None, windows: str = "random"):
+    def __init__(
+        self,
+        system: System,
+        chart: str,
+        system_config: dict | None = None,
+        path: str | None = None,
+        n_train: Size = 800,
+        n_val: Annotated[int, Range(ge=0)] = 100,
+        n_test: Size = 100,
+        n_steps: Size = 100,
+        test_steps: int | None = None,
+        dt: Positive = 0.03,
+        noise: NonNegative = 0.01,
+        substeps: Size = 10,
+        chunk_len: int | None = 5,
+        batch_size: Size = 200,
+        val_batch_size: Size | None = None,
+        seed: Seed = 0,
+        cache_dir: str = ".cache/encons",
+        objective: str | None = "rollout",
+        recording: dict | None = None,
+        windows: str = "random",
+    ):
         super().__init__()
         if windows not in WINDOWS:
             raise ConfigError(f"data.windows={windows!r}; allowed: {', '.join(WINDOWS)}")
         if test_steps is not None and test_steps < n_steps:
-            raise ConfigError(f"data.test_steps={test_steps} is shorter than data.n_steps={n_steps}; allowed: "
-                              f"null (= n_steps) or an integer >= {n_steps}")
+            raise ConfigError(
+                f"data.test_steps={test_steps} is shorter than data.n_steps={n_steps}; allowed: "
+                f"null (= n_steps) or an integer >= {n_steps}"
+            )
         chunk_len = n_steps + 1 if chunk_len is None else chunk_len  # null: a window is a whole trajectory
         if not 2 <= chunk_len <= n_steps + 1:
             raise ConfigError(f"data.chunk_len={chunk_len}; allowed: [2, n_steps + 1 = {n_steps + 1}]")
@@ -125,9 +144,16 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
         self.windows = windows
         self.objective, self.recording = objective, dict(recording or {})
         if path is not None:
-            checked_options(self.recording, self.test_steps)   # before any training: one line, e.g. resample=maybe
-        gen_config = dict(system=system_config or {"name": system.name}, sizes=self.sizes, n_steps=n_steps,
-                          test_steps=self.test_steps, dt=dt, substeps=substeps, seed=seed)
+            checked_options(self.recording, self.test_steps)  # before any training: one line, e.g. resample=maybe
+        gen_config = dict(
+            system=system_config or {"name": system.name},
+            sizes=self.sizes,
+            n_steps=n_steps,
+            test_steps=self.test_steps,
+            dt=dt,
+            substeps=substeps,
+            seed=seed,
+        )
         self.cache_file = Path(cache_dir) / f"{system.name}-{store.config_hash(gen_config)}.npz"
 
     def prepare_data(self) -> None:
@@ -135,8 +161,12 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
             gen = torch.Generator().manual_seed(self.seed)
             splits, inputs = {}, {}
             steps_of = {name: self.test_steps if name == "test" else self.n_steps for name in self.sizes}
-            progress = Progress(sum(1 for n in self.sizes.values() if n), f"simulating {self.system.name}: split",
-                                log, work=sum(n * steps_of[k] for k, n in self.sizes.items()))
+            progress = Progress(
+                sum(1 for n in self.sizes.values() if n),
+                f"simulating {self.system.name}: split",
+                log,
+                work=sum(n * steps_of[k] for k, n in self.sizes.items()),
+            )
             for name, n in self.sizes.items():
                 if n:
                     steps = steps_of[name]
@@ -146,10 +176,19 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
                     if u is not None:
                         inputs[name] = u
                     if rejected:
-                        log.info("%s: redrew %d of %d %s trajectories (%s)", self.system.name, rejected, n, name,
-                                 getattr(self.system, "rejection_reason", "invalid"))
-            frames = ({name: self.system.render(traj, self.system.base_chart) for name, traj in splits.items()}
-                      if self.system.frame_shape else None)
+                        log.info(
+                            "%s: redrew %d of %d %s trajectories (%s)",
+                            self.system.name,
+                            rejected,
+                            n,
+                            name,
+                            getattr(self.system, "rejection_reason", "invalid"),
+                        )
+            frames = (
+                {name: self.system.render(traj, self.system.base_chart) for name, traj in splits.items()}
+                if self.system.frame_shape
+                else None
+            )
             store.save(self.cache_file, t[: self.n_steps + 1], splits, self.system.base_chart, inputs, frames)
             progress.done()
             log.info("simulated %s into %s", self.system.name, self.cache_file)
@@ -161,8 +200,9 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
         inputs = None
         try:
             if self.path is not None and is_recording(source):
-                t, splits, chart, inputs = load_recording(source, self.n_steps, self.test_steps, self.recording,
-                                                          self.system.n_controls)
+                t, splits, chart, inputs = load_recording(
+                    source, self.n_steps, self.test_steps, self.recording, self.system.n_controls
+                )
             else:
                 t, splits, chart = store.load(source)
         except DataError as err:
@@ -174,13 +214,17 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
             t, splits, chart = store.load(source)
         chart = chart or self.system.base_chart
         if chart not in self.system.charts:
-            raise DataError(f"data file {str(source)!r} holds chart {chart!r}; allowed: the charts of system "
-                            f"'{self.system.name}', {', '.join(self.system.charts)}")
+            raise DataError(
+                f"data file {str(source)!r} holds chart {chart!r}; allowed: the charts of system "
+                f"'{self.system.name}', {', '.join(self.system.charts)}"
+            )
         width = 2 * self.system.coord_dim(chart)
         for name, arr in splits.items():
             if arr.shape[-1] != width:
-                raise DataError(f"data file {str(source)!r}: '{name}' has {arr.shape[-1]} state entries; "
-                                f"allowed: {width}, the {chart} chart of '{self.system.name}'")
+                raise DataError(
+                    f"data file {str(source)!r}: '{name}' has {arr.shape[-1]} state entries; "
+                    f"allowed: {width}, the {chart} chart of '{self.system.name}'"
+                )
         frames = {}
         if inputs is None:
             inputs = store.load_inputs(source, splits, self.system.n_controls)
@@ -194,8 +238,9 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
         self.dt = float(t[1] - t[0])
         gen = torch.Generator().manual_seed(self.seed + 1)
         served = {k: self.system.to_chart(v, chart, self.chart) for k, v in splits.items()}
-        served["train"] = served["train"] + self.noise * torch.randn(served["train"].shape, generator=gen,
-                                                                      dtype=torch.float64)
+        served["train"] = served["train"] + self.noise * torch.randn(
+            served["train"].shape, generator=gen, dtype=torch.float64
+        )
         # test states stay float64: the evaluation (encons.numerics.evaluation) scores errors down to ~1e-8
         self.arrays = {k: {"states": v if k == "test" else v.float()} for k, v in served.items()}
         for name, u in inputs.items():
@@ -206,22 +251,29 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
             for name in ("train", "val"):
                 self.arrays[name]["rates"] = self._rates(splits[name], chart, served[name], inputs.get(name)).float()
         if self.chunk_len > len(t):
-            raise DataError(f"data.chunk_len={self.chunk_len} exceeds the {len(t)} states per trajectory; "
-                            f"allowed: 2..{len(t)}")
+            raise DataError(
+                f"data.chunk_len={self.chunk_len} exceeds the {len(t)} states per trajectory; allowed: 2..{len(t)}"
+            )
         for name in ("train", "val"):
             if self.arrays[name]["states"].shape[0] == 0:
-                raise DataError(f"data file {str(source)!r} leaves no {name} trajectories (train holds "
-                                f"{splits['train'].shape[0] + splits['val'].shape[0]} in all, 1 in 10 held out for "
-                                f"validation); allowed: >= 2 train trajectories, or a 'val' array")
+                raise DataError(
+                    f"data file {str(source)!r} leaves no {name} trajectories (train holds "
+                    f"{splits['train'].shape[0] + splits['val'].shape[0]} in all, 1 in 10 held out for "
+                    f"validation); allowed: >= 2 train trajectories, or a 'val' array"
+                )
 
         n_train = self.arrays["train"]["states"].shape[0]
         every = self.windows == "all"
         n_windows = len(self._sampler("train", True))
-        log.info("train: %s in batches of %d: %d optimiser step(s) per epoch%s",
-                 f"every window of {n_train} trajectories ({n_windows})" if every else f"{n_train} trajectories",
-                 self.batch_size, -(-n_windows // self.batch_size),
-                 " (a file: budget training with trainer.max_steps, or data.windows=all)"
-                 if self.path is not None and not every else "")
+        log.info(
+            "train: %s in batches of %d: %d optimiser step(s) per epoch%s",
+            f"every window of {n_train} trajectories ({n_windows})" if every else f"{n_train} trajectories",
+            self.batch_size,
+            -(-n_windows // self.batch_size),
+            " (a file: budget training with trainer.max_steps, or data.windows=all)"
+            if self.path is not None and not every
+            else "",
+        )
 
     @property
     def states(self) -> dict[str, Tensor]:
@@ -237,12 +289,16 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
 
     def _sampler(self, split: str, shuffle: bool) -> WindowSampler:
         n, steps = self.arrays[split]["states"].shape[:2]
-        every = shuffle and self.windows == "all"   # validation keeps its fixed windows
+        every = shuffle and self.windows == "all"  # validation keeps its fixed windows
         return WindowSampler(n, steps - self.chunk_len + 1, self.seed, shuffle, every)
 
     def _windows(self, split: str, shuffle: bool, batch_size: int) -> DataLoader:
-        return DataLoader(Windows(self.arrays[split], self.chunk_len), sampler=self._sampler(split, shuffle),
-                          batch_size=batch_size, collate_fn=_identity)
+        return DataLoader(
+            Windows(self.arrays[split], self.chunk_len),
+            sampler=self._sampler(split, shuffle),
+            batch_size=batch_size,
+            collate_fn=_identity,
+        )
 
     def train_dataloader(self) -> DataLoader:
         return self._windows("train", True, self.batch_size)
@@ -253,5 +309,6 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
     def test_dataloader(self) -> DataLoader:
         arrays = self.arrays["test"]
         n, steps = arrays["states"].shape[:2]
-        return DataLoader(Windows(arrays, steps), sampler=[(i, 0) for i in range(n)], batch_size=n,
-                          collate_fn=_identity)
+        return DataLoader(
+            Windows(arrays, steps), sampler=[(i, 0) for i in range(n)], batch_size=n, collate_fn=_identity
+        )

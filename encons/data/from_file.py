@@ -23,9 +23,15 @@ class FileSystem(DataOnlySystem):
     ``angles`` marks the coordinates q that are angles (``data.recording.angles``: null/false none, true
     all, or one boolean per coordinate): metrics compare them on the circle (``encons.numerics.metrics``)."""
 
-    def __init__(self, path: str, chart: str | None = None, columns: dict | None = None,
-                 delimiter: str | None = None, comment: str | None = "#",
-                 angles: bool | list[bool] | None = None):
+    def __init__(
+        self,
+        path: str,
+        chart: str | None = None,
+        columns: dict | None = None,
+        delimiter: str | None = None,
+        comment: str | None = "#",
+        angles: bool | list[bool] | None = None,
+    ):
         self.name = "from_file"
         if is_recording(path):
             self.n, file_chart, self.n_controls = describe(path, columns, delimiter, comment)

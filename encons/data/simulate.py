@@ -22,8 +22,9 @@ def simulate(system: System, s0: Tensor, t: Tensor, substeps: int = 10, u: Tenso
     return traj.movedim(0, 1)
 
 
-def sample_trajectories(system: System, n: int, t: Tensor, generator: torch.Generator,
-                        substeps: int = 10, max_tries: int = 5) -> tuple[Tensor, Tensor | None, int]:
+def sample_trajectories(
+    system: System, n: int, t: Tensor, generator: torch.Generator, substeps: int = 10, max_tries: int = 5
+) -> tuple[Tensor, Tensor | None, int]:
     """``n`` valid trajectories (see ``System.valid``), their inputs (n, T, m) (None without
     inputs), and how many were rejected and redrawn."""
     kept: list[tuple[Tensor, Tensor | None]] = []
@@ -41,5 +42,7 @@ def sample_trajectories(system: System, n: int, t: Tensor, generator: torch.Gene
         if count == n:
             states = torch.cat([k[0] for k in kept])
             return states, (torch.cat([k[1] for k in kept]) if u is not None else None), rejected
-    raise DataError(f"system '{system.name}': only {count} of {n} sampled trajectories were valid "
-                    f"after {max_tries} draws; allowed: wider initial-condition ranges (system.*)")
+    raise DataError(
+        f"system '{system.name}': only {count} of {n} sampled trajectories were valid "
+        f"after {max_tries} draws; allowed: wider initial-condition ranges (system.*)"
+    )

@@ -32,8 +32,14 @@ def config_hash(config: dict) -> str:
     return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def save(path: Path, t: Tensor, splits: dict[str, Tensor], chart: str,
-         inputs: dict[str, Tensor] | None = None, observations: dict[str, Tensor] | None = None) -> None:
+def save(
+    path: Path,
+    t: Tensor,
+    splits: dict[str, Tensor],
+    chart: str,
+    inputs: dict[str, Tensor] | None = None,
+    observations: dict[str, Tensor] | None = None,
+) -> None:
     """Write trajectories (and their inputs and frames per split, if any) atomically (``encons.infra.io``)."""
     arrays = {k: v.numpy() for k, v in splits.items()}
     arrays.update({f"u_{k}": v.numpy() for k, v in (inputs or {}).items()})
@@ -53,14 +59,20 @@ def load(path: str | Path) -> tuple[Tensor, dict[str, Tensor], str | None]:
         with np.load(path, allow_pickle=False) as f:
             arrays = {k: f[k] for k in f.files}
     except Exception as err:  # numpy raises several types for a corrupt archive
-        raise DataError(f"data file {str(path)!r} is not a readable .npz archive ({err}); allowed: an .npz written by numpy.savez") from None
+        raise DataError(
+            f"data file {str(path)!r} is not a readable .npz archive ({err}); allowed: an .npz written by numpy.savez"
+        ) from None
     missing = [k for k in ("t", "train", "test") if k not in arrays]
     if missing:
-        raise DataError(f"data file {str(path)!r} lacks key(s) {missing}; allowed: a file with t, train, test (val optional)")
+        raise DataError(
+            f"data file {str(path)!r} lacks key(s) {missing}; allowed: a file with t, train, test (val optional)"
+        )
     t = torch.from_numpy(np.asarray(arrays["t"], dtype=np.float64))
     if t.ndim != 1 or len(t) < 2 or not bool((t.diff() > 0).all()):
-        raise DataError(f"data file {str(path)!r}: 't' has shape {tuple(t.shape)} or is not increasing; "
-                        f"allowed: 1-D, increasing, >= 2 times")
+        raise DataError(
+            f"data file {str(path)!r}: 't' has shape {tuple(t.shape)} or is not increasing; "
+            f"allowed: 1-D, increasing, >= 2 times"
+        )
     if not torch.allclose(t.diff(), t.diff()[0].expand(len(t) - 1), rtol=1e-6, atol=1e-9):
         raise DataError(f"data file {str(path)!r}: 't' is not equally spaced; allowed: equally spaced times")
     splits = {}
@@ -70,8 +82,9 @@ def load(path: str | Path) -> tuple[Tensor, dict[str, Tensor], str | None]:
         arr = arrays[name]
         too_short = arr.ndim == 3 and (arr.shape[1] < len(t) if name == "test" else arr.shape[1] != len(t))
         if arr.ndim != 3 or too_short or arr.shape[2] % 2:
-            raise DataError(f"data file {str(path)!r}: '{name}' has shape {arr.shape}; allowed: "
-                            f"(N, {len(t)}, 2n) states (q, q̇)")
+            raise DataError(
+                f"data file {str(path)!r}: '{name}' has shape {arr.shape}; allowed: (N, {len(t)}, 2n) states (q, q̇)"
+            )
         if not np.isfinite(arr).all():
             raise DataError(f"data file {str(path)!r}: '{name}' contains NaN or inf; allowed: finite states")
         splits[name] = torch.from_numpy(np.asarray(arr, dtype=np.float64))
@@ -90,14 +103,18 @@ def load_inputs(path: str | Path, splits: dict[str, Tensor], n_controls: int) ->
     for name, states in splits.items():
         key, (n, steps) = f"u_{name}", states.shape[:2]
         if key not in arrays:
-            raise DataError(f"data file {str(path)!r} lacks '{key}': the system takes {n_controls} input(s); "
-                            f"allowed: an array (N, {n_controls}) constant per trajectory or (N, T, {n_controls})")
+            raise DataError(
+                f"data file {str(path)!r} lacks '{key}': the system takes {n_controls} input(s); "
+                f"allowed: an array (N, {n_controls}) constant per trajectory or (N, T, {n_controls})"
+            )
         u = torch.from_numpy(np.asarray(arrays[key], dtype=np.float64))
         if u.ndim == 2 and u.shape == (n, n_controls):
             u = u[:, None].expand(n, steps, n_controls)
         elif not (u.ndim == 3 and u.shape == (n, steps, n_controls)):
-            raise DataError(f"data file {str(path)!r}: '{key}' has shape {tuple(u.shape)}; allowed: "
-                            f"({n}, {n_controls}) constant per trajectory or ({n}, {steps}, {n_controls}) per step")
+            raise DataError(
+                f"data file {str(path)!r}: '{key}' has shape {tuple(u.shape)}; allowed: "
+                f"({n}, {n_controls}) constant per trajectory or ({n}, {steps}, {n_controls}) per step"
+            )
         if not bool(torch.isfinite(u).all()):
             raise DataError(f"data file {str(path)!r}: '{key}' contains NaN or inf; allowed: finite inputs")
         inputs[name] = u
@@ -117,12 +134,16 @@ def load_observations(path: str | Path, splits: dict[str, Tensor]) -> dict[str, 
         key, (n, steps) = f"obs_{name}", states.shape[:2]
         arr = arrays.get(key)
         if arr is None:
-            raise DataError(f"data file {str(path)!r} lacks '{key}' beside {sorted(arrays)}; allowed: frames "
-                            f"(N, T, H, W) for every split it holds")
+            raise DataError(
+                f"data file {str(path)!r} lacks '{key}' beside {sorted(arrays)}; allowed: frames "
+                f"(N, T, H, W) for every split it holds"
+            )
         if arr.ndim != 4 or arr.shape[:2] != (n, steps) or (shape is not None and arr.shape[2:] != shape):
-            raise DataError(f"data file {str(path)!r}: '{key}' has shape {arr.shape}; allowed: ({n}, {steps}, H, W) "
-                            f"frames of the {n} '{name}' trajectories × {steps} times"
-                            + (f", H × W = {shape[0]} × {shape[1]} as the other splits" if shape else ""))
+            raise DataError(
+                f"data file {str(path)!r}: '{key}' has shape {arr.shape}; allowed: ({n}, {steps}, H, W) "
+                f"frames of the {n} '{name}' trajectories × {steps} times"
+                + (f", H × W = {shape[0]} × {shape[1]} as the other splits" if shape else "")
+            )
         shape = arr.shape[2:]
         if not np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.complexfloating):
             raise DataError(f"data file {str(path)!r}: '{key}' has dtype {arr.dtype}; allowed: real numbers")

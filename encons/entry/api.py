@@ -18,15 +18,26 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
+from encons.config.check import validate
+from encons.training import runs
 from encons.training.build import build, build_trainer, catalogue
 from encons.training.build import compose as _compose
-from encons.training import runs
-from encons.config.check import validate
 from encons.training.results import Ensemble, Run
 from encons.training.runs import evaluate, load
 
-__all__ = ["Run", "Ensemble", "compose", "validate", "build", "build_trainer", "train", "load", "evaluate",  # noqa: F822
-           "rollout", "catalogue"]  # rollout: from __getattr__
+__all__ = [
+    "Run",
+    "Ensemble",
+    "compose",
+    "validate",
+    "build",
+    "build_trainer",
+    "train",
+    "load",
+    "evaluate",  # noqa: F822
+    "rollout",
+    "catalogue",
+]  # rollout: from __getattr__
 
 
 def __getattr__(name: str):  # ``rollout`` re-exported without importing torch at ``import encons.entry.api``

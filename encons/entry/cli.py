@@ -23,11 +23,11 @@ from contextlib import nullcontext
 
 from omegaconf import DictConfig
 
-from encons.infra.compat import quiet_upstream
 from encons.config.check import Request, apply_presets
+from encons.config.trust import TRUST_VARIABLE, trusted_targets
+from encons.infra.compat import quiet_upstream
 from encons.infra.errors import ConfigError, one_line_errors
 from encons.infra.paths import config_dir
-from encons.config.trust import TRUST_VARIABLE, trusted_targets
 
 EVALUATE_USAGE = """Roll out a trained run's checkpoint on a test set: metrics, figures, summary table.
 
@@ -67,10 +67,14 @@ def train_job(cfg: DictConfig) -> float | None:
     # in a sweep the error goes to the sweeper, which records the trial as failed and goes on
     with one_line_errors() if hydra.mode == RunMode.RUN else nullcontext():
         if TRUST_VARIABLE in (hydra.job.env_set or {}):
-            raise ConfigError(f"hydra.job.env_set.{TRUST_VARIABLE} is set by a config; allowed: "
-                              f"{TRUST_VARIABLE} in the environment that starts encons (a config cannot widen trust)")
+            raise ConfigError(
+                f"hydra.job.env_set.{TRUST_VARIABLE} is set by a config; allowed: "
+                f"{TRUST_VARIABLE} in the environment that starts encons (a config cannot widen trust)"
+            )
         request = Request(dict(hydra.runtime.choices), tuple(hydra.overrides.task))
-        apply_presets(cfg, request)  # as encons.training.build.compose does: the config as composed, before it is checked
+        apply_presets(
+            cfg, request
+        )  # as encons.training.build.compose does: the config as composed, before it is checked
         results = runs.train(cfg, request=request).metrics
     return results.get(f"best/{cfg.optimized_metric}", results.get(cfg.optimized_metric))
 
@@ -83,8 +87,9 @@ def train() -> None:
     empty = next((a for a in sys.argv[1:] if "=" in a and not a.startswith("-") and a.endswith("=")), None)
     if empty:  # e.g. hydra.sweeper.sampler.seed=$K with K unset: Hydra's own error has no "allowed:" part
         with one_line_errors():
-            raise ConfigError(f"{empty} has no value (an unset shell variable?); allowed: {empty}VALUE, or "
-                              f"{empty}null for none")
+            raise ConfigError(
+                f"{empty} has no value (an unset shell variable?); allowed: {empty}VALUE, or {empty}null for none"
+            )
     os.environ.setdefault("WANDB_SILENT", "true")
     quiet_upstream()
     # Hydra then lets its own errors through to us (else it prints them with its search path and
@@ -124,7 +129,10 @@ def benchmark(argv: list[str] | None = None) -> None:
     quiet_upstream()
     import lightning.pytorch  # noqa: F401 - its import sets its loggers' level: quieten them after it
 
-    for name in ("lightning.pytorch", "lightning.fabric"):  # devices, stop reason, checkpoint restored: per run, not news
+    for name in (
+        "lightning.pytorch",
+        "lightning.fabric",
+    ):  # devices, stop reason, checkpoint restored: per run, not news
         logging.getLogger(name).setLevel(logging.WARNING)
     args = list(sys.argv[1:] if argv is None else argv)
     if {"-h", "--help"} & set(args):
@@ -189,19 +197,28 @@ def control(argv: list[str] | None = None) -> None:
         for arg in argv[1:]:
             key, eq, value = arg.partition("=")
             if not eq or key not in kinds:
-                raise ConfigError(f"{arg} is not an option of encons.tools.control; allowed: "
-                                  f"{', '.join(f'{k}=…' for k in kinds)}")
+                raise ConfigError(
+                    f"{arg} is not an option of encons.tools.control; allowed: {', '.join(f'{k}=…' for k in kinds)}"
+                )
             try:
                 options[key] = kinds[key](value)
             except ValueError:
-                raise ConfigError(f"{key}={value} is not a{'n integer' if kinds[key] is int else ' number'}; "
-                                  f"allowed: {kinds[key].__name__} values") from None
+                raise ConfigError(
+                    f"{key}={value} is not a{'n integer' if kinds[key] is int else ' number'}; "
+                    f"allowed: {kinds[key].__name__} values"
+                ) from None
         ctl.score_control(argv[0], **options)
 
 
 #: ``python -m encons <command>``: each command's function.
-COMMANDS = {"train": train, "evaluate": evaluate, "benchmark": benchmark, "report": report, "sweep": sweep_report,
-            "control": control}
+COMMANDS = {
+    "train": train,
+    "evaluate": evaluate,
+    "benchmark": benchmark,
+    "report": report,
+    "sweep": sweep_report,
+    "control": control,
+}
 USAGE = "usage: python -m encons {" + ",".join(COMMANDS) + "} [arguments]   (python -m encons <command> --help)"
 
 

@@ -22,16 +22,21 @@ def groups() -> dict[str, object]:
 
 def groups_text() -> str:
     """``group: option, ...`` for the user-facing groups of ``conf/``, then the sweeps (``-m``)."""
+
     def options(group: str) -> str:
-        return ", ".join(sorted(p.stem for p in (Path(config_dir()) / group).glob("*.yaml")
-                                if not p.name.startswith("_")))
+        return ", ".join(
+            sorted(p.stem for p in (Path(config_dir()) / group).glob("*.yaml") if not p.name.startswith("_"))
+        )
 
     def name(group: str, default: object) -> str:
         return f"{group} (a list, default [{','.join(default)}])" if isinstance(default, list) else group
 
     lines = [f"{name(group, default)}: {options(group)}" for group, default in groups().items()]
-    lines += ["", "with -m (a multirun): sweeps: " + options("sweeps"),
-              "(folders on hydra.searchpath add options of their own)"]
+    lines += [
+        "",
+        "with -m (a multirun): sweeps: " + options("sweeps"),
+        "(folders on hydra.searchpath add options of their own)",
+    ]
     return "\n".join(lines)
 
 

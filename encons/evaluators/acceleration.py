@@ -5,9 +5,9 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING
 
-from encons.numerics import metrics
-from encons.infra.errors import ConfigError
 from encons.evaluators.base import Evaluator, Result
+from encons.infra.errors import ConfigError
+from encons.numerics import metrics
 from encons.numerics.integrators import state_derivative
 
 if TYPE_CHECKING:
@@ -30,8 +30,10 @@ class Acceleration(Evaluator):
     def check(self, module: Learner) -> None:
         if not module.observation.identity or not module.system.known_physics:
             why = "its states are not the data's" if not module.observation.identity else "it has no true field"
-            raise ConfigError(f"evaluators.acceleration does not apply to system {module.system.name} ({why}); "
-                              f"allowed: a system of known physics observed in its states, or ~evaluators/acceleration")
+            raise ConfigError(
+                f"evaluators.acceleration does not apply to system {module.system.name} ({why}); "
+                f"allowed: a system of known physics observed in its states, or ~evaluators/acceleration"
+            )
 
     def compute(self, module: Learner) -> Result:
         if module.model.discrete:  # no field to score; its system may still choose this evaluator

@@ -10,8 +10,8 @@ import torch
 from matplotlib.figure import Figure
 from torch import Tensor
 
-from encons.numerics import metrics
 from encons.infra.io import save_figure
+from encons.numerics import metrics
 
 
 def subplots(*grid: int, figsize: tuple[float, float], **kwargs):
@@ -46,8 +46,11 @@ def coordinate_names(width: int, layout=None) -> list[str]:
         return [f"q{str(i + 1).translate(sub)}" for i in range(n)] + [f"q̇{str(i + 1).translate(sub)}" for i in range(n)]
     body = {p: (b, k) for b, points in enumerate(layout.bodies) for k, p in enumerate(points)}
     several = len(layout.bodies) > 1 or any(len(points) > 1 for points in layout.bodies)
-    names = [f"{'xyz'[a]}{str(p + 1).translate(sub)}" + (f" (body {body[p][0] + 1})" if several and p in body else "")
-             for p in range(layout.n_points) for a in range(layout.dim)]
+    names = [
+        f"{'xyz'[a]}{str(p + 1).translate(sub)}" + (f" (body {body[p][0] + 1})" if several and p in body else "")
+        for p in range(layout.n_points)
+        for a in range(layout.dim)
+    ]
     return names + [name[0] + "\u0307" + name[1:] for name in names]
 
 
@@ -96,13 +99,28 @@ def _state_grid(true: Tensor, units: tuple[str, ...] | None, names: list[str] | 
     the per-window 2πk ``shift`` (``window_offset``), a colour per coordinate and the coordinate groups of a panel."""
     n = true.shape[-1] // 2
     groups = [range(g, min(g + ROLLOUT_GROUP, n)) for g in range(0, n, ROLLOUT_GROUP)]
-    return (n, names or coordinate_names(true.shape[-1]), tuple(units) if units is not None else ("–",) * n,
-            window_offset(true, angles), colours(n), groups)
+    return (
+        n,
+        names or coordinate_names(true.shape[-1]),
+        tuple(units) if units is not None else ("–",) * n,
+        window_offset(true, angles),
+        colours(n),
+        groups,
+    )
 
 
-def _state_panels(axes, t: Tensor, true: Tensor, pred: Tensor, n: int, units: tuple[str, ...], palette: list,
-                  groups: list[range], baseline: Tensor | None = None,
-                  band: tuple[Tensor, Tensor] | None = None) -> None:
+def _state_panels(
+    axes,
+    t: Tensor,
+    true: Tensor,
+    pred: Tensor,
+    n: int,
+    units: tuple[str, ...],
+    palette: list,
+    groups: list[range],
+    baseline: Tensor | None = None,
+    band: tuple[Tensor, Tensor] | None = None,
+) -> None:
     """One column of state panels (``axes``: one per group, positions then velocities) of one trajectory (T, D):
     the truth wide and pale, the ``baseline`` dotted, the ``band`` (low, high) shaded, the model dashed on top."""
     for g, group in enumerate(groups):
@@ -116,7 +134,7 @@ def _state_panels(axes, t: Tensor, true: Tensor, pred: Tensor, n: int, units: tu
                 if baseline is not None:
                     ax.plot(t, baseline[:, idx], ":", color=palette[d], lw=1.0, zorder=2.5)
                 ax.plot(t, pred[:, idx], "--", color=palette[d], lw=1.3, zorder=3)
-            unit = unit_label(units[group.start:group.stop], rate)
+            unit = unit_label(units[group.start : group.stop], rate)
             ax.set_ylabel(f"{'velocity q̇' if rate else 'position q'} {unit}")
 
 
@@ -124,14 +142,25 @@ def _coordinate_handles(names: list[str], units: tuple[str, ...], n: int, palett
     """Legend entries: a colour per coordinate (its position and velocity) and the wide pale truth."""
     from matplotlib.lines import Line2D
 
-    return [Line2D([], [], color=palette[d], lw=2, label=f"{names[d]} [{units[d]}], {names[d + n]} [{units[d]}/s]")
-            for d in range(n)] + [Line2D([], [], color="k", lw=2.6, alpha=0.45, label="truth")]
+    return [
+        Line2D([], [], color=palette[d], lw=2, label=f"{names[d]} [{units[d]}], {names[d + n]} [{units[d]}/s]")
+        for d in range(n)
+    ] + [Line2D([], [], color="k", lw=2.6, alpha=0.45, label="truth")]
 
 
-def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor] | None, title: str,
-                    units: tuple[str, ...] | None = None, baseline: Tensor | None = None,
-                    angles: Tensor | None = None, names: list[str] | None = None,
-                    time_label: str = None, chart: str | None = None) -> dict[str, Figure]:
+def rollout_figures(
+    t: Tensor,
+    pred: Tensor,
+    true: Tensor,
+    energies: list[Tensor] | None,
+    title: str,
+    units: tuple[str, ...] | None = None,
+    baseline: Tensor | None = None,
+    angles: Tensor | None = None,
+    names: list[str] | None = None,
+    time_label: str = None,
+    chart: str | None = None,
+) -> dict[str, Figure]:
     """Rollout vs truth (every coordinate, positions and velocities) of three test trajectories — the
     best, median and worst by relative error summed over the rollout, each labelled so — with the
     linear-ODE ``baseline``'s rollout if given; relative error vs time and (if known) energy error vs
@@ -150,17 +179,37 @@ def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor
     baseline = None if baseline is None else baseline - shift
     score = metrics.relative_error(pred, true, angles).nan_to_num(float("inf")).sum(-1)
     order = torch.argsort(score).tolist()
-    picks = dict.fromkeys([order[0], order[len(order) // 2], order[-1]])      # best, median, worst (distinct)
+    picks = dict.fromkeys([order[0], order[len(order) // 2], order[-1]])  # best, median, worst (distinct)
     tags = {order[0]: "best", order[len(order) // 2]: "median", order[-1]: "worst"}
-    fig, axes = subplots(2 * len(groups), len(picks), figsize=(4.6 * len(picks) + 1.9, 2.2 + 2.4 * 2 * len(groups)),
-                         squeeze=False, sharex=True)
+    fig, axes = subplots(
+        2 * len(groups),
+        len(picks),
+        figsize=(4.6 * len(picks) + 1.9, 2.2 + 2.4 * 2 * len(groups)),
+        squeeze=False,
+        sharex=True,
+    )
     for col, k in enumerate(picks):
-        _state_panels(axes[:, col], t, true[k], pred[k], n, units, palette, groups,
-                      baseline=None if baseline is None else baseline[k])
-        turns = [f"{names[d]} {'−' if turn > 0 else '+'} {abs(turn)}·2π" for d in range(n)
-                 if (turn := round(float(shift[k, 0, d]) / (2 * torch.pi)))]
-        axes[0, col].set_title(f"test trajectory {k} ({tags[k]} of {len(order)} by relative error)"
-                               + (f"\ndrawn as {', '.join(turns)}" if turns else ""), fontsize=9)
+        _state_panels(
+            axes[:, col],
+            t,
+            true[k],
+            pred[k],
+            n,
+            units,
+            palette,
+            groups,
+            baseline=None if baseline is None else baseline[k],
+        )
+        turns = [
+            f"{names[d]} {'−' if turn > 0 else '+'} {abs(turn)}·2π"
+            for d in range(n)
+            if (turn := round(float(shift[k, 0, d]) / (2 * torch.pi)))
+        ]
+        axes[0, col].set_title(
+            f"test trajectory {k} ({tags[k]} of {len(order)} by relative error)"
+            + (f"\ndrawn as {', '.join(turns)}" if turns else ""),
+            fontsize=9,
+        )
         axes[-1, col].set_xlabel(time_label)
     handles = _coordinate_handles(names, units, n, palette)
     handles.append(Line2D([], [], color="k", ls="--", lw=1.3, label="model"))
@@ -184,9 +233,17 @@ def rollout_figures(t: Tensor, pred: Tensor, true: Tensor, energies: list[Tensor
     return figures
 
 
-def ensemble_figures(t: Tensor, preds: Tensor, true: Tensor, title: str, seeds: list[int],
-                     units: tuple[str, ...] | None = None, angles: Tensor | None = None,
-                     names: list[str] | None = None, time_label: str | None = None) -> dict[str, Figure]:
+def ensemble_figures(
+    t: Tensor,
+    preds: Tensor,
+    true: Tensor,
+    title: str,
+    seeds: list[int],
+    units: tuple[str, ...] | None = None,
+    angles: Tensor | None = None,
+    names: list[str] | None = None,
+    time_label: str | None = None,
+) -> dict[str, Figure]:
     """A seed ensemble's spread where a reader looks: ``ensemble_rollout``, the members' rollouts ``preds``
     (K, N, T, D) of the test trajectory whose error (of the members' mean) is the median, as their mean (dashed)
     inside the band of the members' min–max, beside the truth (wide, pale), every coordinate, at most
@@ -202,15 +259,28 @@ def ensemble_figures(t: Tensor, preds: Tensor, true: Tensor, title: str, seeds: 
     score = errors.mean(0).nan_to_num(float("inf")).sum(-1)
     k = int(torch.argsort(score)[len(score) // 2])
     fig, axes = subplots(2 * len(groups), 1, figsize=(7.5, 2.2 + 2.4 * 2 * len(groups)), squeeze=False, sharex=True)
-    _state_panels(axes[:, 0], t, true[k], preds[:, k].mean(0), n, units, palette, groups,
-                  band=(preds[:, k].amin(0), preds[:, k].amax(0)))
+    _state_panels(
+        axes[:, 0],
+        t,
+        true[k],
+        preds[:, k].mean(0),
+        n,
+        units,
+        palette,
+        groups,
+        band=(preds[:, k].amin(0), preds[:, k].amax(0)),
+    )
     axes[-1, 0].set_xlabel(time_label)
     handles = _coordinate_handles(names, units, n, palette) + [
         Line2D([], [], color="k", ls="--", lw=1.3, label=f"mean of {len(seeds)} members"),
-        Patch(color="k", alpha=0.2, label="members' min–max")]
+        Patch(color="k", alpha=0.2, label="members' min–max"),
+    ]
     fig.legend(handles=handles, loc="center right", fontsize=7)
-    fig.suptitle(f"{title} × seeds {', '.join(map(str, seeds))}\ntest trajectory {k} (median of {len(score)} by "
-                 f"the members' mean relative error)", fontsize=9)
+    fig.suptitle(
+        f"{title} × seeds {', '.join(map(str, seeds))}\ntest trajectory {k} (median of {len(score)} by "
+        f"the members' mean relative error)",
+        fontsize=9,
+    )
     fig.tight_layout(rect=(0, 0, 1 - 2.2 / fig.get_figwidth(), 1 - 0.3 / fig.get_figheight()))
     figures = {"ensemble_rollout": fig}
 
@@ -239,8 +309,11 @@ def plain_log_ticks(axis, values=None) -> None:
         axis.axes.autoscale_view()
         low, high = axis.get_view_interval()
         span = high / max(low, 1e-300)
-        axis.set_major_locator(ticker.LogLocator(base=10, subs=(1.0,) if span > 1e3 else (1.0, 2.0, 5.0))
-                               if span > 10 else ticker.MaxNLocator(nbins=6))
+        axis.set_major_locator(
+            ticker.LogLocator(base=10, subs=(1.0,) if span > 1e3 else (1.0, 2.0, 5.0))
+            if span > 10
+            else ticker.MaxNLocator(nbins=6)
+        )
     axis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
     axis.set_minor_formatter(ticker.NullFormatter())
 
@@ -265,16 +338,15 @@ def log_figures(logger, paths: list[Path]) -> None:
             logger.log_image(key=f"figures/{path.stem}", images=[str(path)])
 
 
-
-
-def integration_figure(t: Tensor, pred: Tensor, true: Tensor, energy_pred: Tensor, energy_true: Tensor,
-                       chart: str, title: str) -> dict[str, Figure]:
+def integration_figure(
+    t: Tensor, pred: Tensor, true: Tensor, energy_pred: Tensor, energy_true: Tensor, chart: str, title: str
+) -> dict[str, Figure]:
     """Santos et al. §7's unforced integration, its trajectory 0: configuration (every q, truth and
     model) and true energy against time (``integration``). States (N, T, 2n), energies (N, T)."""
     n = true.shape[-1] // 2
     fig, (ax_q, ax_e) = subplots(1, 2, figsize=(10, 3.8))
     for d in range(n):
-        line, = ax_q.plot(t, true[0, :, d], lw=1.4, label=f"q{d + 1} truth")
+        (line,) = ax_q.plot(t, true[0, :, d], lw=1.4, label=f"q{d + 1} truth")
         ax_q.plot(t, pred[0, :, d], "--", color=line.get_color(), lw=1.1, label=f"q{d + 1} model")
     ax_q.set_xlabel("time (s)")
     ax_q.set_ylabel(f"configuration ({chart} chart; rad or m)")
@@ -293,8 +365,13 @@ def integration_figure(t: Tensor, pred: Tensor, true: Tensor, energy_pred: Tenso
 CEILING = 1e200  # top of a log MSE axis: matplotlib's log ticks overflow (OverflowError) near float64's 1.8e308
 
 
-def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], title: str,
-               units: tuple[str, ...] | None = None, time_label: str = TIME) -> dict[str, Figure]:
+def mse_figure(
+    t: Tensor,
+    curves: dict[str, dict[str, Tensor]],
+    title: str,
+    units: tuple[str, ...] | None = None,
+    time_label: str = TIME,
+) -> dict[str, Figure]:
     """State MSE and (if known) energy MSE against time of the model and the baselines on the test
     windows (Xiao et al. Figs. 3 and 5; curves from ``metrics.long_rollout_errors``), from the first step
     (at t = 0 every rollout starts on the truth): ``mse_vs_time``. The axis spans the curves within
@@ -302,16 +379,21 @@ def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], title: str,
     no motion keeps the energy of s₀) is named in the legend with its largest value instead. Values past
     ``CEILING`` (a runaway rollout, the linear baseline's blow-up) are drawn at it."""
     keys = list(curves["model"])
-    mixed = ", ".join(f"({u})²" if "/" in u else f"{u}²" for u in dict.fromkeys(
-        [*(units or ("–",)), *(f"{u}/s" for u in (units or ("–",)))]))
-    labels = {"state_mse": STATE_MSE, "state_mse_raw": f"state MSE, raw mean over every q and q̇ [mixed: {mixed}]",
-              "energy_mse": "energy MSE [J²]"}
-    for key in keys:   # one unit family each (metrics.unit_families)
+    mixed = ", ".join(
+        f"({u})²" if "/" in u else f"{u}²"
+        for u in dict.fromkeys([*(units or ("–",)), *(f"{u}/s" for u in (units or ("–",)))])
+    )
+    labels = {
+        "state_mse": STATE_MSE,
+        "state_mse_raw": f"state MSE, raw mean over every q and q̇ [mixed: {mixed}]",
+        "energy_mse": "energy MSE [J²]",
+    }
+    for key in keys:  # one unit family each (metrics.unit_families)
         if key.startswith("state_mse_") and key != "state_mse_raw":
             unit = key.removeprefix("state_mse_").replace("_per_", "/").replace("_", " ")
             labels[key] = f"MSE of the {'rates' if '/' in unit else 'coordinates'} in {unit} [{unit}]²"
     if "state_mse_raw" in keys and sum(k.startswith("state_mse_") for k in keys) > 1:
-        keys.remove("state_mse_raw")     # the unit families say it in their own units
+        keys.remove("state_mse_raw")  # the unit families say it in their own units
     fig, axes = subplots(1, len(keys), figsize=(5 * len(keys), 4), squeeze=False)
     for ax, key in zip(axes[0], keys):
         model = curves["model"][key][1:]
@@ -322,8 +404,13 @@ def mse_figure(t: Tensor, curves: dict[str, dict[str, Tensor]], title: str,
             label = name.removeprefix("baseline_").replace("_", " ")
             if name != "model" and float(values.max()) < floor:
                 label += f" (below the axis: ≤ {float(values.max()):.1g})"
-            ax.plot(t[1:], values.double().clamp(floor / 10, CEILING), label=label,
-                    lw=1.8 if name == "model" else 1.1, ls="-" if name == "model" else "--")
+            ax.plot(
+                t[1:],
+                values.double().clamp(floor / 10, CEILING),
+                label=label,
+                lw=1.8 if name == "model" else 1.1,
+                ls="-" if name == "model" else "--",
+            )
         ax.set_yscale("log")
         every = torch.cat([c[key][1:].double() for c in curves.values()])
         every = every[torch.isfinite(every) & (every >= floor)].clamp_max(CEILING)
@@ -349,7 +436,7 @@ def pixel_mse_figure(t: Tensor, mse: Tensor, title: str, references: dict[str, T
     _band(ax, t, mse.clamp_min(1e-12), PIXEL_MSE)
     ax.plot(t, mse.mean(0), "k--", lw=1, label="mean over test videos")
     for (name, ref), style in zip(references.items(), (":", "-.")):
-        ax.plot(t[:ref.shape[1]], ref.mean(0), color="grey", ls=style, lw=1.2, label=f"{name} (mean)")
+        ax.plot(t[: ref.shape[1]], ref.mean(0), color="grey", ls=style, lw=1.2, label=f"{name} (mean)")
     ax.set_xlabel(DATA_TIME)
     ax.legend(fontsize=8)
     ax.set_title(f"{title}\npredicted frames from the first encoded state", fontsize=9)
@@ -373,8 +460,15 @@ def latent_phase_figure(pred: Tensor, encoded: Tensor, title: str, n_show: int =
     fig, ax = subplots(figsize=(5.5, 5))
     for k in range(shown):
         p, e = project(pred[k]), project(encoded[k])
-        line, = ax.plot(p[:, 0], p[:, 1], lw=1.2, label="model rollout (one colour per video)" if k == 0 else None)
-        ax.plot(e[:, 0], e[:, 1], ".", ms=2.5, color=line.get_color(), label="encoded true frames (same colour)" if k == 0 else None)
+        (line,) = ax.plot(p[:, 0], p[:, 1], lw=1.2, label="model rollout (one colour per video)" if k == 0 else None)
+        ax.plot(
+            e[:, 0],
+            e[:, 1],
+            ".",
+            ms=2.5,
+            color=line.get_color(),
+            label="encoded true frames (same colour)" if k == 0 else None,
+        )
         ax.plot(p[:1, 0], p[:1, 1], "o", color=line.get_color(), ms=5)
     ax.set_xlabel(names[0])
     ax.set_ylabel(names[1])
@@ -402,16 +496,25 @@ def frames_figure(t: Tensor, pred: Tensor, true: Tensor, title: str, n_times: in
     return {"frames": laid_out(fig)}
 
 
-def control_figures(t: Tensor, learned: tuple[Tensor, Tensor], oracle: tuple[Tensor, Tensor],
-                    t_up: tuple[Tensor, Tensor], energy, error, system, out_dir: Path, title: str,
-                    n_show: int = 6) -> list[Path]:
+def control_figures(
+    t: Tensor,
+    learned: tuple[Tensor, Tensor],
+    oracle: tuple[Tensor, Tensor],
+    t_up: tuple[Tensor, Tensor],
+    energy,
+    error,
+    system,
+    out_dir: Path,
+    title: str,
+    n_show: int = 6,
+) -> list[Path]:
     """Closed loops of the controller built from a learned model beside the same controller built from the
     true model (``encons.tools.control``), on the true system: phase portrait of the (pole) angle, true energy
     and input against time for ``n_show`` starts, and the fraction of starts held upright against time.
 
     ``energy`` and ``error`` are the true plant's E(s) and s − s* (angles wrapped)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    angle = system.n - 1                                    # the (pole) angle: last coordinate
+    angle = system.n - 1  # the (pole) angle: last coordinate
     unit = "N·m" if system.n == 1 else "N"
     shown = min(n_show, t_up[0].shape[0])
     colours = matplotlib.colormaps["tab10"](range(shown))
@@ -440,8 +543,9 @@ def control_figures(t: Tensor, learned: tuple[Tensor, Tensor], oracle: tuple[Ten
         e = energy(states[:shown])
         for k in range(shown):
             axes[0].plot(t, e[k], style, color=colours[k], lw=1, label=label if k == 0 else None)
-            axes[1].step(t[:-1], inputs[k, :, 0], style, where="post", color=colours[k], lw=1,
-                         label=label if k == 0 else None)
+            axes[1].step(
+                t[:-1], inputs[k, :, 0], style, where="post", color=colours[k], lw=1, label=label if k == 0 else None
+            )
     axes[0].axhline(target, color="k", lw=0.8, ls=":", label="upright energy (true)")
     for bound in (system.u_max, -system.u_max):
         axes[1].axhline(bound, color="k", lw=0.8, ls=":", label="input limit ±u_max" if bound > 0 else None)
@@ -480,9 +584,17 @@ def phase_portrait_figure(fields: tuple, system, out_dir: Path, title: str, poin
     top = max(float(a.abs().max()) for a in accel)
     fig, axes = subplots(1, 2, figsize=(11, 4.5), sharex=True, sharey=True)
     for ax, a, label in zip(axes, accel, ("learned model", "true system")):
-        lines = ax.streamplot(theta.numpy(), rate.numpy(), grid_rate.numpy(), a.numpy(), density=1.1,
-                              color=a.abs().numpy(), cmap="viridis", norm=matplotlib.colors.Normalize(0, top),
-                              linewidth=0.8)
+        lines = ax.streamplot(
+            theta.numpy(),
+            rate.numpy(),
+            grid_rate.numpy(),
+            a.numpy(),
+            density=1.1,
+            color=a.abs().numpy(),
+            cmap="viridis",
+            norm=matplotlib.colors.Normalize(0, top),
+            linewidth=0.8,
+        )
         ax.plot(0, 0, "k*", ms=10, label="upright")
         ax.set_title(label, fontsize=9)
         ax.set_xlabel("angle from upright θ [rad]")

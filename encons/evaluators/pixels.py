@@ -9,10 +9,9 @@ from matplotlib.figure import Figure
 from torch import Tensor
 
 from encons.evaluators import figures
-
-from encons.numerics import metrics
-from encons.infra.errors import ConfigError
 from encons.evaluators.base import Evaluator, Result, TestBatch, gathered
+from encons.infra.errors import ConfigError
+from encons.numerics import metrics
 
 if TYPE_CHECKING:
     from encons.numerics.learner import Learner
@@ -34,8 +33,10 @@ class Pixels(Evaluator):
 
     def check(self, module: Learner) -> None:
         if module.observation.identity:
-            raise ConfigError("evaluators.pixels does not apply to a run without an observation model (no "
-                              "frames to decode); allowed: evaluators=[states]")
+            raise ConfigError(
+                "evaluators.pixels does not apply to a run without an observation model (no "
+                "frames to decode); allowed: evaluators=[states]"
+            )
 
     def reset(self) -> None:
         self.batches: list[tuple[Tensor, ...]] = []
@@ -48,27 +49,42 @@ class Pixels(Evaluator):
         self.batches.clear()
         frames = module.observation.decode(pred).double()
         x = x.double()
-        def per_frame(a: Tensor, b: Tensor) -> Tensor:                                   # (N, T)
+
+        def per_frame(a: Tensor, b: Tensor) -> Tensor:  # (N, T)
             return (a - b).square().mean((-1, -2))
 
         mse = per_frame(frames, x)
         still = per_frame(x[:, :1], x)
-        floor = per_frame(module.observation.decode(states).double(), x[:, :states.shape[1]])
+        floor = per_frame(module.observation.decode(states).double(), x[:, : states.shape[1]])
         t = module.times(x.shape[1], x).cpu()
         tre = metrics.trajectory_relative_error(frames.flatten(2), x.flatten(2), module.horizon)
         finite = mse.isfinite().all(-1)
-        scores = {"traj_rel_err": tre.mean().item(), "traj_rel_err_std": tre.std().item(),
-                  "pixel_mse": mse.mean().item(), "pixel_mse_final": mse[:, -1].mean().item(),
-                  "pixel_mse_final_median": mse[:, -1].median().item(),
-                  "diverged": 1.0 - finite.double().mean().item()}
+        scores = {
+            "traj_rel_err": tre.mean().item(),
+            "traj_rel_err_std": tre.std().item(),
+            "pixel_mse": mse.mean().item(),
+            "pixel_mse_final": mse[:, -1].mean().item(),
+            "pixel_mse_final_median": mse[:, -1].median().item(),
+            "diverged": 1.0 - finite.double().mean().item(),
+        }
         for name, ref in (("baseline_constant", still), ("autoencoder", floor)):
             scores |= {f"{name}/pixel_mse": ref.mean().item(), f"{name}/pixel_mse_final": ref[:, -1].mean().item()}
-        log.info("pixel MSE of predicted frames: %s", ", ".join(
-            f"t={t[k]:.0f}: {mse[:, k].mean().item():.4g}" for k in sorted({0, len(t) // 4, len(t) // 2, len(t) - 1})))
-        curves = {"t": t.numpy(), "pixel_mse": mse.cpu().numpy(), "baseline_constant/pixel_mse": still.cpu().numpy(),
-                  "autoencoder/pixel_mse": floor.cpu().numpy(),
-                  "rel_err": metrics.relative_error(frames.flatten(2), x.flatten(2)).cpu().numpy(),
-                  "latent_pred": pred.cpu().numpy(), "latent_encoded": states.cpu().numpy()}
+        log.info(
+            "pixel MSE of predicted frames: %s",
+            ", ".join(
+                f"t={t[k]:.0f}: {mse[:, k].mean().item():.4g}"
+                for k in sorted({0, len(t) // 4, len(t) // 2, len(t) - 1})
+            ),
+        )
+        curves = {
+            "t": t.numpy(),
+            "pixel_mse": mse.cpu().numpy(),
+            "baseline_constant/pixel_mse": still.cpu().numpy(),
+            "autoencoder/pixel_mse": floor.cpu().numpy(),
+            "rel_err": metrics.relative_error(frames.flatten(2), x.flatten(2)).cpu().numpy(),
+            "latent_pred": pred.cpu().numpy(),
+            "latent_encoded": states.cpu().numpy(),
+        }
         self.drawn = t, mse.cpu(), still.cpu(), floor.cpu(), pred.cpu(), states.cpu(), frames.cpu(), x.cpu()
         return Result(scores, curves)
 
@@ -77,5 +93,8 @@ class Pixels(Evaluator):
         t, mse, still, floor, pred, states, frames, x = self.drawn
         title = module.run_title()
         references = {"first frame held": still, "autoencoder floor": floor}
-        return {**figures.pixel_mse_figure(t, mse, title, references), **figures.latent_phase_figure(pred, states, title),
-                **figures.frames_figure(t, frames, x, title)}
+        return {
+            **figures.pixel_mse_figure(t, mse, title, references),
+            **figures.latent_phase_figure(pred, states, title),
+            **figures.frames_figure(t, frames, x, title),
+        }

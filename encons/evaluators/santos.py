@@ -8,13 +8,12 @@ import torch
 from matplotlib.figure import Figure
 from torch import Tensor
 
-from encons.evaluators import figures
-
-from encons.numerics import metrics
-from encons.infra.bounds import Count, Declared, Range, Seed
 from encons.data.simulate import simulate
-from encons.infra.errors import ConfigError
+from encons.evaluators import figures
 from encons.evaluators.base import Evaluator, Result
+from encons.infra.bounds import Count, Declared, Range, Seed
+from encons.infra.errors import ConfigError
+from encons.numerics import metrics
 from encons.numerics.integrators import rollout
 
 if TYPE_CHECKING:
@@ -46,8 +45,10 @@ class SantosMetrics(Evaluator, Declared):
 
     def check(self, module: Learner) -> None:
         if not module.observation.identity:
-            raise ConfigError(f"evaluators.santos does not apply to observation={type(module.observation).__name__} "
-                              f"(§7's metrics are on the system's states); allowed: evaluators=[pixels]")
+            raise ConfigError(
+                f"evaluators.santos does not apply to observation={type(module.observation).__name__} "
+                f"(§7's metrics are on the system's states); allowed: evaluators=[pixels]"
+            )
 
     def compute(self, module: Learner) -> Result:
         self.drawn = None
@@ -78,13 +79,24 @@ class SantosMetrics(Evaluator, Declared):
         u = torch.zeros(self.n_trajectories, len(t), system.n_controls) if system.n_controls else None
         dtype = next(model.parameters()).dtype
         model.reset_diagnostics()
-        pred = rollout(model, start.to(module.device, dtype), t.to(module.device, dtype), module.integrator,
-                       None if u is None else u.to(module.device, dtype)).double().cpu()
+        pred = (
+            rollout(
+                model,
+                start.to(module.device, dtype),
+                t.to(module.device, dtype),
+                module.integrator,
+                None if u is None else u.to(module.device, dtype),
+            )
+            .double()
+            .cpu()
+        )
         n = model.n
         energy_pred, energy_true = system.energy(pred, model.chart), system.energy(true, model.chart)
-        out = {"mse_integration": metrics.configuration_mse(pred[..., :n], true[..., :n], q_angles(module)).item(),
-               "energy_mse_integration": metrics.energy_mse(energy_pred, energy_true[:, :1]).item(),
-               **{f"{k}_integration": v for k, v in model.diagnostics().items()}}
+        out = {
+            "mse_integration": metrics.configuration_mse(pred[..., :n], true[..., :n], q_angles(module)).item(),
+            "energy_mse_integration": metrics.energy_mse(energy_pred, energy_true[:, :1]).item(),
+            **{f"{k}_integration": v for k, v in model.diagnostics().items()},
+        }
         if isinstance(getattr(model, "mass", None), torch.nn.Module) and model.chart == system.base_chart:
             q = true[..., :n]
             learned = model.mass(q.to(module.device, dtype)).double().cpu()

@@ -10,10 +10,9 @@ from matplotlib.figure import Figure
 from torch import Tensor
 
 from encons.evaluators import figures
-
-from encons.numerics import metrics
-from encons.infra.errors import ConfigError
 from encons.evaluators.base import Evaluator, Result, TestBatch, gathered
+from encons.infra.errors import ConfigError
+from encons.numerics import metrics
 
 if TYPE_CHECKING:
     from encons.numerics.learner import Learner
@@ -33,8 +32,10 @@ class States(Evaluator):
 
     def check(self, module: Learner) -> None:
         if not module.observation.identity:
-            raise ConfigError(f"evaluators.states does not apply to observation={type(module.observation).__name__} "
-                              f"(the model's states are not the data's); allowed: evaluators=[pixels]")
+            raise ConfigError(
+                f"evaluators.states does not apply to observation={type(module.observation).__name__} "
+                f"(the model's states are not the data's); allowed: evaluators=[pixels]"
+            )
 
     def reset(self) -> None:
         self.batches: list[tuple[Tensor, ...]] = []
@@ -44,8 +45,11 @@ class States(Evaluator):
         x, pred = batch.x, batch.pred
         kept = (x, pred)
         if module.system.known_physics:  # the floor: the true field, same starts and integrator
-            kept += (module.evaluation.oracle(module.system, module.model.chart, x[:, 0],
-                                              module.times(x.shape[1], x), batch.batch.get("u")),)
+            kept += (
+                module.evaluation.oracle(
+                    module.system, module.model.chart, x[:, 0], module.times(x.shape[1], x), batch.batch.get("u")
+                ),
+            )
         self.batches.append(tuple(p.detach() for p in kept))
         self.diagnostics = module.model.diagnostics()  # counters since the test began: the last is the total
 
@@ -65,21 +69,34 @@ class States(Evaluator):
         train = module.trainer.datamodule.states["train"].to(true)
         baselines = metrics.baseline_rollouts(true, train, module.dt)
         for name, rollout in baselines.items():  # every metric the model gets, on the same windows
-            scored = metrics.summarise(module.to_common(rollout), true_c, energy(rollout) if energy else None,
-                                       energies[1] if energies else None, **score)
+            scored = metrics.summarise(
+                module.to_common(rollout),
+                true_c,
+                energy(rollout) if energy else None,
+                energies[1] if energies else None,
+                **score,
+            )
             scores.update({f"{name}/{k}": v for k, v in scored.items()})
         families = metrics.unit_families(system.units(system.common_chart))
         scalars, curves = metrics.long_rollout_errors(true, pred, baselines, module.to_common, energy, angles, families)
         scores.update(scalars)
         scores.update(self.diagnostics)  # e.g. SyMo's non-converged root-finds
         if oracle:  # the floor, scored by the same metrics
-            floor = metrics.summarise(module.to_common(oracle[0]), true_c, energy(oracle[0]) if energy else None,
-                                      energies[1] if energies else None, **score)
+            floor = metrics.summarise(
+                module.to_common(oracle[0]),
+                true_c,
+                energy(oracle[0]) if energy else None,
+                energies[1] if energies else None,
+                **score,
+            )
             scores.update({f"oracle/{k}": v for k, v in floor.items()})
         t = module.times(true.shape[1], true)
         log.info("%s", metrics.curves_table(t, curves))
-        kept = {"t": t.cpu().numpy(), "rel_err": metrics.relative_error(pred_c, true_c, angles).cpu().numpy(),
-                **{f"{k}_{name}": v.cpu().numpy() for name, c in curves.items() for k, v in c.items()}}
+        kept = {
+            "t": t.cpu().numpy(),
+            "rel_err": metrics.relative_error(pred_c, true_c, angles).cpu().numpy(),
+            **{f"{k}_{name}": v.cpu().numpy() for name, c in curves.items() for k, v in c.items()},
+        }
         if energies:
             kept["energy_err"] = metrics.energy_abs_error(*energies).cpu().numpy()
         self.drawn = t, pred_c, true_c, energies, curves, module.to_common(baselines["baseline_linear_ode"])
@@ -91,22 +108,42 @@ class States(Evaluator):
         t, pred_c, true_c, energies, curves, baseline = self.drawn  # the linear-ODE rollout compute scored
         units, title = module.system.units(module.system.common_chart), module.run_title()
         time_label = figures.TIME if module.system.known_physics else figures.DATA_TIME
-        names = figures.coordinate_names(true_c.shape[-1], module.system.layout if module.system.common_chart == "cartesian"
-                                       else None)
-        return {**figures.mse_figure(t.cpu(), curves, title=title, units=units, time_label=time_label),
-                **figures.rollout_figures(t.cpu(), pred_c.cpu(), true_c.cpu(),
-                                        [e.cpu() for e in energies] if energies else None, title=title,
-                                        units=units, baseline=baseline.cpu(), angles=module.compared_angles,
-                                        names=names, time_label=time_label, chart=module.system.common_chart)}
+        names = figures.coordinate_names(
+            true_c.shape[-1], module.system.layout if module.system.common_chart == "cartesian" else None
+        )
+        return {
+            **figures.mse_figure(t.cpu(), curves, title=title, units=units, time_label=time_label),
+            **figures.rollout_figures(
+                t.cpu(),
+                pred_c.cpu(),
+                true_c.cpu(),
+                [e.cpu() for e in energies] if energies else None,
+                title=title,
+                units=units,
+                baseline=baseline.cpu(),
+                angles=module.compared_angles,
+                names=names,
+                time_label=time_label,
+                chart=module.system.common_chart,
+            ),
+        }
 
     def ensemble_figures(self, module: Learner, members: list[Evaluator], seeds: list[int]) -> dict[str, Figure]:
         """``ensemble_rollout`` and ``ensemble_relative_error`` (``encons.plots.ensemble_figures``) of the members'
         test rollouts (the same windows for every member)."""
         t, _, true_c, *_ = self.drawn
         preds = torch.stack([m.drawn[1] for m in members]).cpu()
-        names = figures.coordinate_names(true_c.shape[-1], module.system.layout if module.system.common_chart == "cartesian"
-                                       else None)
-        return figures.ensemble_figures(t.cpu(), preds, true_c.cpu(), module.run_title(), seeds,
-                                      units=module.system.units(module.system.common_chart),
-                                      angles=module.compared_angles, names=names,
-                                      time_label=figures.TIME if module.system.known_physics else figures.DATA_TIME)
+        names = figures.coordinate_names(
+            true_c.shape[-1], module.system.layout if module.system.common_chart == "cartesian" else None
+        )
+        return figures.ensemble_figures(
+            t.cpu(),
+            preds,
+            true_c.cpu(),
+            module.run_title(),
+            seeds,
+            units=module.system.units(module.system.common_chart),
+            angles=module.compared_angles,
+            names=names,
+            time_label=figures.TIME if module.system.known_physics else figures.DATA_TIME,
+        )

@@ -35,14 +35,19 @@ class Range:
     says: str | None = None
 
     def __contains__(self, value: float) -> bool:
-        return (math.isfinite(value) and (self.gt is None or value > self.gt) and (self.ge is None or value >= self.ge)
-                and (self.lt is None or value < self.lt) and (self.le is None or value <= self.le))
+        return (
+            math.isfinite(value)
+            and (self.gt is None or value > self.gt)
+            and (self.ge is None or value >= self.ge)
+            and (self.lt is None or value < self.lt)
+            and (self.le is None or value <= self.le)
+        )
 
     def __str__(self) -> str:
         if self.says:
             return self.says
-        low = (f"({self.gt}" if self.gt is not None else f"[{self.ge}" if self.ge is not None else None)
-        high = (f"{self.lt})" if self.lt is not None else f"{self.le}]" if self.le is not None else None)
+        low = f"({self.gt}" if self.gt is not None else f"[{self.ge}" if self.ge is not None else None
+        high = f"{self.lt})" if self.lt is not None else f"{self.le}]" if self.le is not None else None
         if low and high:
             return f"in {low}, {high}"
         if low:
@@ -66,6 +71,7 @@ DECLARED: dict[str, dict[str, Any]] = {}
 
 def declare(node: str, **hints: Any) -> Callable[[Callable], Callable]:
     """Decorate the function that reads keys of ``node`` with their types and ranges (``Annotated`` hints)."""
+
     def record(fn: Callable) -> Callable:
         DECLARED.setdefault(node, {}).update(hints)
         return fn
@@ -84,8 +90,9 @@ def split(hint: Any) -> tuple[Any, Range | None]:
         return typing.Union[tuple(b for b, _ in parts)], next((r for _, r in parts if r is not None), None)
     if origin in (list, tuple, Sequence):
         args = [split(a) for a in typing.get_args(hint) if a is not Ellipsis]
-        return (origin[args[0][0]] if origin is not tuple else list[args[0][0]]) if args else hint, \
-            (args[0][1] if args else None)
+        return (origin[args[0][0]] if origin is not tuple else list[args[0][0]]) if args else hint, (
+            args[0][1] if args else None
+        )
     return hint, None
 
 
@@ -97,8 +104,13 @@ def hints(target: Any) -> dict[str, Any]:
 
 @functools.cache
 def _hints(target: Any) -> tuple[tuple[str, Any], ...]:
-    fn = target if not inspect.isclass(target) else target if hasattr(target, "__dataclass_fields__") \
+    fn = (
+        target
+        if not inspect.isclass(target)
+        else target
+        if hasattr(target, "__dataclass_fields__")
         else target.__init__
+    )
     try:
         found = typing.get_type_hints(fn, include_extras=True)
     except Exception:  # noqa: BLE001 - an annotation that cannot be resolved cannot be judged
@@ -116,7 +128,9 @@ def check(values: Mapping[str, Any], declared: Mapping[str, Any], key: str, type
         bare, bounds = split(declared[name])
         full = f"{key}.{name}" if key else name
         if (types or _boolean(bare)) and not _matches(value, bare):  # a word is never a boolean
-            allowed = _type_name(bare) + ("" if bounds is None else f", {bounds}" if bounds.says else f", a number {bounds}")
+            allowed = _type_name(bare) + (
+                "" if bounds is None else f", {bounds}" if bounds.says else f", a number {bounds}"
+            )
             raise ConfigError(f"{full}={value!r} has type {type(value).__name__}; allowed: {allowed}")
         entries = list(value) if isinstance(value, (list, tuple)) else [value]
         numbers = [v for v in entries if isinstance(v, (int, float)) and not isinstance(v, bool)]

@@ -22,10 +22,18 @@ CONFIG_KEY = "encons_config"  # where a checkpoint carries its resolved run conf
 
 #: Modules whose classes a config names by ``_target_`` and that moved into layer packages (issue 49): a config
 #: saved before (in a checkpoint or a run's config.yaml) names the old module, read as the new one.
-MOVED = {f"encons.{old}.": f"encons.{new}." for old, new in {
-    "callbacks": "training.callbacks", "evaluation": "numerics.evaluation", "integrators": "numerics.integrators",
-    "lightning_io": "infra.lightning_io", "regularisers": "numerics.regularisers", "schedules": "training.schedules",
-    "sweep": "tools.sweep"}.items()}
+MOVED = {
+    f"encons.{old}.": f"encons.{new}."
+    for old, new in {
+        "callbacks": "training.callbacks",
+        "evaluation": "numerics.evaluation",
+        "integrators": "numerics.integrators",
+        "lightning_io": "infra.lightning_io",
+        "regularisers": "numerics.regularisers",
+        "schedules": "training.schedules",
+        "sweep": "tools.sweep",
+    }.items()
+}
 
 
 def current_targets(saved: Any) -> Any:
@@ -35,7 +43,7 @@ def current_targets(saved: Any) -> Any:
         target = out.get("_target_")
         if isinstance(target, str):
             old = next((o for o in MOVED if target.startswith(o)), None)
-            out["_target_"] = target if old is None else MOVED[old] + target[len(old):]
+            out["_target_"] = target if old is None else MOVED[old] + target[len(old) :]
         return out
     if isinstance(saved, list):
         return [current_targets(v) for v in saved]
@@ -45,9 +53,21 @@ def current_targets(saved: Any) -> Any:
 def stored_config(path: Path) -> dict:
     """The run config the checkpoint at ``path`` carries ({} where none), its moved targets renamed."""
     return current_targets(read(path, "ckpt_path").get(CONFIG_KEY) or {})
+
+
 #: The config keys a resume must share with the checkpoint's run (budget and paths may differ).
-RESUME_KEYS = ("system", "model", "data", "integrator", "regulariser", "objective", "optimizer", "scheduler",
-               "seed", "seeds")
+RESUME_KEYS = (
+    "system",
+    "model",
+    "data",
+    "integrator",
+    "regulariser",
+    "objective",
+    "optimizer",
+    "scheduler",
+    "seed",
+    "seeds",
+)
 
 
 def read(path: str | Path, key: str = "ckpt") -> dict[str, Any]:
@@ -58,8 +78,10 @@ def read(path: str | Path, key: str = "ckpt") -> dict[str, Any]:
     try:
         state = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
     except Exception as err:  # noqa: BLE001 - torch raises several types for a file that is not a checkpoint
-        raise ConfigError(f"{key}={str(path)!r} is not a readable checkpoint ({type(err).__name__}); "
-                          f"allowed: a .ckpt written by encons") from None
+        raise ConfigError(
+            f"{key}={str(path)!r} is not a readable checkpoint ({type(err).__name__}); "
+            f"allowed: a .ckpt written by encons"
+        ) from None
     if not isinstance(state, dict) or "state_dict" not in state:
         raise ConfigError(f"{key}={str(path)!r} holds no state_dict; allowed: a .ckpt written by encons")
     return state
@@ -94,25 +116,32 @@ def resume_from(cfg: DictConfig) -> str | None:
     runs = Path(cfg.paths.output_dir).parent
     found = sorted(runs.glob("*/checkpoints/last.ckpt"), key=lambda p: (p == own, p.stat().st_mtime), reverse=True)
     if not found:
-        raise ConfigError(f"ckpt_path=last: no earlier run of '{cfg.name}' has a checkpoint under {runs}; "
-                          f"allowed: a .ckpt file, or null to start afresh")
+        raise ConfigError(
+            f"ckpt_path=last: no earlier run of '{cfg.name}' has a checkpoint under {runs}; "
+            f"allowed: a .ckpt file, or null to start afresh"
+        )
     differences = []
     for path in found:
         try:
             diff = difference(cfg, path)
         except ConfigError:  # a damaged file (a run killed mid-write before writes were atomic, a full disk)
-            log.warning("ckpt_path=last: skipped %s: not a readable checkpoint; trying the earlier runs' last.ckpt",
-                        path)
+            log.warning(
+                "ckpt_path=last: skipped %s: not a readable checkpoint; trying the earlier runs' last.ckpt", path
+            )
             continue
         if diff is None:
             return str(path)
         differences.append(f"{path.parent.parent.name} has {diff}")
     if not differences:
         others = f", nor is any of the {len(found) - 1} other last.ckpt under {runs}" if len(found) > 1 else ""
-        raise ConfigError(f"ckpt_path=last: {str(found[0])!r} is not a readable checkpoint{others}; allowed: "
-                          f"a .ckpt file, or null to start afresh")
-    raise ConfigError(f"ckpt_path=last: no earlier run under {runs} has this run's config (newest: {differences[0]}); "
-                      f"allowed: the same system/model/data/optimizer config, ckpt_path=PATH, or null")
+        raise ConfigError(
+            f"ckpt_path=last: {str(found[0])!r} is not a readable checkpoint{others}; allowed: "
+            f"a .ckpt file, or null to start afresh"
+        )
+    raise ConfigError(
+        f"ckpt_path=last: no earlier run under {runs} has this run's config (newest: {differences[0]}); "
+        f"allowed: the same system/model/data/optimizer config, ckpt_path=PATH, or null"
+    )
 
 
 def difference(cfg: DictConfig, path: Path) -> str | None:
@@ -139,8 +168,13 @@ def dropped_biases(module: Any, state_dict: dict[str, Any]) -> list[str]:
     which never reached the loss (``encons.models.networks.mlp(out_bias=False)``) and which checkpoints written
     before 26 November 2026 still hold."""
     own = module.state_dict()
-    return [k for k in state_dict if k not in own and k.endswith(".bias")
-            and getattr(_submodule(module, k.rpartition(".")[0]), "bias", False) is None]
+    return [
+        k
+        for k in state_dict
+        if k not in own
+        and k.endswith(".bias")
+        and getattr(_submodule(module, k.rpartition(".")[0]), "bias", False) is None
+    ]
 
 
 def _submodule(module: Any, name: str) -> Any:
@@ -163,19 +197,25 @@ def check_fits(module: Any, path: str) -> None:
     """Refuse a checkpoint whose parameters do not fit ``module`` (another model or size), naming the first."""
     state = read(path, "ckpt_path")
     if "optimizer_states" not in state:  # a seed ensemble member's best checkpoint: its weights alone
-        raise ConfigError(f"ckpt_path={path!r} holds weights only (an ensemble member's best checkpoint), no optimiser "
-                          f"state to resume from; allowed: evaluate it (python -m encons.evaluate {path}), or resume "
-                          f"the ensemble with its seeds=[...] and ckpt_path=last")
+        raise ConfigError(
+            f"ckpt_path={path!r} holds weights only (an ensemble member's best checkpoint), no optimiser "
+            f"state to resume from; allowed: evaluate it (python -m encons.evaluate {path}), or resume "
+            f"the ensemble with its seeds=[...] and ckpt_path=last"
+        )
     saved = state["state_dict"]
     own = module.state_dict()
     old = dropped_biases(module, saved)
     if old:
-        raise ConfigError(f"ckpt_path={path!r} holds {old[0]}, an output bias this version of encons drops (it never "
-                          f"reached the loss), so its optimiser state cannot resume; allowed: evaluate it "
-                          f"(python -m encons.evaluate), or train from scratch (ckpt_path=null)")
+        raise ConfigError(
+            f"ckpt_path={path!r} holds {old[0]}, an output bias this version of encons drops (it never "
+            f"reached the loss), so its optimiser state cannot resume; allowed: evaluate it "
+            f"(python -m encons.evaluate), or train from scratch (ckpt_path=null)"
+        )
     for name in sorted(set(saved) | set(own)):
         shapes = [tuple(d[name].shape) if name in d else None for d in (saved, own)]
         if shapes[0] != shapes[1]:
             said = ["absent" if s is None else f"shape {s}" for s in shapes]
-            raise ConfigError(f"ckpt_path={path!r}: parameter {name} is {said[0]} in the checkpoint and {said[1]} "
-                              f"in this model; allowed: a checkpoint of the same model config (model.*)")
+            raise ConfigError(
+                f"ckpt_path={path!r}: parameter {name} is {said[0]} in the checkpoint and {said[1]} "
+                f"in this model; allowed: a checkpoint of the same model config (model.*)"
+            )

@@ -63,8 +63,9 @@ class _DeviceLinesOffConsole(logging.Filter):
     config and train.log); set on console handlers only, so the log files keep them."""
 
     def filter(self, record: logging.LogRecord) -> bool:
-        return not (record.name.startswith("lightning") and str(record.msg).startswith(("GPU available",
-                                                                                        "TPU available")))
+        return not (
+            record.name.startswith("lightning") and str(record.msg).startswith(("GPU available", "TPU available"))
+        )
 
 
 def quiet_upstream() -> None:
@@ -79,8 +80,9 @@ def quiet_upstream() -> None:
     for name in ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.rank_zero"):
         logging.getLogger(name).addFilter(_DropTips())  # the loggers rank_zero_info writes to
     for handler in logging.getLogger().handlers:
-        if type(handler) is logging.StreamHandler and not any(isinstance(f, _DeviceLinesOffConsole)
-                                                                for f in handler.filters):
+        if type(handler) is logging.StreamHandler and not any(
+            isinstance(f, _DeviceLinesOffConsole) for f in handler.filters
+        ):
             handler.addFilter(_DeviceLinesOffConsole())
 
 

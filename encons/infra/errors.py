@@ -72,14 +72,20 @@ def one_line_errors() -> Iterator[None]:
         print(f"encons: error: {user_line(err)}", file=sys.stderr)
         sys.exit(2)
     except (FileExistsError, NotADirectoryError, PermissionError) as err:  # e.g. Hydra creating hydra.run.dir
-        print(f"encons: error: {err.filename!r}: {err.strerror}; allowed: a writable folder for hydra.run.dir, "
-              f"hydra.sweep.dir and paths.*", file=sys.stderr)
+        print(
+            f"encons: error: {err.filename!r}: {err.strerror}; allowed: a writable folder for hydra.run.dir, "
+            f"hydra.sweep.dir and paths.*",
+            file=sys.stderr,
+        )
         sys.exit(2)
     except OSError as err:  # a full or read-only disk under a writer encons does not own (Hydra's, a logger's)
         if err.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EROFS):
             raise
-        where = f"folder={os.path.dirname(err.filename)!r}: cannot write {os.path.basename(err.filename)}" \
-            if isinstance(err.filename, str) else "a write failed"
+        where = (
+            f"folder={os.path.dirname(err.filename)!r}: cannot write {os.path.basename(err.filename)}"
+            if isinstance(err.filename, str)
+            else "a write failed"
+        )
         print(f"encons: error: {where} ({err.strerror}); allowed: a writable folder with free space", file=sys.stderr)
         sys.exit(2)
 
@@ -94,24 +100,29 @@ def user_line(err: Exception) -> str:
         return f"{str(err).splitlines()[0]} ({err.__cause__}); allowed: the values documented in conf/"
     if isinstance(err, MissingConfigException) and err.missing_cfg_file and err.options:
         group, _, name = err.missing_cfg_file.rpartition("/")
-        return f"{group}={name} is unknown; allowed: {', '.join(sorted(o for o in err.options if not o.startswith('_')))}"
+        return (
+            f"{group}={name} is unknown; allowed: {', '.join(sorted(o for o in err.options if not o.startswith('_')))}"
+        )
     lines = str(err).strip().splitlines()
     missing = re.match(r"Could not override '([^']+)'", lines[0])
     if missing:
         key = missing.group(1)
-        return f"{key} is not a key of the config{_did_you_mean(key, err.__cause__)}; allowed: the keys `--cfg " \
-               f"job` prints, or +{key}=VALUE to add one"
+        return (
+            f"{key} is not a key of the config{_did_you_mean(key, err.__cause__)}; allowed: the keys `--cfg "
+            f"job` prints, or +{key}=VALUE to add one"
+        )
     unquoted = re.match(r"Error when parsing index: \d+, string: (([\w.+~/]+)=\[(.*=.*)\]) out of", lines[0])
-    if unquoted:   # train=[trainer.max_epochs=150]: Hydra reads an element holding '=' only in quotes
+    if unquoted:  # train=[trainer.max_epochs=150]: Hydra reads an element holding '=' only in quotes
         item, key, elements = unquoted.groups()
         quoted = ",".join(f'"{e.strip()}"' for e in elements.split(","))
         return f"{item}: a list element holding '=' needs quotes; allowed: '{key}=[{quoted}]' (quoted as shown)"
-    return lines[0] + ("; allowed: key=value overrides (Hydra's override grammar)"
-                       if isinstance(err, OverrideParseException) else "")
+    return lines[0] + (
+        "; allowed: key=value overrides (Hydra's override grammar)" if isinstance(err, OverrideParseException) else ""
+    )
 
 
 def _did_you_mean(key: str, cause: BaseException | None) -> str:
-    """", did you mean trainer.max_epochs" for a misspelt ``key``: the part OmegaConf could not find (its error
+    """ ", did you mean trainer.max_epochs" for a misspelt ``key``: the part OmegaConf could not find (its error
     carries the key and the node it was looked up in) replaced by the closest key of that node; nothing when
     none is close."""
     import difflib

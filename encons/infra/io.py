@@ -22,15 +22,28 @@ from encons.infra.errors import WriteError
 
 TMP_SUFFIX = ".tmp"
 #: errors of the disk or the folder rather than of the program: reported as one ``WriteError``
-DISK_ERRORS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO,
-                         errno.EFBIG, errno.ENOTDIR, errno.EEXIST})
+DISK_ERRORS = frozenset(
+    {
+        errno.ENOSPC,
+        errno.EDQUOT,
+        errno.EROFS,
+        errno.EACCES,
+        errno.EPERM,
+        errno.EIO,
+        errno.EFBIG,
+        errno.ENOTDIR,
+        errno.EEXIST,
+    }
+)
 
 
 def write_error(path: str | Path, err: OSError) -> WriteError:
     """The one-line error of a failed write of ``path``, naming its folder."""
     path = Path(path)
-    return WriteError(f"folder={str(path.parent)!r}: cannot write {path.name} ({err.strerror or err}); allowed: a "
-                      f"writable folder with free space (earlier files there are kept, no partial file is left)")
+    return WriteError(
+        f"folder={str(path.parent)!r}: cannot write {path.name} ({err.strerror or err}); allowed: a "
+        f"writable folder with free space (earlier files there are kept, no partial file is left)"
+    )
 
 
 def _disk_error(err: BaseException | None) -> OSError | None:
@@ -55,8 +68,7 @@ def atomic_open(path: str | Path, mode: str = "wb", **kwargs: Any) -> Iterator[I
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         clean_orphans(path.parent)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{_host()}.{os.getpid()}.",
-                                   suffix=TMP_SUFFIX)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{_host()}.{os.getpid()}.", suffix=TMP_SUFFIX)
     except OSError as err:
         if _disk_error(err) is None:
             raise

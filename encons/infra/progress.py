@@ -22,8 +22,7 @@ class Progress:
         """Item ``label`` begins (``items`` items at once, e.g. an ensemble's seeds); ``work`` is its cost in the
         units of ``work`` (one item by default)."""
         elapsed = time.perf_counter() - self.started
-        eta = (f", ETA {duration(elapsed / self.done_work * (self.total - self.done_work))}"
-               if self.done_work else "")
+        eta = f", ETA {duration(elapsed / self.done_work * (self.total - self.done_work))}" if self.done_work else ""
         self.count += items
         self.done_work += work
         self._say(f"{self.what} {self.count} of {self.items} ({label}), elapsed {duration(elapsed)}{eta}")

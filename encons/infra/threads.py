@@ -35,8 +35,11 @@ def cores() -> int:
 
 def choose(threads: int | str | None = None, parallel: int = 1) -> int:
     """The thread count of a run whose ``threads`` key is ``threads``, one of ``parallel`` runs at once."""
-    if threads is not None and threads != "auto" and (isinstance(threads, bool) or not isinstance(threads, int)
-                                                     or threads < 1):
+    if (
+        threads is not None
+        and threads != "auto"
+        and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1)
+    ):
         raise ConfigError(f"threads={threads!r}; allowed: {ALLOWED}")
     if isinstance(threads, int):
         return threads

@@ -37,25 +37,29 @@ class DynamicsModel(nn.Module, Declared):
 
     config_key = "model"
     default_chart: ClassVar[str | None] = None
-    needs_constraints: ClassVar[bool] = False   # uses the system's holonomic constraints Φ(x) = 0
-    supports_controls: ClassVar[bool] = False   # accepts exogenous inputs u
-    discrete: ClassVar[bool] = False            # False: a vector field rolled out by the integrator group
-    history: ClassVar[int] = 1                  # data states a rollout starts from
+    needs_constraints: ClassVar[bool] = False  # uses the system's holonomic constraints Φ(x) = 0
+    supports_controls: ClassVar[bool] = False  # accepts exogenous inputs u
+    discrete: ClassVar[bool] = False  # False: a vector field rolled out by the integrator group
+    history: ClassVar[int] = 1  # data states a rollout starts from
     objectives: ClassVar[tuple[str, ...]] = ("rollout", "derivative", "onestep")  # supported; the first is the default
-    family: ClassVar[str | None] = None         # the structure it learns; a benchmark profile's per_family keys name it
+    family: ClassVar[str | None] = None  # the structure it learns; a benchmark profile's per_family keys name it
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
         if {"encode", "decode"} & vars(cls).keys():  # the names of this map before; the rollout would skip them
-            raise ConfigError(f"model class {cls.__module__}.{cls.__qualname__} defines encode/decode; allowed: "
-                              f"to_internal(s)/from_internal(z), a model's map to its internal state")
+            raise ConfigError(
+                f"model class {cls.__module__}.{cls.__qualname__} defines encode/decode; allowed: "
+                f"to_internal(s)/from_internal(z), a model's map to its internal state"
+            )
 
     def __init__(self, system: System | None = None, chart: str | None = None):
         if not hasattr(system, "check_chart"):  # a subclass's super().__init__() without the system encons passed it
             cls = type(self)
-            raise ConfigError(f"model._target_={cls.__module__}.{cls.__qualname__}: its __init__ calls "
-                              f"super().__init__() with system={system!r}; allowed: super().__init__(system, chart), "
-                              f"passing on the system encons gives the constructor as system=")
+            raise ConfigError(
+                f"model._target_={cls.__module__}.{cls.__qualname__}: its __init__ calls "
+                f"super().__init__() with system={system!r}; allowed: super().__init__(system, chart), "
+                f"passing on the system encons gives the constructor as system="
+            )
         super().__init__()
         self.chart = chart or self.default_chart or system.base_chart
         system.check_chart(self.chart)

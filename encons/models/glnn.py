@@ -36,8 +36,16 @@ class GLNN(LNN):
     identifiable apart (any F can absorb a change of L), so only q̈ is learned, not the energy split.
     """
 
-    def __init__(self, system: System, chart: str | None = None, hidden: Count = 200, depth: Count = 3,
-                 activation: str = "softplus", guard: Guard = 1e-3, angular: bool = False):
+    def __init__(
+        self,
+        system: System,
+        chart: str | None = None,
+        hidden: Count = 200,
+        depth: Count = 3,
+        activation: str = "softplus",
+        guard: Guard = 1e-3,
+        angular: bool = False,
+    ):
         super().__init__(system, chart, hidden, depth, activation, guard, angular)
         self.force_net = mlp(embedded_width(self.n, angular) + self.n, self.n, hidden, depth, activation)
 
@@ -57,8 +65,15 @@ class SecondOrder(DynamicsModel):
     objectives = SECOND_ORDER_OBJECTIVES
     family = "unstructured"
 
-    def __init__(self, system: System, chart: str | None = None, hidden: Count = 200, depth: Count = 3,
-                 activation: str = "softplus", angular: bool = False):
+    def __init__(
+        self,
+        system: System,
+        chart: str | None = None,
+        hidden: Count = 200,
+        depth: Count = 3,
+        activation: str = "softplus",
+        angular: bool = False,
+    ):
         super().__init__(system, chart)
         self.angular = angular
         self.net = mlp(embedded_width(self.n, angular) + self.n, self.n, hidden, depth, activation)

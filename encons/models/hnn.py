@@ -11,8 +11,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from encons.infra.bounds import Count
 from encons.infra.batching import batched_grad
+from encons.infra.bounds import Count
 from encons.models.base import DynamicsModel
 from encons.models.networks import MLPTape, mlp
 from encons.models.parts import AngleEmbedding, CholeskyMass, embed_angles
@@ -50,8 +50,16 @@ class HamiltonianModel(DynamicsModel):
 class HNN(HamiltonianModel):
     """Unstructured H(q, p) network (Greydanus et al. 2019; Zhong et al. eq. (6))."""
 
-    def __init__(self, system: System, chart: str | None = None, hidden: Count = 256, depth: Count = 3,
-                 activation: str = "softplus", mass_eps: float = 1e-3, angular: bool = False):
+    def __init__(
+        self,
+        system: System,
+        chart: str | None = None,
+        hidden: Count = 256,
+        depth: Count = 3,
+        activation: str = "softplus",
+        mass_eps: float = 1e-3,
+        angular: bool = False,
+    ):
         super().__init__(system, chart)
         n, self.angular = self.n, angular
         self.hamiltonian_net = mlp(3 * n if self.angular else 2 * n, 1, hidden, depth, activation, out_bias=False)
@@ -67,7 +75,7 @@ class HNN(HamiltonianModel):
         embedding = AngleEmbedding(q, self.angular)
         tape = MLPTape(self.hamiltonian_net, torch.cat([embedding.x, p], -1))
         g = tape.pullback()
-        return torch.cat([embedding.vjp(g[..., :-self.n]), g[..., -self.n:]], -1)
+        return torch.cat([embedding.vjp(g[..., : -self.n]), g[..., -self.n :]], -1)
 
 
 class HNNStructure(HamiltonianModel, MassPotentialModel):
@@ -85,7 +93,7 @@ class HNNStructure(HamiltonianModel, MassPotentialModel):
         field = super().forward(t, z)
         if u is None:
             return field
-        q = z[..., :self.n]
+        q = z[..., : self.n]
         return field + torch.cat([torch.zeros_like(q), self.input_matrix.force(q, u)], -1)
 
     def hamiltonian(self, z: Tensor) -> Tensor:
@@ -101,7 +109,9 @@ class HNNStructure(HamiltonianModel, MassPotentialModel):
         factor = self.mass.head(tape.out)[0]
         w = torch.linalg.solve_triangular(factor, p.unsqueeze(-1), upper=False)
         g_p = torch.linalg.solve_triangular(factor.transpose(-1, -2), w, upper=True)  # M⁻¹ p
-        g_out = self.mass.head_slopes(tape.out) * self.mass.lower_adjoint(-g_p @ w.transpose(-1, -2))  # ∂H/∂L = −M⁻¹p wᵀ
+        g_out = self.mass.head_slopes(tape.out) * self.mass.lower_adjoint(
+            -g_p @ w.transpose(-1, -2)
+        )  # ∂H/∂L = −M⁻¹p wᵀ
         g_p = g_p.squeeze(-1)
         if self.shared_trunk:
             g_x = tape.pullback(torch.cat([g_out, torch.ones_like(g_out[..., :1])], -1))  # ∂H/∂V = 1

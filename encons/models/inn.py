@@ -52,7 +52,7 @@ class CouplingBlock(nn.Module):
         return self.clamp * torch.tanh(s / self.clamp), t
 
     def forward(self, x: Tensor) -> Tensor:
-        x1, x2 = x[..., : self.split], x[..., self.split:]
+        x1, x2 = x[..., : self.split], x[..., self.split :]
         s, t = self._affine(x1)
         u = torch.cat([x1, x2 * torch.exp(s) + t], -1)
         return (u * torch.exp(self.log_scale) + self.offset) @ self.rotation.T
@@ -60,7 +60,7 @@ class CouplingBlock(nn.Module):
     def inverse(self, y: Tensor) -> Tensor:
         # R⁻¹, not Rᵀ: R drawn in float32 is orthogonal to ~1e-7 only, which a float64 model would inherit.
         u = (y @ torch.linalg.inv(self.rotation).T - self.offset) * torch.exp(-self.log_scale)
-        u1, u2 = u[..., : self.split], u[..., self.split:]
+        u1, u2 = u[..., : self.split], u[..., self.split :]
         s, t = self._affine(u1)
         return torch.cat([u1, (u2 - t) * torch.exp(-s)], -1)
 
@@ -68,8 +68,15 @@ class CouplingBlock(nn.Module):
 class InvertibleNet(nn.Module):
     """g = block_K ∘ … ∘ block_1 and its exact inverse, on the last axis of any batch shape."""
 
-    def __init__(self, dim: int, blocks: int = 8, hidden: int = 100, depth: int = 1,
-                 activation: str = "softplus", clamp: float = 2.0):
+    def __init__(
+        self,
+        dim: int,
+        blocks: int = 8,
+        hidden: int = 100,
+        depth: int = 1,
+        activation: str = "softplus",
+        clamp: float = 2.0,
+    ):
         super().__init__()
         self.blocks = nn.ModuleList(CouplingBlock(dim, hidden, depth, activation, clamp) for _ in range(blocks))
 
@@ -93,9 +100,18 @@ class INNNODE(DynamicsModel):
 
     family = "unstructured"
 
-    def __init__(self, system: System, chart: str | None = None, hidden: Count = 200, depth: Count = 2,
-                 activation: str = "softplus", blocks: Count = 8, block_hidden: Count = 100, block_depth: Count = 1,
-                 clamp: Positive = 2.0):
+    def __init__(
+        self,
+        system: System,
+        chart: str | None = None,
+        hidden: Count = 200,
+        depth: Count = 2,
+        activation: str = "softplus",
+        blocks: Count = 8,
+        block_hidden: Count = 100,
+        block_depth: Count = 1,
+        clamp: Positive = 2.0,
+    ):
         super().__init__(system, chart)
         self.inn = InvertibleNet(2 * self.n, blocks, block_hidden, block_depth, activation, clamp)
         self.net = mlp(2 * self.n, 2 * self.n, hidden, depth, activation)

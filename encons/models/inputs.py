@@ -47,7 +47,8 @@ class InputMatrix(nn.Module):
         return (self(q) @ u.to(q).unsqueeze(-1)).squeeze(-1)
 
 
-def input_matrix(system: System, kind: str, n: int, angles, hidden: int, depth: int,
-                 activation: str) -> InputMatrix | None:
+def input_matrix(
+    system: System, kind: str, n: int, angles, hidden: int, depth: int, activation: str
+) -> InputMatrix | None:
     """The model's ``InputMatrix``, or None for a system without inputs (no unused parameters)."""
     return InputMatrix(system, kind, n, angles, hidden, depth, activation) if system.n_controls else None

@@ -123,14 +123,26 @@ class LNN(DynamicsModel):
     objectives = SECOND_ORDER_OBJECTIVES
     family = "lagrangian"
 
-    def __init__(self, system: System, chart: str | None = None, hidden: Count = 256, depth: Count = 3,
-                 activation: str = "softplus", guard: Guard = 1e-3, angular: bool = False):
+    def __init__(
+        self,
+        system: System,
+        chart: str | None = None,
+        hidden: Count = 256,
+        depth: Count = 3,
+        activation: str = "softplus",
+        guard: Guard = 1e-3,
+        angular: bool = False,
+    ):
         super().__init__(system, chart)
         self.guard, self.angular = guard, angular
         width = embedded_width(self.n, self.angular)
         rms = torch.cat([torch.ones(width), typical_speed(system, self.chart)])
-        self.lagrangian_net = cranmer_init_(mlp(width + self.n, 1, hidden, depth, activation, out_bias=False), convex=True,
-                                            potential_inputs=width, input_rms=rms)
+        self.lagrangian_net = cranmer_init_(
+            mlp(width + self.n, 1, hidden, depth, activation, out_bias=False),
+            convex=True,
+            potential_inputs=width,
+            input_rms=rms,
+        )
 
     def lagrangian(self, s: Tensor) -> Tensor:
         """L(q, q̇) of states (..., 2n)."""
@@ -146,21 +158,23 @@ class LNN(DynamicsModel):
         tape = MLPTape(self.lagrangian_net, torch.cat([embedding.x, qd], -1))
         g = tape.pullback()
         width = g.shape[-1]
-        along = narrow_in(embedding.jvp(qd), tape.first[..., :width - self.n, :])  # W_1 (q̇ through the embedding, 0)
-        units = tape.first[..., width - self.n:, :]  # W_1 (0, e_i): columns of W_1, no product (per member if stacked)
+        along = narrow_in(embedding.jvp(qd), tape.first[..., : width - self.n, :])  # W_1 (q̇ through the embedding, 0)
+        units = tape.first[..., width - self.n :, :]  # W_1 (0, e_i): columns of W_1, no product (per member if stacked)
         units = units if units.dim() == 2 else member_view(units, along.dim() + 1)
-        tangents = tape.hidden_tangents(torch.cat([units.expand(*along.shape[:-1], *units.shape[-2:]),
-                                                   along.unsqueeze(-2)], -2))
+        tangents = tape.hidden_tangents(
+            torch.cat([units.expand(*along.shape[:-1], *units.shape[-2:]), along.unsqueeze(-2)], -2)
+        )
         curvature = tape.curvature(tangents, rows=self.n)
-        return embedding.vjp(g[..., :width - self.n]), curvature[..., :self.n], curvature[..., self.n]
+        return embedding.vjp(g[..., : width - self.n]), curvature[..., : self.n], curvature[..., self.n]
 
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         dl_dq, hessian, mixed = self.lagrangian_derivatives(s)
         return torch.cat([split_state(s)[1], guarded_solve(hessian, dl_dq - mixed, self.guard)], -1)
 
 
-def euler_lagrange_terms(factor_potential: Callable[[Tensor], tuple[Tensor, Tensor]], q: Tensor,
-                         qd: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+def euler_lagrange_terms(
+    factor_potential: Callable[[Tensor], tuple[Tensor, Tensor]], q: Tensor, qd: Tensor
+) -> tuple[Tensor, Tensor, Tensor]:
     """L_M(q), ∇_q(½ q̇ᵀ M q̇ − V) at fixed q̇ and Ṁ q̇ (each (..., n) but L_M (..., n, n)) for any
     ``factor_potential`` q ↦ (L_M, V), by autodiff: one batched grad of q ↦ ½ |L_Mᵀ q̇|² − V with
     L_M and L̇_M along q̇ from one jvp inside it; Ṁ q̇ = L̇_M L_Mᵀ q̇ + L_M L̇_Mᵀ q̇."""
@@ -196,7 +210,7 @@ class LNNStructure(MassPotentialModel):
         tape = MLPTape(self.mass.net, x)
         out_dot = tape.push(embedding.jvp(qd).unsqueeze(-2))[0].squeeze(-2)
         factor, slopes = self.mass.head(tape.out)[0], self.mass.head_slopes(tape.out)
-        factor_dot = self.mass.lower(slopes * out_dot[..., :self.mass.entries])
+        factor_dot = self.mass.lower(slopes * out_dot[..., : self.mass.entries])
         w = (factor.transpose(-1, -2) @ qd.unsqueeze(-1)).squeeze(-1)
         g_out = slopes * self.mass.lower_adjoint(qd.unsqueeze(-1) * w.unsqueeze(-2))  # ∂(½ |L_Mᵀ q̇|²)/∂L_M = q̇ wᵀ
         if self.shared_trunk:

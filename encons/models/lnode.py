@@ -29,9 +29,17 @@ class LNode(DynamicsModel):
     default_chart = "angle"
     supports_controls = True
 
-    def __init__(self, system: System, chart: str | None = None, hidden: Count = 128, depth: Count = 2,
-                 activation: str = "tanh", mass_eps: float = 1e-3, angular: bool = True,
-                 input_matrix: str = "known"):
+    def __init__(
+        self,
+        system: System,
+        chart: str | None = None,
+        hidden: Count = 128,
+        depth: Count = 2,
+        activation: str = "tanh",
+        mass_eps: float = 1e-3,
+        angular: bool = True,
+        input_matrix: str = "known",
+    ):
         super().__init__(system, chart)
         angles = angle_mask(system, angular)
         self.mass = CholeskyMass(self.n, angles, hidden, depth, activation, mass_eps)
@@ -42,9 +50,13 @@ class LNode(DynamicsModel):
         return forced_euler_lagrange(self.mass, self.potential, self.input_matrix, s, u)
 
 
-def forced_euler_lagrange(mass: Callable[[Tensor], Tensor], potential: Callable[[Tensor], Tensor],
-                          input_matrix: Tensor | Callable[[Tensor], Tensor] | None, s: Tensor,
-                          u: Tensor | None = None) -> Tensor:
+def forced_euler_lagrange(
+    mass: Callable[[Tensor], Tensor],
+    potential: Callable[[Tensor], Tensor],
+    input_matrix: Tensor | Callable[[Tensor], Tensor] | None,
+    s: Tensor,
+    u: Tensor | None = None,
+) -> Tensor:
     """ds/dt of eq. (4) for any M(q) (``mass``), V(q) (``potential``) and input matrix (``input_matrix``:
     a constant B (n, m) or a function q ↦ g(q) (..., n, m)): L-NODE's field, and the continuous
     Euler–Lagrange equations of the learned M and V of SyMo and the structured models (``encons.tools.control``)."""

@@ -15,8 +15,9 @@ from encons.infra.errors import ConfigError
 ACTIVATIONS = {"softplus": nn.Softplus, "tanh": nn.Tanh, "relu": nn.ReLU, "silu": nn.SiLU}
 
 
-def mlp(in_dim: int, out_dim: int, hidden: int = 256, depth: int = 3, activation: str = "softplus",
-        out_bias: bool = True) -> nn.Sequential:
+def mlp(
+    in_dim: int, out_dim: int, hidden: int = 256, depth: int = 3, activation: str = "softplus", out_bias: bool = True
+) -> nn.Sequential:
     """``depth`` hidden layers of width ``hidden`` (Zhong et al. §4.1: 3 × 256, Softplus).
 
     ``out_bias=False`` for a network that reaches the loss only through its derivatives (an energy H, L or
@@ -36,8 +37,13 @@ def mlp(in_dim: int, out_dim: int, hidden: int = 256, depth: int = 3, activation
     return nn.Sequential(*layers)
 
 
-def cranmer_init_(net: nn.Sequential, generator: torch.Generator | None = None, convex: bool = False,
-                  potential_inputs: int = 0, input_rms: Tensor | None = None) -> nn.Sequential:
+def cranmer_init_(
+    net: nn.Sequential,
+    generator: torch.Generator | None = None,
+    convex: bool = False,
+    potential_inputs: int = 0,
+    input_rms: Tensor | None = None,
+) -> nn.Sequential:
     """Cranmer et al. 2020 (LNN, appendix "Optimal initialization") in place: zero biases, weights
     N(0, σ²) with σ = s/√w, w the larger side of the layer, s = 2.2 (first layer), 0.58·i (hidden
     layer i), w (output layer). Found for softplus MLPs L(q, q̇) so that the Euler–Lagrange q̈,
@@ -103,7 +109,11 @@ def _silu_slopes(z: Tensor) -> tuple[Tensor, Callable[[], Tensor]]:
 
 # σ'(z) and, on demand, σ''(z) of each activation in ACTIVATIONS (softplus: σ' is the logistic sigmoid)
 SLOPES: dict[type, Callable[[Tensor], tuple[Tensor, Callable[[], Tensor]]]] = {
-    nn.Softplus: _sigmoid_slopes, nn.Tanh: _tanh_slopes, nn.ReLU: _relu_slopes, nn.SiLU: _silu_slopes}
+    nn.Softplus: _sigmoid_slopes,
+    nn.Tanh: _tanh_slopes,
+    nn.ReLU: _relu_slopes,
+    nn.SiLU: _silu_slopes,
+}
 
 
 def _narrow(width: int) -> bool:
@@ -123,8 +133,11 @@ class EnsembleLinear(nn.Module):
     def __init__(self, layers: Sequence[nn.Linear]):
         super().__init__()
         self.weight = nn.Parameter(torch.stack([layer.weight.detach() for layer in layers]).contiguous())
-        self.bias = None if layers[0].bias is None else \
-            nn.Parameter(torch.stack([layer.bias.detach() for layer in layers]).contiguous())
+        self.bias = (
+            None
+            if layers[0].bias is None
+            else nn.Parameter(torch.stack([layer.bias.detach() for layer in layers]).contiguous())
+        )
 
     def forward(self, x: Tensor) -> Tensor:
         k, lead = x.shape[0], x.shape[1:-1]
@@ -227,8 +240,11 @@ class MLPTape:
         """cᵀ ∂out/∂x (..., d) for output cotangents c (..., out), or ∇out for a scalar output (no c:
         the last layer's weight row, no product); keeps ḡ_k = cᵀ ∂out/∂a_k."""
         last = self.linears[-1].weight
-        g = (last if last.dim() == 2 else member_view(last, self.out.dim())) if cotangent is None else \
-            narrow_in(cotangent, last)
+        g = (
+            (last if last.dim() == 2 else member_view(last, self.out.dim()))
+            if cotangent is None
+            else narrow_in(cotangent, last)
+        )
         self.adjoints = []
         for linear, (slope, _) in zip(reversed(self.linears[1:-1]), reversed(self.slopes[1:])):
             self.adjoints.insert(0, g)
@@ -278,7 +294,7 @@ class LayerCurvature(torch.autograd.Function):
 
     @staticmethod
     def forward(rows: int, *args: Tensor) -> Tensor:
-        return _layer_curvature(rows, list(args[:len(args) // 2]), list(args[len(args) // 2:]))
+        return _layer_curvature(rows, list(args[: len(args) // 2]), list(args[len(args) // 2 :]))
 
     @staticmethod
     def setup_context(ctx, inputs, output) -> None:
@@ -289,12 +305,15 @@ class LayerCurvature(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad: Tensor) -> tuple[Tensor | None, ...]:
         saved = ctx.saved_tensors
-        tangents, weights = saved[:len(saved) // 2], saved[len(saved) // 2:]
+        tangents, weights = saved[: len(saved) // 2], saved[len(saved) // 2 :]
         padded = nn.functional.pad(grad, (0, 0, 0, grad.shape[-1] - ctx.rows))
         symmetric = padded + padded.transpose(-1, -2)
         products = [symmetric @ t for t in tangents]
-        return (None, *(p * w.unsqueeze(-2) for p, w in zip(products, weights)),
-                *(0.5 * (p * t).sum(-2) for p, t in zip(products, tangents)))
+        return (
+            None,
+            *(p * w.unsqueeze(-2) for p, w in zip(products, weights)),
+            *(0.5 * (p * t).sum(-2) for p, t in zip(products, tangents)),
+        )
 
     @staticmethod
     def jvp(ctx, rows_dot: None, *dots: Tensor | None) -> Tensor:
@@ -303,10 +322,10 @@ class LayerCurvature(torch.autograd.Function):
         total = 0
         for t, w, t_dot, w_dot in zip(saved[:half], saved[half:], dots[:half], dots[half:]):
             if t_dot is not None:
-                total = total + (t_dot[..., :ctx.rows, :] * w.unsqueeze(-2)) @ t.transpose(-1, -2)
-                total = total + (t[..., :ctx.rows, :] * w.unsqueeze(-2)) @ t_dot.transpose(-1, -2)
+                total = total + (t_dot[..., : ctx.rows, :] * w.unsqueeze(-2)) @ t.transpose(-1, -2)
+                total = total + (t[..., : ctx.rows, :] * w.unsqueeze(-2)) @ t_dot.transpose(-1, -2)
             if w_dot is not None:
-                total = total + (t[..., :ctx.rows, :] * w_dot.unsqueeze(-2)) @ t.transpose(-1, -2)
+                total = total + (t[..., : ctx.rows, :] * w_dot.unsqueeze(-2)) @ t.transpose(-1, -2)
         return total
 
 

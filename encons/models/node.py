@@ -20,8 +20,14 @@ class NODE(DynamicsModel):
     supports_controls = True
     family = "unstructured"
 
-    def __init__(self, system: System, chart: str | None = None, hidden: Count = 256, depth: Count = 3,
-                 activation: str = "softplus"):
+    def __init__(
+        self,
+        system: System,
+        chart: str | None = None,
+        hidden: Count = 256,
+        depth: Count = 3,
+        activation: str = "softplus",
+    ):
         super().__init__(system, chart)
         self.net = mlp(2 * self.n + self.n_controls, 2 * self.n, hidden, depth, activation)
 

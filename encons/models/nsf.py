@@ -12,8 +12,8 @@ import torch
 from torch import Tensor
 from torch.func import grad, jacfwd
 
-from encons.infra.bounds import Count
 from encons.infra.batching import batched
+from encons.infra.bounds import Count
 from encons.models.base import DynamicsModel
 from encons.models.networks import mlp
 from encons.systems.base import System
@@ -24,8 +24,14 @@ class NSF(DynamicsModel):
 
     family = "symplectic_form"
 
-    def __init__(self, system: System, chart: str | None = None, hidden: Count = 200, depth: Count = 2,
-                 activation: str = "softplus"):
+    def __init__(
+        self,
+        system: System,
+        chart: str | None = None,
+        hidden: Count = 200,
+        depth: Count = 2,
+        activation: str = "softplus",
+    ):
         super().__init__(system, chart)
         self.one_form = mlp(2 * self.n, 2 * self.n, hidden, depth, activation, out_bias=False)
         self.hamiltonian_net = mlp(2 * self.n, 1, hidden, depth, activation, out_bias=False)

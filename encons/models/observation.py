@@ -29,7 +29,7 @@ class Observation(nn.Module, Declared):
     config_key = "observation"
     key: ClassVar[str] = "states"
     identity: ClassVar[bool] = True
-    objectives: ClassVar[tuple[str, ...] | None] = None   # None: every objective the model supports
+    objectives: ClassVar[tuple[str, ...] | None] = None  # None: every objective the model supports
 
     def latent_system(self, system: System) -> System:
         """The system the dynamics model is built on."""
@@ -100,20 +100,33 @@ class Autoencoder(Observation):
     identity = False
     objectives = ("rollout",)
 
-    def __init__(self, system: System, latent: Annotated[int, Range(ge=2)] = 2, stack: Count = 2, hidden: Count = 200,
-                 depth: Count = 2, activation: str = "relu", frame_shape: list[int] | None = None,
-                 weight_reconstruction: NonNegative = 1.0, weight_prediction: NonNegative = 1.0,
-                 weight_velocity: NonNegative = 1.0):
+    def __init__(
+        self,
+        system: System,
+        latent: Annotated[int, Range(ge=2)] = 2,
+        stack: Count = 2,
+        hidden: Count = 200,
+        depth: Count = 2,
+        activation: str = "relu",
+        frame_shape: list[int] | None = None,
+        weight_reconstruction: NonNegative = 1.0,
+        weight_prediction: NonNegative = 1.0,
+        weight_velocity: NonNegative = 1.0,
+    ):
         super().__init__()
         shape = tuple(frame_shape) if frame_shape is not None else system.frame_shape
         if shape is None:
-            raise ConfigError(f"observation.frame_shape=null and system '{system.name}' renders no frames; allowed: "
-                              f"a pixel system (pixel_pendulum, pixel_damped_pendulum) or [H, W] of the frames "
-                              f"(obs_* arrays) in your data file")
+            raise ConfigError(
+                f"observation.frame_shape=null and system '{system.name}' renders no frames; allowed: "
+                f"a pixel system (pixel_pendulum, pixel_damped_pendulum) or [H, W] of the frames "
+                f"(obs_* arrays) in your data file"
+            )
         if len(shape) != 2 or min(shape) < 1:
             raise ConfigError(f"observation.frame_shape={list(shape)}; allowed: [H, W], two positive integers")
         if activation not in ACTIVATIONS:
-            raise ConfigError(f"observation.activation={activation!r} is unknown; allowed: {', '.join(sorted(ACTIVATIONS))}")
+            raise ConfigError(
+                f"observation.activation={activation!r} is unknown; allowed: {', '.join(sorted(ACTIVATIONS))}"
+            )
         self.system = LatentSystem(latent, system)
         self.frame_shape, self.stack = shape, stack
         self.weights = (float(weight_reconstruction), float(weight_prediction), float(weight_velocity))
@@ -152,11 +165,17 @@ class Autoencoder(Observation):
     def check_data(self, arrays: dict[str, Tensor], source: str, window: int) -> None:
         frames = arrays.get(self.key)
         if frames is None:
-            raise DataError(f"observation=autoencoder needs frames and {source} holds none; allowed: a pixel system "
-                            f"(pixel_pendulum, pixel_damped_pendulum) or a data file with obs_train, obs_test (N, T, H, W)")
+            raise DataError(
+                f"observation=autoencoder needs frames and {source} holds none; allowed: a pixel system "
+                f"(pixel_pendulum, pixel_damped_pendulum) or a data file with obs_train, obs_test (N, T, H, W)"
+            )
         if tuple(frames.shape[-2:]) != self.frame_shape:
-            raise DataError(f"{source}: frames are {tuple(frames.shape[-2:])} pixels; allowed: observation.frame_shape="
-                            f"{list(self.frame_shape)} (set it to the file's H, W)")
+            raise DataError(
+                f"{source}: frames are {tuple(frames.shape[-2:])} pixels; allowed: observation.frame_shape="
+                f"{list(self.frame_shape)} (set it to the file's H, W)"
+            )
         if window < self.stack:
-            raise ConfigError(f"data.chunk_len={window} is shorter than observation.stack={self.stack}; allowed: "
-                              f"data.chunk_len >= {self.stack} (a window must hold one encoder input)")
+            raise ConfigError(
+                f"data.chunk_len={window} is shorter than observation.stack={self.stack}; allowed: "
+                f"data.chunk_len >= {self.stack} (a window must hold one encoder input)"
+            )

@@ -3,7 +3,6 @@ matrix M(q), the potential V(q) and the Cartesian point masses (Finzi et al.).""
 
 from __future__ import annotations
 
-
 import torch
 from torch import Tensor, nn
 
@@ -43,8 +42,11 @@ class AngleEmbedding:
             self.order = torch.tensor(self.linear + self.angles, device=q.device).argsort()  # [lin, ang] -> q order
         angles = q[..., self.angles]
         self.cos, self.sin = torch.cos(angles), torch.sin(angles)
-        self.x = torch.cat([q[..., self.linear], self.cos, self.sin], -1) if self.linear else \
-            torch.cat([self.cos, self.sin], -1)
+        self.x = (
+            torch.cat([q[..., self.linear], self.cos, self.sin], -1)
+            if self.linear
+            else torch.cat([self.cos, self.sin], -1)
+        )
 
     def jvp(self, tangent: Tensor) -> Tensor:
         """∂embed_angles(q)/∂q · t for tangents t (..., n)."""
@@ -78,8 +80,7 @@ class CholeskyMass(nn.Module):
     with another head, e.g. V(q) in the structured models (one forward for both).
     """
 
-    def __init__(self, n: int, angular: Angular, hidden: int, depth: int, activation: str, eps: float,
-                 extra: int = 0):
+    def __init__(self, n: int, angular: Angular, hidden: int, depth: int, activation: str, eps: float, extra: int = 0):
         super().__init__()
         self.n, self.angular, self.eps = n, angular, eps
         rows, cols = torch.tril_indices(n, n)
@@ -94,13 +95,13 @@ class CholeskyMass(nn.Module):
 
     def head(self, out: Tensor) -> tuple[Tensor, Tensor]:
         """L and the ``extra`` outputs from the network's outputs ``out`` (..., entries + extra)."""
-        entries = out[..., :self.entries]
+        entries = out[..., : self.entries]
         entries = torch.where(self.diag, nn.functional.softplus(entries) + self.eps, entries)
-        return self.lower(entries), out[..., self.entries:]
+        return self.lower(entries), out[..., self.entries :]
 
     def head_slopes(self, out: Tensor) -> Tensor:
         """∂(entry of L)/∂(its output) (..., entries): softplus' σ' (sigmoid) on the diagonal, 1 below."""
-        entries = out[..., :self.entries]
+        entries = out[..., : self.entries]
         return torch.where(self.diag, torch.sigmoid(entries), torch.ones_like(entries))
 
     def lower(self, entries: Tensor) -> Tensor:

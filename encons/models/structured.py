@@ -25,9 +25,18 @@ class MassPotentialModel(DynamicsModel):
     default_chart = "angle"
     family = "mass_matrix"
 
-    def __init__(self, system: System, chart: str | None = None, hidden: Count = 256, depth: Count = 3,
-                 activation: str = "softplus", mass_eps: float = 1e-3, angular: bool = False,
-                 shared_trunk: bool = True, input_matrix: str = "known"):
+    def __init__(
+        self,
+        system: System,
+        chart: str | None = None,
+        hidden: Count = 256,
+        depth: Count = 3,
+        activation: str = "softplus",
+        mass_eps: float = 1e-3,
+        angular: bool = False,
+        shared_trunk: bool = True,
+        input_matrix: str = "known",
+    ):
         super().__init__(system, chart)
         self.angular, self.shared_trunk = angle_mask(system, angular), shared_trunk
         self.mass = CholeskyMass(self.n, self.angular, hidden, depth, activation, mass_eps, extra=int(shared_trunk))

@@ -72,14 +72,28 @@ class SyMo(DiscreteModel):
     supports_controls = True
     objectives = ("residual", "rollout")
 
-    def __init__(self, system: System, chart: str | None = None, hidden: Count = 128, depth: Count = 2,
-                 activation: str = "tanh", mass_eps: float = 1e-3, angular: bool = True,
-                 train_tol: Positive = 1e-5, train_iters: Count = 10, eval_tol: Positive = 1e-4,
-                 eval_iters: Count = 10, backtracks: Annotated[int, Range(ge=0)] = 8, input_matrix: str = "known"):
+    def __init__(
+        self,
+        system: System,
+        chart: str | None = None,
+        hidden: Count = 128,
+        depth: Count = 2,
+        activation: str = "tanh",
+        mass_eps: float = 1e-3,
+        angular: bool = True,
+        train_tol: Positive = 1e-5,
+        train_iters: Count = 10,
+        eval_tol: Positive = 1e-4,
+        eval_iters: Count = 10,
+        backtracks: Annotated[int, Range(ge=0)] = 8,
+        input_matrix: str = "known",
+    ):
         super().__init__(system, chart)
         if input_matrix != "known":
-            raise ConfigError(f"model.input_matrix={input_matrix} for {type(self).__name__}; allowed: known (the "
-                              f"discrete forcing of eq. (14) here takes the system's constant B)")
+            raise ConfigError(
+                f"model.input_matrix={input_matrix} for {type(self).__name__}; allowed: known (the "
+                f"discrete forcing of eq. (14) here takes the system's constant B)"
+            )
         angles = angle_mask(system, angular)
         self.mass = CholeskyMass(self.n, angles, hidden, depth, activation, mass_eps)
         self.potential = Potential(self.n, angles, hidden, depth, activation)
@@ -135,8 +149,9 @@ class SyMo(DiscreteModel):
         value, pullback = self.d1_and_pullback(a, b, h)
         return value, self.jacobian(pullback, b)
 
-    def newton(self, c: Tensor, q: Tensor, guess: Tensor, h: Tensor, tol: float,
-               iters: int) -> tuple[Tensor, Tensor, int, Tensor]:
+    def newton(
+        self, c: Tensor, q: Tensor, guess: Tensor, h: Tensor, tol: float, iters: int
+    ) -> tuple[Tensor, Tensor, int, Tensor]:
         """Root of g(x) = c + D₁L_d(q, x) near ``guess``, by damped Newton without a graph.
 
         Each sample (leading index) converges on its own: it stops moving once its RMS residual over

@@ -31,8 +31,8 @@ from torch import Tensor
 
 from encons.infra import bounds
 from encons.infra.bounds import Count, Positive
-from encons.numerics.integrators import FIXED_STEP, Integrator, rollout
 from encons.models.base import DynamicsModel
+from encons.numerics.integrators import FIXED_STEP, Integrator, rollout
 from encons.systems.base import System
 
 log = logging.getLogger(__name__)
@@ -76,10 +76,14 @@ class Evaluation:
 
     def describe(self) -> str:
         """One line: the method, its step or tolerances, the precision and the paper it follows."""
-        step = (f"{self.substeps} steps per data dt" if self.method in FIXED_STEP
-                else f"rtol {self.rtol:g}, atol {self.atol:g}")
-        return (f"evaluation: {self.method}, {step}, {'float64' if self.float64 else 'model dtype'}"
-                + (f" ({self.source})" if self.source else ""))
+        step = (
+            f"{self.substeps} steps per data dt"
+            if self.method in FIXED_STEP
+            else f"rtol {self.rtol:g}, atol {self.atol:g}"
+        )
+        return f"evaluation: {self.method}, {step}, {'float64' if self.float64 else 'model dtype'}" + (
+            f" ({self.source})" if self.source else ""
+        )
 
     def precise(self, model: DynamicsModel) -> DynamicsModel:
         """``model`` as this evaluation computes with it: with ``float64``, a float64 copy where any parameter
@@ -98,9 +102,16 @@ class Evaluation:
         except AssertionError as err:  # torchdiffeq's adaptive step control gave up on the model's field
             if model.discrete or not str(err).startswith(("max_num_steps exceeded", "underflow in dt")):
                 raise
-            log.warning("evaluation: %s not integrable by %s at rtol %g within %d steps per dt (%s): rolled out "
-                        "by rk4 with %d steps per dt instead", type(model).__name__, self.method, self.rtol,
-                        self.max_steps, err, FALLBACK.substeps)
+            log.warning(
+                "evaluation: %s not integrable by %s at rtol %g within %d steps per dt (%s): rolled out "
+                "by rk4 with %d steps per dt instead",
+                type(model).__name__,
+                self.method,
+                self.rtol,
+                self.max_steps,
+                err,
+                FALLBACK.substeps,
+            )
             return rollout(model, start, t, FALLBACK, u)
         finally:
             if model is not original:  # the copy's solver counters (e.g. SyMo's Newton failures) are the model's

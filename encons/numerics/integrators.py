@@ -45,12 +45,17 @@ class Integrator:
     def options(self, t: Tensor) -> dict:
         if self.method in FIXED_STEP:
             return {"method": self.method, "options": {"step_size": float(t[1] - t[0]) / self.substeps}}
-        return {"method": self.method, "rtol": self.rtol, "atol": self.atol,
-                "options": {"max_num_steps": self.max_steps}}  # torchdiffeq counts per output interval
+        return {
+            "method": self.method,
+            "rtol": self.rtol,
+            "atol": self.atol,
+            "options": {"max_num_steps": self.max_steps},
+        }  # torchdiffeq counts per output interval
 
 
-def odeint_held(field: Callable[[Tensor, Tensor, Tensor], Tensor], z0: Tensor, t: Tensor, u: Tensor,
-                **options) -> Tensor:
+def odeint_held(
+    field: Callable[[Tensor, Tensor, Tensor], Tensor], z0: Tensor, t: Tensor, u: Tensor, **options
+) -> Tensor:
     """``odeint`` of ``field(t, z, u_k)`` with inputs ``u`` (..., T, m) held constant on each
     [t_k, t_{k+1}]: one solve per data step, so no solver stage sees the next step's input (a
     field cannot tell the end of one step from the start of the next by ``t`` alone).
@@ -58,12 +63,13 @@ def odeint_held(field: Callable[[Tensor, Tensor, Tensor], Tensor], z0: Tensor, t
     states = [z0]
     for k in range(len(t) - 1):
         uk = u[..., k, :]
-        states.append(odeint(lambda time, z: field(time, z, uk), states[-1], t[k:k + 2], **options)[-1])
+        states.append(odeint(lambda time, z: field(time, z, uk), states[-1], t[k : k + 2], **options)[-1])
     return torch.stack(states)
 
 
-def rollout(model: DynamicsModel, start: Tensor, t: Tensor, integrator: Integrator | None = None,
-            u: Tensor | None = None) -> Tensor:
+def rollout(
+    model: DynamicsModel, start: Tensor, t: Tensor, integrator: Integrator | None = None, u: Tensor | None = None
+) -> Tensor:
     """Roll ``model`` out over times ``t`` (T,) under inputs ``u`` (..., T, m) or None.
 
     ``start`` is the data-chart state (..., 2n) for a continuous model, the first ``history``
@@ -73,15 +79,19 @@ def rollout(model: DynamicsModel, start: Tensor, t: Tensor, integrator: Integrat
     """
     weight = next(model.parameters(), None)
     if weight is not None and weight.is_floating_point() and weight.dtype != start.dtype:
-        raise ConfigError(f"start dtype={str(start.dtype).removeprefix('torch.')} differs from the model's "
-                          f"{str(weight.dtype).removeprefix('torch.')}; allowed: start.to({weight.dtype}) or a model "
-                          f"of the start's dtype (model.to(start.dtype))")
+        raise ConfigError(
+            f"start dtype={str(start.dtype).removeprefix('torch.')} differs from the model's "
+            f"{str(weight.dtype).removeprefix('torch.')}; allowed: start.to({weight.dtype}) or a model "
+            f"of the start's dtype (model.to(start.dtype))"
+        )
     t = t.to(start)
     if model.discrete:
         return model.rollout(start, t, u)
     if integrator is None:
-        raise ConfigError(f"{type(model).__name__} is a continuous model: its rollout needs an integrator; "
-                          f"allowed: an Integrator (the integrator group)")
+        raise ConfigError(
+            f"{type(model).__name__} is a continuous model: its rollout needs an integrator; "
+            f"allowed: an Integrator (the integrator group)"
+        )
     options = integrator.options(t)
     with model.rollout_scope():
         if u is None:  # models without inputs may define forward(t, z) only

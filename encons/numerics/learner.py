@@ -14,10 +14,10 @@ if TYPE_CHECKING:
     import torch
     from torch import Tensor
 
-    from encons.numerics.evaluation import Evaluation
-    from encons.numerics.integrators import Integrator
     from encons.models.base import DynamicsModel
     from encons.models.observation import Observation
+    from encons.numerics.evaluation import Evaluation
+    from encons.numerics.integrators import Integrator
     from encons.systems.base import System
 
 
@@ -46,8 +46,9 @@ class Learner(Protocol):
 
     def observe(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]: ...
 
-    def predict(self, batch: dict[str, Tensor], states: Tensor | None = None,
-                evaluation: Evaluation | None = None) -> Tensor: ...
+    def predict(
+        self, batch: dict[str, Tensor], states: Tensor | None = None, evaluation: Evaluation | None = None
+    ) -> Tensor: ...
 
     def rollout_loss(self, x: Tensor, states: Tensor, pred: Tensor) -> Tensor: ...
 

@@ -58,15 +58,16 @@ def geometric_mean_relative_error(pred: Tensor, true: Tensor, angles: Tensor | N
     return err[..., 1:].clamp_min(1e-30).log().mean(-1).exp()
 
 
-def valid_prediction_time(pred: Tensor, true: Tensor, dt: float, threshold: float,
-                          angles: Tensor | None = None) -> Tensor:
+def valid_prediction_time(
+    pred: Tensor, true: Tensor, dt: float, threshold: float, angles: Tensor | None = None
+) -> Tensor:
     """Valid prediction time per trajectory (N,): the last time t_k = k·dt such that the relative error
     ‖ŝ_τ − s_τ‖₂ / ‖s_τ‖₂ stays ≤ ``threshold`` at every step τ ≤ k (Jin et al. 2020's VPT; Botev et al.
     2021 use the same definition on a normalised MSE). A rollout that never exceeds it scores its horizon
     t_{T−1}: the value is censored there, so compare VPTs only over one horizon. A non-finite error
     counts as exceeding.
     """
-    within = (relative_error(pred, true, angles) <= threshold).long()        # NaN compares False
+    within = (relative_error(pred, true, angles) <= threshold).long()  # NaN compares False
     return (within.cumprod(-1).sum(-1) - 1).clamp_min(0).double() * dt
 
 
@@ -103,9 +104,16 @@ def diverged(pred: Tensor, pred_energy: Tensor | None = None, true_energy: Tenso
     return out
 
 
-def summarise(pred: Tensor, true: Tensor, pred_energy: Tensor | None, true_energy: Tensor | None,
-              horizon: int = 4, dt: float = 1.0, vpt_threshold: float = 0.1,
-              angles: Tensor | None = None) -> dict[str, float]:
+def summarise(
+    pred: Tensor,
+    true: Tensor,
+    pred_energy: Tensor | None,
+    true_energy: Tensor | None,
+    horizon: int = 4,
+    dt: float = 1.0,
+    vpt_threshold: float = 0.1,
+    angles: Tensor | None = None,
+) -> dict[str, float]:
     """Scalar test metrics of rollouts ``pred`` against ``true`` in one common chart, sampled every ``dt``,
     ``angles`` compared on the circle.
 
@@ -153,12 +161,14 @@ def mass_matrix_mse(pred_mass: Tensor, true_mass: Tensor) -> Tensor:
 
 
 # Xiao, Zhang & Tang §3: the acceleration error of a field at given states, no rollout.
-def acceleration_mse(pred_rates: Tensor, true_rates: Tensor, reduce: Callable[[Tensor], Tensor] = Tensor.mean) -> Tensor:
+def acceleration_mse(
+    pred_rates: Tensor, true_rates: Tensor, reduce: Callable[[Tensor], Tensor] = Tensor.mean
+) -> Tensor:
     """Mean over points of ‖q̈̂ − q̈‖², the squared error summed over the n coordinates, from state derivatives
     (..., 2n) whose second half is q̈ (a (q, q̇) chart): Xiao et al.'s loss (1/|S|) Σ ‖q̈̃ − q̈‖² (§3); a scalar
     (``reduce``: the mean over points, e.g. per ensemble member)."""
     error = pred_rates - true_rates
-    return reduce((error[..., error.shape[-1] // 2:] ** 2).sum(-1))
+    return reduce((error[..., error.shape[-1] // 2 :] ** 2).sum(-1))
 
 
 # Long-rollout errors against time (Xiao, Zhang & Tang, Figs. 3 and 5) and two trivial baselines.
@@ -166,8 +176,10 @@ def unit_families(units: tuple[str, ...]) -> dict[str, Tensor]:
     """The state entries (q then q̇, bool (2n,)) of each unit family, by name (``rad``, ``rad_per_s``, ``m``,
     ...), from the units of the coordinates q (a rate's unit is that per second)."""
     per_entry = [*units, *(f"{u}/s" for u in units)]
-    return {u.replace("/", "_per_").replace(" ", "_"): torch.tensor([e == u for e in per_entry])
-            for u in dict.fromkeys(per_entry)}
+    return {
+        u.replace("/", "_per_").replace(" ", "_"): torch.tensor([e == u for e in per_entry])
+        for u in dict.fromkeys(per_entry)
+    }
 
 
 def coordinate_spread(true: Tensor, angles: Tensor | None = None) -> Tensor:
@@ -182,9 +194,14 @@ def coordinate_spread(true: Tensor, angles: Tensor | None = None) -> Tensor:
     return torch.where(spread > 0, spread, torch.ones_like(spread))
 
 
-def mse_curves(pred: Tensor, true: Tensor, pred_energy: Tensor | None = None,
-               true_energy: Tensor | None = None, angles: Tensor | None = None,
-               families: dict[str, Tensor] | None = None) -> dict[str, Tensor]:
+def mse_curves(
+    pred: Tensor,
+    true: Tensor,
+    pred_energy: Tensor | None = None,
+    true_energy: Tensor | None = None,
+    angles: Tensor | None = None,
+    families: dict[str, Tensor] | None = None,
+) -> dict[str, Tensor]:
     """State MSE against time (T,) each: ``state_mse``, the mean over trajectories and coordinates of the
     error of each coordinate divided by its spread over the test set (``coordinate_spread`` of ``true``;
     dimensionless, so rad² and (rad/s)² are never added); ``state_mse_raw``, the plain mean over every
@@ -235,15 +252,21 @@ def baseline_rollouts(true: Tensor, train: Tensor, dt: float) -> dict[str, Tenso
     by name: ``baseline_constant`` (ŝ_t = s_0) and ``baseline_linear_ode`` (the linear ODE least-squares
     fitted to the training states ``train``, ``fit_linear_ode``)."""
     t = torch.arange(true.shape[-2], dtype=true.dtype, device=true.device) * dt
-    return {"baseline_constant": constant_rollout(true[..., 0, :], len(t)),
-            "baseline_linear_ode": linear_ode_rollout(fit_linear_ode(train, dt), true[..., 0, :], t)}
+    return {
+        "baseline_constant": constant_rollout(true[..., 0, :], len(t)),
+        "baseline_linear_ode": linear_ode_rollout(fit_linear_ode(train, dt), true[..., 0, :], t),
+    }
 
 
-def long_rollout_errors(true: Tensor, pred: Tensor, baselines: dict[str, Tensor],
-                        to_common: Callable[[Tensor], Tensor] = lambda s: s,
-                        energy: Callable[[Tensor], Tensor] | None = None,
-                        angles: Tensor | None = None, families: dict[str, Tensor] | None = None
-                        ) -> tuple[dict[str, float], dict[str, dict[str, Tensor]]]:
+def long_rollout_errors(
+    true: Tensor,
+    pred: Tensor,
+    baselines: dict[str, Tensor],
+    to_common: Callable[[Tensor], Tensor] = lambda s: s,
+    energy: Callable[[Tensor], Tensor] | None = None,
+    angles: Tensor | None = None,
+    families: dict[str, Tensor] | None = None,
+) -> tuple[dict[str, float], dict[str, dict[str, Tensor]]]:
     """State and energy MSE against time (Xiao et al. Figs. 3 and 5) of the model's rollouts ``pred`` and
     of the ``baselines`` (``baseline_rollouts``) on the same test windows ``true`` (N, T, 2n).
 
@@ -262,7 +285,7 @@ def long_rollout_errors(true: Tensor, pred: Tensor, baselines: dict[str, Tensor]
         curves[name] = mse_curves(p_c, true_c, None if energy is None else energy(p), true_e, angles, families)
         for key, curve in curves[name].items():
             if name != "model" and key.startswith("state_mse_"):
-                continue                    # per-family scalars of the model only; every curve is kept
+                continue  # per-family scalars of the model only; every curve is kept
             scalars.update({f"{prefix}{key}": curve.mean().item(), f"{prefix}{key}_final": curve[-1].item()})
     return scalars, curves
 

@@ -24,8 +24,7 @@ from encons.models.base import DynamicsModel
 JACOBIANS = {"forward": jacfwd, "reverse": jacrev}
 
 
-def field_jacobian(field: Callable[..., Tensor], z: Tensor, mode: str = "reverse",
-                   u: Tensor | None = None) -> Tensor:
+def field_jacobian(field: Callable[..., Tensor], z: Tensor, mode: str = "reverse", u: Tensor | None = None) -> Tensor:
     """∂f/∂z of a per-sample field ``f(z_i)`` (``f(z_i, u_i)`` with inputs ``u`` (B, m)) at points
     ``z`` (B, d); shape (B, d, d).
 
@@ -73,8 +72,9 @@ class JacobianPenalty(Declared):
 
     def __call__(self, model: DynamicsModel, s: Tensor, u: Tensor | None = None) -> Tensor:
         z, field = model.constrained_field(s, u)
-        jac = field_jacobian(field, z.reshape(-1, z.shape[-1]), self.jacobian,
-                             None if u is None else u.reshape(-1, u.shape[-1]))
+        jac = field_jacobian(
+            field, z.reshape(-1, z.shape[-1]), self.jacobian, None if u is None else u.reshape(-1, u.shape[-1])
+        )
         return self.weight * self.violation(jac).mean()
 
 
@@ -100,8 +100,10 @@ class Dissipative(JacobianPenalty):
 
     def violation(self, jac: Tensor) -> Tensor:
         if self.bound.numel() not in (1, jac.shape[-1]):
-            raise ConfigError(f"regulariser.bound has {self.bound.numel()} entries; give one number or "
-                              f"{jac.shape[-1]} (one per eigenvalue of the {jac.shape[-1]}-dim field)")
+            raise ConfigError(
+                f"regulariser.bound has {self.bound.numel()} entries; give one number or "
+                f"{jac.shape[-1]} (one per eigenvalue of the {jac.shape[-1]}-dim field)"
+            )
         return dissipative_violation(jac, self.bound.to(jac).reshape(-1))
 
 

@@ -78,7 +78,7 @@ class System(Declared, abc.ABC):
     common_chart: str
     layout: CartesianLayout | None = None
     known_physics: bool = True
-    n_controls: int = 0            # width m of the exogenous inputs u the dynamics take
+    n_controls: int = 0  # width m of the exogenous inputs u the dynamics take
     angles: tuple[bool, ...] | None = None  # which generalised coordinates are angles (None: not declared)
     frame_shape: tuple[int, int] | None = None  # (H, W) of the frames it is also observed by (``render``)
 
@@ -91,15 +91,15 @@ class System(Declared, abc.ABC):
         without inputs; a system with 0 < m ≠ n inputs overrides it."""
         n = self.coord_dim(self.base_chart)
         if self.n_controls not in (0, n):
-            raise ConfigError(f"system '{self.name}' has {self.n_controls} inputs for {n} coordinates and no "
-                              f"input_matrix(); allowed: a system that declares how u enters its equations")
+            raise ConfigError(
+                f"system '{self.name}' has {self.n_controls} inputs for {n} coordinates and no "
+                f"input_matrix(); allowed: a system that declares how u enters its equations"
+            )
         return torch.eye(n, dtype=torch.float64)[:, : self.n_controls]
 
     def check_chart(self, chart: str) -> None:
         if chart not in self.charts:
-            raise ChartError(
-                f"system '{self.name}' has no '{chart}' chart; allowed: {', '.join(self.charts)}"
-            )
+            raise ChartError(f"system '{self.name}' has no '{chart}' chart; allowed: {', '.join(self.charts)}")
 
     @abc.abstractmethod
     def coord_dim(self, chart: str) -> int:

@@ -19,7 +19,6 @@ import torch
 from torch import Tensor
 from torch.func import grad
 
-
 Constraint = Callable[[Tensor], Tensor]
 
 
@@ -51,8 +50,14 @@ class DistanceConstraints:
     computed as one matmul with Eᵀ ⊗ I over the flattened coordinates.
     """
 
-    def __init__(self, n_points: int, dim: int, edges: Sequence[tuple[int, int]], lengths: Sequence[float],
-                 linear: Tensor | None = None):
+    def __init__(
+        self,
+        n_points: int,
+        dim: int,
+        edges: Sequence[tuple[int, int]],
+        lengths: Sequence[float],
+        linear: Tensor | None = None,
+    ):
         self.dim = dim
         incidence = torch.zeros(len(edges), n_points, dtype=torch.float64)
         for k, (i, j) in enumerate(edges):  # once, at build
@@ -69,8 +74,12 @@ class DistanceConstraints:
         """Eᵀ ⊗ I (D, K_d·dim), l², A and 2E (K_d, n_points, 1) in ``like``'s dtype and device, converted once."""
         key = (like.dtype, like.device)
         if key not in self._cache:
-            self._cache[key] = (self.coords.to(like), self.lengths_sq.to(like), self.linear.to(like),
-                                2.0 * self.incidence.to(like)[:, :, None])
+            self._cache[key] = (
+                self.coords.to(like),
+                self.lengths_sq.to(like),
+                self.linear.to(like),
+                2.0 * self.incidence.to(like)[:, :, None],
+            )
         return self._cache[key]
 
     def _differences(self, y: Tensor) -> Tensor:
@@ -134,8 +143,9 @@ def full_mass_matrix(mp: Tensor, dim: int) -> Tensor:
     return (mp[:, None, :, None] * eye[None, :, None, :]).reshape(mp.shape[0] * dim, mp.shape[1] * dim)
 
 
-def constrained_acceleration(x: Tensor, v: Tensor, minv: Tensor, grad_v: Tensor, phi: Constraint,
-                             eliminated: bool = False) -> Tensor:
+def constrained_acceleration(
+    x: Tensor, v: Tensor, minv: Tensor, grad_v: Tensor, phi: Constraint, eliminated: bool = False
+) -> Tensor:
     """ẍ of Zhong et al. eq. (15): Lagrangian dynamics with explicit constraints.
 
     ``minv`` is the constant inverse mass matrix (D, D) (``full_mass_matrix``); ``grad_v`` is ∇V(x).
@@ -154,8 +164,9 @@ def constrained_acceleration(x: Tensor, v: Tensor, minv: Tensor, grad_v: Tensor,
     return (lam.unsqueeze(-1) * scaled[..., :k, :]).sum(-2) - scaled[..., k, :]  # a K-term sum: no tiny bmm
 
 
-def constrained_hamiltonian_field(grad_h: Tensor, jac: Tensor, d_rate: Tensor, minv: Tensor,
-                                  project: Tensor | None = None) -> Tensor:
+def constrained_hamiltonian_field(
+    grad_h: Tensor, jac: Tensor, d_rate: Tensor, minv: Tensor, project: Tensor | None = None
+) -> Tensor:
     """ż of Zhong et al. eq. (20) on z = (x, p): J∇H minus its part that would leave Ψ(z) = 0.
 
     ``grad_h`` is ∇H (..., 2D). Ψ = (Φ(x), DΦ(x) M⁻¹ p) (§2.4) enters through the blocks of
@@ -175,9 +186,11 @@ def constrained_hamiltonian_field(grad_h: Tensor, jac: Tensor, d_rate: Tensor, m
     rows = torch.cat([jac, d_rate], -2)  # [A; C]
     scaled = torch.cat([jac, grad_x.unsqueeze(-2)], -2) @ minv  # rows of A M⁻¹, then (M⁻¹ ∇_x H)ᵀ
     prod = rows @ torch.cat([grad_p.unsqueeze(-2), scaled], -2).transpose(-1, -2)  # [A; C] [∇_pH, M⁻¹Aᵀ, M⁻¹∇_xH]
-    cross = prod[..., k:, 1:k + 1]  # C M⁻¹ Aᵀ
-    rhs = torch.cat([prod[..., :k, :1], prod[..., k:, :1] - prod[..., :k, k + 1:], cross - cross.transpose(-1, -2)], -1)
-    solved = torch.linalg.solve_ex(prod[..., :k, 1:k + 1], rhs)[0]
+    cross = prod[..., k:, 1 : k + 1]  # C M⁻¹ Aᵀ
+    rhs = torch.cat(
+        [prod[..., :k, :1], prod[..., k:, :1] - prod[..., :k, k + 1 :], cross - cross.transpose(-1, -2)], -1
+    )
+    solved = torch.linalg.solve_ex(prod[..., :k, 1 : k + 1], rhs)[0]
     lam_2 = solved[..., :1]
     lam_1 = solved[..., 2:] @ lam_2 - solved[..., 1:2]
     # Aᵀλ₁ + Cᵀλ₂ and Aᵀλ₂ as K-term broadcast sums, not as one batched matmul of tiny matrices

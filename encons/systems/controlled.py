@@ -23,7 +23,6 @@ from encons.infra.bounds import Count, NonNegative, Positive
 from encons.infra.errors import ConfigError
 from encons.systems.mechanical import Mechanical
 
-
 INPUTS = ("constant", "steps", "multisine")
 
 
@@ -44,15 +43,23 @@ class ControlledMechanical(Mechanical):
     n_controls = 1
     angles: tuple[bool, ...]
 
-    def __init__(self, init_range: Sequence[NonNegative], u_max: NonNegative,
-                 init_center: Sequence[float] | None = None, inputs: str = "constant", tones: Count = 5):
+    def __init__(
+        self,
+        init_range: Sequence[NonNegative],
+        u_max: NonNegative,
+        init_center: Sequence[float] | None = None,
+        inputs: str = "constant",
+        tones: Count = 5,
+    ):
         width = 2 * len(self.angles)
         if len(init_range) != width:
-            raise ConfigError(f"system.init_range={list(init_range)}; allowed: {width} "
-                              f"non-negative half-widths (q then q̇)")
+            raise ConfigError(
+                f"system.init_range={list(init_range)}; allowed: {width} non-negative half-widths (q then q̇)"
+            )
         if init_center is not None and len(init_center) != width:
-            raise ConfigError(f"system.init_center={list(init_center)}; allowed: null (the origin) or {width} "
-                              f"numbers (q then q̇)")
+            raise ConfigError(
+                f"system.init_center={list(init_center)}; allowed: null (the origin) or {width} numbers (q then q̇)"
+            )
         if inputs not in INPUTS:
             raise ConfigError(f"system.inputs={inputs}; allowed: {', '.join(INPUTS)}")
         self.init_range = torch.tensor([float(r) for r in init_range], dtype=torch.float64)
@@ -106,9 +113,17 @@ class ControlledPendulum(ControlledMechanical):
 
     angles = (True,)
 
-    def __init__(self, mass: Positive = 1.0, length: Positive = 1.0, g: Positive = 9.81,
-                 init_range: Sequence[NonNegative] = (math.pi, 2 * math.pi), u_max: NonNegative = 2.0,
-                 init_center: Sequence[float] | None = None, inputs: str = "constant", tones: Count = 5):
+    def __init__(
+        self,
+        mass: Positive = 1.0,
+        length: Positive = 1.0,
+        g: Positive = 9.81,
+        init_range: Sequence[NonNegative] = (math.pi, 2 * math.pi),
+        u_max: NonNegative = 2.0,
+        init_center: Sequence[float] | None = None,
+        inputs: str = "constant",
+        tones: Count = 5,
+    ):
         super().__init__(init_range, u_max, init_center, inputs, tones)
         self.name = "pendulum_control"
         self.m, self.l, self.g = float(mass), float(length), float(g)
@@ -136,10 +151,18 @@ class CartPole(ControlledMechanical):
 
     angles = (False, True)
 
-    def __init__(self, cart_mass: Positive = 1.0, pole_mass: Positive = 0.1, half_length: Positive = 0.5,
-                 g: Positive = 9.81, init_range: Sequence[NonNegative] = (0.5, 3.14, 0.05, 3.0),
-                 u_max: NonNegative = 2.0, init_center: Sequence[float] | None = None, inputs: str = "constant",
-                 tones: Count = 5):
+    def __init__(
+        self,
+        cart_mass: Positive = 1.0,
+        pole_mass: Positive = 0.1,
+        half_length: Positive = 0.5,
+        g: Positive = 9.81,
+        init_range: Sequence[NonNegative] = (0.5, 3.14, 0.05, 3.0),
+        u_max: NonNegative = 2.0,
+        init_center: Sequence[float] | None = None,
+        inputs: str = "constant",
+        tones: Count = 5,
+    ):
         super().__init__(init_range, u_max, init_center, inputs, tones)
         self.name = "cartpole"
         self.mc, self.mp, self.l, self.g = float(cart_mass), float(pole_mass), float(half_length), float(g)

@@ -23,9 +23,17 @@ class DampedPendulum(NPendulum):
 
     charts = ("cartesian", "angle")
 
-    def __init__(self, n_links: Count = 1, masses: PerLink = 1.0, lengths: PerLink = 1.0, g: NonNegative = 1.0,
-                 damping: NonNegative = 0.05, init_scale: Positive = 1.0, frame_size: Pixels | None = None,
-                 rate_scale: NonNegative | None = None):
+    def __init__(
+        self,
+        n_links: Count = 1,
+        masses: PerLink = 1.0,
+        lengths: PerLink = 1.0,
+        g: NonNegative = 1.0,
+        damping: NonNegative = 0.05,
+        init_scale: Positive = 1.0,
+        frame_size: Pixels | None = None,
+        rate_scale: NonNegative | None = None,
+    ):
         super().__init__(n_links, masses, lengths, g, init_scale, frame_size, rate_scale)
         self.name = ("pixel_" if frame_size else "") + "damped_pendulum" + ("" if n_links == 1 else str(n_links))
         self.damping = float(damping)

@@ -84,9 +84,16 @@ class CompoundPendulum(DissipativeMechanical):
     n = 2
     angles = (True, True)
 
-    def __init__(self, mass: Positive = 1.0, d: Positive = 1.0, inertia: NonNegative = 1.0 / 12,
-                 g: NonNegative = 10.0, gamma1: NonNegative = 0.5, gamma2: NonNegative = 0.5,
-                 init_range: Positive = 1.0):
+    def __init__(
+        self,
+        mass: Positive = 1.0,
+        d: Positive = 1.0,
+        inertia: NonNegative = 1.0 / 12,
+        g: NonNegative = 10.0,
+        gamma1: NonNegative = 0.5,
+        gamma2: NonNegative = 0.5,
+        init_range: Positive = 1.0,
+    ):
         super().__init__(init_range)
         self.name = "compound_pendulum"
         self.m, self.d, self.inertia, self.g = float(mass), float(d), float(inertia), float(g)
@@ -105,8 +112,13 @@ class CompoundPendulum(DissipativeMechanical):
     def bias(self, q: Tensor, qd: Tensor) -> Tensor:
         md2, mgd = self.m * self.d**2, self.m * self.g * self.d
         sin = torch.sin(q[..., 0] - q[..., 1])
-        return torch.stack([md2 * sin * qd[..., 1] ** 2 + 2 * mgd * torch.sin(q[..., 0]),
-                            -md2 * sin * qd[..., 0] ** 2 + mgd * torch.sin(q[..., 1])], -1)
+        return torch.stack(
+            [
+                md2 * sin * qd[..., 1] ** 2 + 2 * mgd * torch.sin(q[..., 0]),
+                -md2 * sin * qd[..., 0] ** 2 + mgd * torch.sin(q[..., 1]),
+            ],
+            -1,
+        )
 
     def force(self, s: Tensor) -> Tensor:
         qd = split_state(s)[1]

@@ -50,28 +50,43 @@ class Gyroscope(PointSystem):
     name = "gyroscope"
     n = 3
 
-    def __init__(self, mass: Positive = 0.1, ell: Positive = 0.2217,
-                 inertias: Sequence[Positive] = (0.024138, 0.024138, 0.003694), g: Positive = 9.81,
-                 angle_range: Positive = 1.5, phi_rate_range: NonNegative = 4.5, theta_rate_range: NonNegative = 0.3,
-                 spin_mean: Finite = 7.0, spin_scale: Positive = 1.5, min_sin_theta: Annotated[float, Range(ge=0, lt=1)] = 0.1):
+    def __init__(
+        self,
+        mass: Positive = 0.1,
+        ell: Positive = 0.2217,
+        inertias: Sequence[Positive] = (0.024138, 0.024138, 0.003694),
+        g: Positive = 9.81,
+        angle_range: Positive = 1.5,
+        phi_rate_range: NonNegative = 4.5,
+        theta_rate_range: NonNegative = 0.3,
+        spin_mean: Finite = 7.0,
+        spin_scale: Positive = 1.5,
+        min_sin_theta: Annotated[float, Range(ge=0, lt=1)] = 0.1,
+    ):
         inertias = [float(i) for i in inertias]
         if len(inertias) != 3 or inertias[0] != inertias[1]:
-            raise ConfigError(f"system.inertias={inertias}; allowed: 3 positive numbers with I_1 = I_2 "
-                              f"(a symmetric top)")
+            raise ConfigError(
+                f"system.inertias={inertias}; allowed: 3 positive numbers with I_1 = I_2 (a symmetric top)"
+            )
         self.m, self.ell, self.g = float(mass), float(ell), float(g)
         self.inertias = torch.tensor(inertias, dtype=torch.float64)
         self.j_perp = inertias[0] + inertias[2] + self.m * self.ell**2  # about the pivot
         self.j_3 = inertias[0] + inertias[1]
-        self.init = dict(angle=float(angle_range), phi_rate=float(phi_rate_range),
-                         theta_rate=float(theta_rate_range), spin_mean=float(spin_mean),
-                         spin_scale=float(spin_scale))
+        self.init = dict(
+            angle=float(angle_range),
+            phi_rate=float(phi_rate_range),
+            theta_rate=float(theta_rate_range),
+            spin_mean=float(spin_mean),
+            spin_scale=float(spin_scale),
+        )
         self.min_sin_theta = float(min_sin_theta)
         # Φ: unit body axes |x_k − x_c|² = 1, orthogonal |x_i − x_j|² = 2, pivot x_c − ℓ (x_3 − x_c) = 0.
         pivot = torch.zeros(3, 4, 3, dtype=torch.float64)
         eye = torch.eye(3, dtype=torch.float64)
         pivot[:, 0], pivot[:, 3] = (1 + self.ell) * eye, -self.ell * eye
-        self.constraints = DistanceConstraints(4, 3, [(1, 0), (2, 0), (3, 0), (1, 2), (1, 3), (2, 3)],
-                                               [1.0] * 3 + [2.0**0.5] * 3, pivot.flatten(1))
+        self.constraints = DistanceConstraints(
+            4, 3, [(1, 0), (2, 0), (3, 0), (1, 2), (1, 3), (2, 3)], [1.0] * 3 + [2.0**0.5] * 3, pivot.flatten(1)
+        )
         self.rejection_reason = f"|sin θ| < min_sin_theta={self.min_sin_theta}: gimbal lock of the angle chart"
         self.layout = CartesianLayout(4, 3, ((0, 1, 2, 3),))
 
@@ -79,8 +94,11 @@ class Gyroscope(PointSystem):
         """M(q) over (φ, θ, ψ): [[J⊥' sin²θ + J_3 cos²θ, 0, J_3 cos θ], [0, J⊥', 0], [J_3 cos θ, 0, J_3]]."""
         c, s = torch.cos(q[..., 1]), torch.sin(q[..., 1])
         zero, j_perp, j_3 = torch.zeros_like(c), torch.full_like(c, self.j_perp), torch.full_like(c, self.j_3)
-        rows = [[self.j_perp * s**2 + self.j_3 * c**2, zero, self.j_3 * c], [zero, j_perp, zero],
-                [self.j_3 * c, zero, j_3]]
+        rows = [
+            [self.j_perp * s**2 + self.j_3 * c**2, zero, self.j_3 * c],
+            [zero, j_perp, zero],
+            [self.j_3 * c, zero, j_3],
+        ]
         return torch.stack([torch.stack(row, -1) for row in rows], -2)
 
     def potential(self, q: Tensor) -> Tensor:
@@ -118,8 +136,9 @@ class Gyroscope(PointSystem):
             return (2 * torch.rand(n, *shape, generator=generator, dtype=torch.float64) - 1) * half_width
 
         sign = 2.0 * torch.randint(2, (n,), generator=generator, dtype=torch.float64) - 1
-        spin = sign * init["spin_scale"] * (init["spin_mean"] + torch.randn(n, generator=generator,
-                                                                            dtype=torch.float64))
+        spin = (
+            sign * init["spin_scale"] * (init["spin_mean"] + torch.randn(n, generator=generator, dtype=torch.float64))
+        )
         rates = torch.stack([uniform(init["phi_rate"]), uniform(init["theta_rate"]), spin], -1)
         return torch.cat([uniform(init["angle"], 3), rates], -1)
 
@@ -141,8 +160,11 @@ class Gyroscope(PointSystem):
         rot = (pts[..., 1:, :] - pts[..., :1, :]).transpose(-1, -2)  # columns e_i
         rot_dot = (vel[..., 1:, :] - vel[..., :1, :]).transpose(-1, -2)
         skew = rot.transpose(-1, -2) @ rot_dot  # [ω]× in the body frame
-        w1, w2, w3 = (skew[..., 2, 1] - skew[..., 1, 2]) / 2, (skew[..., 0, 2] - skew[..., 2, 0]) / 2, \
-            (skew[..., 1, 0] - skew[..., 0, 1]) / 2
+        w1, w2, w3 = (
+            (skew[..., 2, 1] - skew[..., 1, 2]) / 2,
+            (skew[..., 0, 2] - skew[..., 2, 0]) / 2,
+            (skew[..., 1, 0] - skew[..., 0, 1]) / 2,
+        )
         phi = torch.atan2(rot[..., 0, 2], -rot[..., 1, 2])
         theta = torch.atan2(torch.hypot(rot[..., 0, 2], rot[..., 1, 2]), rot[..., 2, 2])
         psi = torch.atan2(rot[..., 2, 0], rot[..., 2, 1])

@@ -20,7 +20,9 @@ class LatentSystem(DataOnlySystem):
 
     def __init__(self, size: int, observed: System):
         if size % 2:
-            raise ConfigError(f"observation.latent={size}; allowed: an even integer >= 2 (latent states are (q, q̇)-like pairs)")
+            raise ConfigError(
+                f"observation.latent={size}; allowed: an even integer >= 2 (latent states are (q, q̇)-like pairs)"
+            )
         self.n = size // 2
         self.name = f"{observed.name} latent"
         self.n_controls = observed.n_controls

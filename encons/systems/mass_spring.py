@@ -48,4 +48,3 @@ class MassSpring(System):
 
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
         return self.init_scale * torch.randn(n, 2, generator=generator, dtype=torch.float64)
-

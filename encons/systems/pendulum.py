@@ -29,16 +29,25 @@ Pixels = Annotated[int, Range(ge=4, says=">= 4 pixels")]
 def _per_link(value: float | Sequence[float], n: int, what: str) -> Tensor:
     vals = [float(value)] * n if isinstance(value, (int, float)) else [float(v) for v in value]
     if len(vals) != n:
-        raise ConfigError(f"system.{what}={value!r} does not fit {n} link(s); allowed: one positive number "
-                          f"or {n} of them")
+        raise ConfigError(
+            f"system.{what}={value!r} does not fit {n} link(s); allowed: one positive number or {n} of them"
+        )
     return torch.tensor(vals, dtype=torch.float64)
 
 
 class NPendulum(PointSystem):
     """Chain of ``n_links`` point masses on massless rods, hanging from a fixed pivot."""
 
-    def __init__(self, n_links: Count = 2, masses: PerLink = 1.0, lengths: PerLink = 1.0, g: NonNegative = 9.81,
-                 init_scale: Positive = 1.0, frame_size: Pixels | None = None, rate_scale: NonNegative | None = None):
+    def __init__(
+        self,
+        n_links: Count = 2,
+        masses: PerLink = 1.0,
+        lengths: PerLink = 1.0,
+        g: NonNegative = 9.81,
+        init_scale: Positive = 1.0,
+        frame_size: Pixels | None = None,
+        rate_scale: NonNegative | None = None,
+    ):
         self.frame_shape = None if frame_size is None else (frame_size, frame_size)
         self.name = f"pendulum{n_links}" if frame_size is None else f"pixel_pendulum{'' if n_links == 1 else n_links}"
         self.n = n_links
@@ -51,8 +60,9 @@ class NPendulum(PointSystem):
         idx = torch.arange(n_links)
         self.coeff = self.mu[torch.maximum(idx[:, None], idx[None, :])] * self.l[:, None] * self.l[None, :]
         self.layout = CartesianLayout(n_links, 2, tuple((i,) for i in range(n_links)))
-        self.constraints = DistanceConstraints(n_links, 2, [(0, -1)] + [(k, k - 1) for k in range(1, n_links)],
-                                               self.l.tolist())  # tether, then rods
+        self.constraints = DistanceConstraints(
+            n_links, 2, [(0, -1)] + [(k, k - 1) for k in range(1, n_links)], self.l.tolist()
+        )  # tether, then rods
 
     def _consts(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         return (self.m.to(like), self.l.to(like), self.mu.to(like))

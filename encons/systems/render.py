@@ -13,8 +13,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-ROD_WIDTH = 0.2     # Gym's capsule width for a rod of length 1, in units of the rod length
-MARGIN = 1.2        # the frame spans ±MARGIN × the chain's total length around the pivot
+ROD_WIDTH = 0.2  # Gym's capsule width for a rod of length 1, in units of the rod length
+MARGIN = 1.2  # the frame spans ±MARGIN × the chain's total length around the pivot
 
 
 def pixel_centres(size: int, extent: float, like: Tensor) -> Tensor:
@@ -40,13 +40,13 @@ def render_rods(points: Tensor, lengths: Tensor, size: int) -> Tensor:
     memory grows as (frames × K × size²).
     """
     extent = MARGIN * float(lengths.sum())
-    grid = pixel_centres(size, extent, points).reshape(-1, 2)                           # (P, 2)
+    grid = pixel_centres(size, extent, points).reshape(-1, 2)  # (P, 2)
     start = torch.cat([torch.zeros_like(points[..., :1, :]), points[..., :-1, :]], -2)  # (..., K, 2)
     seg = points - start
-    rel = grid[:, None, :] - start[..., None, :, :]                                      # (..., P, K, 2)
+    rel = grid[:, None, :] - start[..., None, :, :]  # (..., P, K, 2)
     along = ((rel * seg[..., None, :, :]).sum(-1) / (seg**2).sum(-1)[..., None, :]).clamp(0, 1)
-    dist = (rel - along[..., None] * seg[..., None, :, :]).norm(dim=-1)                  # (..., P, K)
+    dist = (rel - along[..., None] * seg[..., None, :, :]).norm(dim=-1)  # (..., P, K)
     half = 0.5 * ROD_WIDTH * lengths.to(points)
     pixel = 2 * extent / size
-    ink = ((half - dist) / pixel + 0.5).clamp(0, 1).amax(-1)                            # one-pixel edge ramp
+    ink = ((half - dist) / pixel + 0.5).clamp(0, 1).amax(-1)  # one-pixel edge ramp
     return ink.unflatten(-1, (size, size))

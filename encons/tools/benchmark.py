@@ -57,8 +57,11 @@ class PlannedRun:
 
 def plain(cfg: DictConfig) -> dict:
     """The benchmark config without Hydra's own node, resolved."""
-    return {k: OmegaConf.to_container(cfg[k], resolve=True) if OmegaConf.is_config(cfg[k]) else cfg[k]
-            for k in cfg if k != "hydra"}
+    return {
+        k: OmegaConf.to_container(cfg[k], resolve=True) if OmegaConf.is_config(cfg[k]) else cfg[k]
+        for k in cfg
+        if k != "hydra"
+    }
 
 
 def recorded_config(config: dict, out: Path) -> dict:
@@ -85,7 +88,9 @@ def expand(cfg: DictConfig) -> list[PlannedRun]:
     by_name = [m for m in (*c["models"], *c["n_train_models"]) if isinstance(m, str)]
     family = {m: family_overrides(m, per_family, searched) for m in dict.fromkeys(by_name)}  # after common: refine it
     # an entry: system, label, overrides before common, n_train, published numbers, overrides after common
-    entries = [(s, m, [f"model={m}", *per_model.get(m, [])], None, {}, family[m]) for s in c["systems"] for m in c["models"]]
+    entries = [
+        (s, m, [f"model={m}", *per_model.get(m, [])], None, {}, family[m]) for s in c["systems"] for m in c["models"]
+    ]
     entries += [(r["system"], r["label"], list(r["overrides"]), None, r.get("paper", {}), []) for r in c["runs"]]
     efficiency_systems = c["n_train_system"] if isinstance(c["n_train_system"], list) else [c["n_train_system"]]
     per_n = {int(k): list(v) for k, v in (c.get("per_n_train") or {}).items()}
@@ -94,25 +99,44 @@ def expand(cfg: DictConfig) -> list[PlannedRun]:
             raise ConfigError(f"n_train={n}; allowed: training-set sizes >= 1")
         for system in efficiency_systems:
             for m in c["n_train_models"] or c["models"]:  # a model name, or {label, overrides} (e.g. an integrator)
-                label, ovr, after = ((m, [f"model={m}", *per_model.get(m, [])], family[m]) if isinstance(m, str)
-                                     else (m["label"], list(m["overrides"]), []))
+                label, ovr, after = (
+                    (m, [f"model={m}", *per_model.get(m, [])], family[m])
+                    if isinstance(m, str)
+                    else (m["label"], list(m["overrides"]), [])
+                )
                 entries.append((system, label, [*ovr, f"data.n_train={n}", *per_n.get(n, [])], n, {}, after))
     if c.get("only"):  # a part of the profile: entries whose system or system/label is listed
         entries = [e for e in entries if e[0] in c["only"] or f"{e[0]}/{e[1]}" in c["only"]]
         if not entries:
-            raise ConfigError(f"only={c['only']} selects none of the profile's runs; allowed: its systems or "
-                              f"system/label pairs")
+            raise ConfigError(
+                f"only={c['only']} selects none of the profile's runs; allowed: its systems or system/label pairs"
+            )
     if not entries:
         raise ConfigError("profile has no runs: give systems and models, runs or n_train")
-    yielded = preset_keys(c["train"])   # the profile's overrides of what a train=[debug=...] preset sets: dropped
+    yielded = preset_keys(c["train"])  # the profile's overrides of what a train=[debug=...] preset sets: dropped
 
     def kept(overrides: list[str]) -> list[str]:
         return [o for o in overrides if o.partition("=")[0].lstrip("+~") not in yielded]
 
-    return [PlannedRun(system, label, seed, [*searched, f"system={system}", *kept([*ovr, *c["common"], *after,
-                                                                                *per_system.get(system, [])]),
-                                            f"seed={seed}", f"threads={json.dumps(c['threads'])}", *c["train"]], n, paper)
-            for system, label, ovr, n, paper, after in entries for seed in c["seeds"]]
+    return [
+        PlannedRun(
+            system,
+            label,
+            seed,
+            [
+                *searched,
+                f"system={system}",
+                *kept([*ovr, *c["common"], *after, *per_system.get(system, [])]),
+                f"seed={seed}",
+                f"threads={json.dumps(c['threads'])}",
+                *c["train"],
+            ],
+            n,
+            paper,
+        )
+        for system, label, ovr, n, paper, after in entries
+        for seed in c["seeds"]
+    ]
 
 
 def preset_keys(train: list[str]) -> set[str]:
@@ -150,16 +174,21 @@ def family_overrides(model: str, per_family: dict, searched: list[str] = ()) -> 
 
     family = trust.locate(compose([*searched, f"model={model}"]).model._target_, "model").family
     if family not in per_family:
-        raise ConfigError(f"per_family has no entry for model={model} (family {family}); allowed: one entry per "
-                          f"family of the profile's models, listed: {', '.join(per_family)}")
+        raise ConfigError(
+            f"per_family has no entry for model={model} (family {family}); allowed: one entry per "
+            f"family of the profile's models, listed: {', '.join(per_family)}"
+        )
     return list(per_family[family])
 
 
 def check_keys(c: dict) -> None:
     """Refuse seeds, threads and an output folder that cannot work, naming the key and what is allowed."""
     seeds = c["seeds"]
-    if not isinstance(seeds, list) or not seeds or not all(
-            isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**32 for s in seeds):
+    if (
+        not isinstance(seeds, list)
+        or not seeds
+        or not all(isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**32 for s in seeds)
+    ):
         raise ConfigError(f"seeds={seeds}; allowed: a non-empty list of integer seeds in 0..2**32-1, e.g. seeds=[0,1]")
     threads.choose(c.get("threads"))  # the thread policy refuses what it does not take, in its own words
     blocking = next((p for p in (Path(c["out"]), *Path(c["out"]).parents) if p.exists() and not p.is_dir()), None)
@@ -186,21 +215,37 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
     started = time.perf_counter()
     try:
         trained = runs.train(cfg, summary=False)
-        results, error, wall = dict(trained.metrics), "", time.perf_counter() - started  # training and the test of this process (a resumed run: from the resume on)
+        results, error, wall = (
+            dict(trained.metrics),
+            "",
+            time.perf_counter() - started,
+        )  # training and the test of this process (a resumed run: from the resume on)
         steps = trained.module.trainer.global_step
         if control:
             from encons.tools.control import score_control
 
             results.update({f"test/{k}": v for k, v in score_control(trained).items()})
     except Interrupted as err:  # stops the benchmark; its rerun resumes this run (resume_or_clear)
-        raise Interrupted(f"{run.id}: {str(err).split(';')[0]}; rerun the same benchmark command: finished runs "
-                          f"are skipped and this one resumes from its last.ckpt", err.status) from None
+        raise Interrupted(
+            f"{run.id}: {str(err).split(';')[0]}; rerun the same benchmark command: finished runs "
+            f"are skipped and this one resumes from its last.ckpt",
+            err.status,
+        ) from None
     except EnconsError as err:
         results, error, wall, steps = {}, str(err), time.perf_counter() - started, None
-    row = {"system": run.system, "model": run.label, "seed": run.seed, "n_train": cfg.data.n_train,
-           "data_efficiency": run.n_train is not None, "run_dir": recorded(run_dir, out), "error": error,
-           "wall_time_s": wall, "overrides": " ".join(run.overrides), "optimiser": optimiser(cfg, steps),
-           **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))}}
+    row = {
+        "system": run.system,
+        "model": run.label,
+        "seed": run.seed,
+        "n_train": cfg.data.n_train,
+        "data_efficiency": run.n_train is not None,
+        "run_dir": recorded(run_dir, out),
+        "error": error,
+        "wall_time_s": wall,
+        "overrides": " ".join(run.overrides),
+        "optimiser": optimiser(cfg, steps),
+        **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))},
+    }
     write_json(done, row, indent=1)  # atomic: a run killed before it is rerun
     return row
 
@@ -225,12 +270,16 @@ def run_ensemble(members: list[PlannedRun], out: Path, cache_dir: str | None, co
     started = time.perf_counter()
     try:
         with runs.log_file(ens_dir / "train.log"):
-            trained = ensemble.train(cfg, False, Request.of(cfg), runs.Run,
-                                     member_dir=lambda seed: finished(by_seed[seed], out).parent)
+            trained = ensemble.train(
+                cfg, False, Request.of(cfg), runs.Run, member_dir=lambda seed: finished(by_seed[seed], out).parent
+            )
         wall, error = time.perf_counter() - started, ""
     except Interrupted as err:
-        raise Interrupted(f"{first.cell}: {str(err).split(';')[0]}; rerun the same benchmark command: finished "
-                          f"runs are skipped and this ensemble resumes from its last.ckpt", err.status) from None
+        raise Interrupted(
+            f"{first.cell}: {str(err).split(';')[0]}; rerun the same benchmark command: finished "
+            f"runs are skipped and this ensemble resumes from its last.ckpt",
+            err.status,
+        ) from None
     except EnconsError as err:
         trained, wall, error = None, time.perf_counter() - started, str(err)
     rows = []
@@ -244,12 +293,20 @@ def run_ensemble(members: list[PlannedRun], out: Path, cache_dir: str | None, co
 
                 results.update({f"test/{k}": v for k, v in score_control(member).items()})
         steps = trained.members[i].module.trainer.global_step if trained is not None and not why else None
-        row = {"system": m.system, "model": m.label, "seed": m.seed, "n_train": cfg.data.n_train,
-               "data_efficiency": m.n_train is not None, "run_dir": recorded(finished(m, out).parent, out),
-               "error": why, "wall_time_s": wall,
-               "ensemble": f"{len(members)} seeds, {trained.path if trained else 'failed'}",
-               "overrides": " ".join(m.overrides), "optimiser": optimiser(cfg, steps),
-               **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))}}
+        row = {
+            "system": m.system,
+            "model": m.label,
+            "seed": m.seed,
+            "n_train": cfg.data.n_train,
+            "data_efficiency": m.n_train is not None,
+            "run_dir": recorded(finished(m, out).parent, out),
+            "error": why,
+            "wall_time_s": wall,
+            "ensemble": f"{len(members)} seeds, {trained.path if trained else 'failed'}",
+            "overrides": " ".join(m.overrides),
+            "optimiser": optimiser(cfg, steps),
+            **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))},
+        }
         write_json(finished(m, out), row, indent=1)
         rows.append(row)
     return rows
@@ -262,8 +319,12 @@ def optimiser(cfg: DictConfig, steps: int | None = None) -> str:
     o, s = cfg.optimizer, cfg.get("scheduler")
     name = str(o._target_).rsplit(".", 1)[-1]
     keys = ", ".join(f"{k} {v:g}" for k, v in o.items() if not k.startswith("_") and isinstance(v, (int, float)))
-    schedule = "constant lr" if not s else str(s._target_).rsplit(".", 1)[-1] + "".join(
-        f", {k} {v:g}" for k, v in s.items() if not k.startswith("_") and isinstance(v, (int, float)))
+    schedule = (
+        "constant lr"
+        if not s
+        else str(s._target_).rsplit(".", 1)[-1]
+        + "".join(f", {k} {v:g}" for k, v in s.items() if not k.startswith("_") and isinstance(v, (int, float)))
+    )
     return f"{name} {keys}; {schedule}; {cfg.trainer.max_epochs} epochs" + (f" ({steps} steps)" if steps else "")
 
 
@@ -271,13 +332,17 @@ def resume_or_clear(cfg: DictConfig, checkpoints: Path) -> None:
     """An interrupted run (its ``last.ckpt``, no result) resumes where it stopped, as ``ckpt_path`` does
     for one run, in whichever of its attempts (``encons.training.attempts``: the plain inverse or the guarded solve)
     wrote it; checkpoints of another config (the profile changed since) are removed: a fresh start."""
-    from encons.training import attempts
     from encons.infra import checkpoints as ckpts
+    from encons.training import attempts
     from encons.training.build import Request
 
     last = checkpoints / "last.ckpt"
     try:
-        diffs = [ckpts.difference(a.cfg, last) for a in attempts.plan(cfg, Request())] if last.is_file() else ["no last.ckpt"]
+        diffs = (
+            [ckpts.difference(a.cfg, last) for a in attempts.plan(cfg, Request())]
+            if last.is_file()
+            else ["no last.ckpt"]
+        )
         diff = None if None in diffs else diffs[0]
     except ConfigError as err:  # an unreadable or unsafe checkpoint is a fresh start
         diff = f"last.ckpt refused: {err}"
@@ -291,8 +356,14 @@ def resume_or_clear(cfg: DictConfig, checkpoints: Path) -> None:
 
 def result_line(row: dict) -> str:
     """The headline of a finished run: its test errors and wall time (every metric: its result.json)."""
-    keys = ("test/traj_rel_err", "test/geom_rel_err", "test/energy_abs_err", "test/diverged",
-            "test/control/success_rate", "test/oracle/success_rate")
+    keys = (
+        "test/traj_rel_err",
+        "test/geom_rel_err",
+        "test/energy_abs_err",
+        "test/diverged",
+        "test/control/success_rate",
+        "test/oracle/success_rate",
+    )
     shown = [f"{k.removeprefix('test/')} {row[k]:.3g}" for k in keys if k in row]
     return ", ".join(shown + [f"{row['wall_time_s']:.0f} s"])
 
@@ -317,10 +388,16 @@ def run_profile(cfg: DictConfig) -> Path:
         members = [m for m in members if not finished(m, out).is_file()]
         if not members:
             continue
-        progress.start(members[0].id if len(members) == 1 else f"{members[0].cell}, seeds {[m.seed for m in members]}",
-                       work=len(members), items=len(members))
-        rows = ([run_one(members[0], out, cache_dir, bool(cfg.get("control")))] if len(members) == 1 else
-                run_ensemble(members, out, cache_dir, bool(cfg.get("control"))))
+        progress.start(
+            members[0].id if len(members) == 1 else f"{members[0].cell}, seeds {[m.seed for m in members]}",
+            work=len(members),
+            items=len(members),
+        )
+        rows = (
+            [run_one(members[0], out, cache_dir, bool(cfg.get("control")))]
+            if len(members) == 1
+            else run_ensemble(members, out, cache_dir, bool(cfg.get("control")))
+        )
         for run, row in zip(members, rows):
             if row["error"]:
                 print(f"{run.id} failed: {row['error']}", file=sys.stderr)
@@ -331,7 +408,9 @@ def run_profile(cfg: DictConfig) -> Path:
     print(f"report: {out / 'summary.md'} (tables, figures and results.csv in {out})", flush=True)
     errors = [row.get("error") for row in load_rows(out)]
     if all(errors):
-        raise ConfigError(f"{errors[0]}; every one of the {len(errors)} benchmark runs failed (errors: {out / 'results.csv'})")
+        raise ConfigError(
+            f"{errors[0]}; every one of the {len(errors)} benchmark runs failed (errors: {out / 'results.csv'})"
+        )
     return out
 
 

@@ -50,6 +50,7 @@ import copy
 import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
+
 import numpy as np
 import scipy.linalg
 import torch
@@ -62,7 +63,9 @@ from encons.infra.io import write_json
 from encons.systems.base import System, split_state
 from encons.systems.controlled import CartPole, ControlledMechanical, ControlledPendulum
 
-CONTROL_MODELS = "lnode, symo, e2e_symo, hnn_structure, lnn_structure"  # the models with an energy (M, V) that take inputs
+CONTROL_MODELS = (
+    "lnode, symo, e2e_symo, hnn_structure, lnn_structure"  # the models with an energy (M, V) that take inputs
+)
 
 
 @dataclass(frozen=True)
@@ -79,8 +82,8 @@ class Settings:
     tolerance: tuple[float, ...]
     duration: float
     hold: float
-    cart_gains: tuple[float, float] = (0.0, 0.0)   # k_x, k_v of the cart-pole's pumping
-    start_range: tuple[float, ...] = ()             # half-widths of the uniform scored starts around upright at rest
+    cart_gains: tuple[float, float] = (0.0, 0.0)  # k_x, k_v of the cart-pole's pumping
+    start_range: tuple[float, ...] = ()  # half-widths of the uniform scored starts around upright at rest
 
     def starts(self, n: int, seed: int) -> Tensor:
         """``n`` scored starts (n, 2n_q), uniform in ±``start_range`` from ``seed`` (Santos et al. §7's
@@ -89,15 +92,22 @@ class Settings:
         return (2 * unit - 1) * torch.tensor(self.start_range, dtype=torch.float64)
 
 
-INPUT_UNIT = {ControlledPendulum: "N m", CartPole: "N"}   # u: the pivot's torque; the force on the cart
+INPUT_UNIT = {ControlledPendulum: "N m", CartPole: "N"}  # u: the pivot's torque; the force on the cart
 
 
 def printed_rows(metrics: dict[str, float], system) -> list[tuple[str, list[str]]]:
     """The rows of ``encons.tools.control``'s table: each metric with its unit, ``success_rate`` in percent of the
     starts (``control_metrics.json`` keeps the fraction), ``effort`` in the input's unit squared times s."""
     u = INPUT_UNIT[type(system)]
-    units = {"success_rate": "% of starts", "time_to_upright_s": "s", "effort": f"∫ u² dt, ({u})² s",
-             "max_abs_u": u, "pred_rmse": "q and q̇ units, mixed", "a_rel_err": "–", "b_rel_err": "–"}
+    units = {
+        "success_rate": "% of starts",
+        "time_to_upright_s": "s",
+        "effort": f"∫ u² dt, ({u})² s",
+        "max_abs_u": u,
+        "pred_rmse": "q and q̇ units, mixed",
+        "a_rel_err": "–",
+        "b_rel_err": "–",
+    }
     rows = []
     for key, unit in units.items():
         scale = 100.0 if key == "success_rate" else 1.0
@@ -107,11 +117,27 @@ def printed_rows(metrics: dict[str, float], system) -> list[tuple[str, list[str]
 
 
 SETTINGS = {
-    ControlledPendulum: Settings(gain_energy=2.0, q_weights=(10.0, 1.0), r_weight=1.0, switch=20.0,
-                                 tolerance=(0.1, 0.5), duration=10.0, hold=2.0, start_range=(math.pi, 2 * math.pi)),
-    CartPole: Settings(gain_energy=300.0, q_weights=(1.0, 10.0, 1.0, 1.0), r_weight=1.0, switch=300.0,
-                       tolerance=(1.0, 0.1, math.inf, 0.5), duration=10.0, hold=2.0, cart_gains=(1.0, 2.0),
-                       start_range=(0.5, 3.14, 0.05, 3.0)),
+    ControlledPendulum: Settings(
+        gain_energy=2.0,
+        q_weights=(10.0, 1.0),
+        r_weight=1.0,
+        switch=20.0,
+        tolerance=(0.1, 0.5),
+        duration=10.0,
+        hold=2.0,
+        start_range=(math.pi, 2 * math.pi),
+    ),
+    CartPole: Settings(
+        gain_energy=300.0,
+        q_weights=(1.0, 10.0, 1.0, 1.0),
+        r_weight=1.0,
+        switch=300.0,
+        tolerance=(1.0, 0.1, math.inf, 0.5),
+        duration=10.0,
+        hold=2.0,
+        cart_gains=(1.0, 2.0),
+        start_range=(0.5, 3.14, 0.05, 3.0),
+    ),
 }
 
 
@@ -139,8 +165,13 @@ class Plant:
 
 def true_plant(system: ControlledMechanical) -> Plant:
     """The oracle's plant: the system's closed-form M, V, B and field."""
-    return Plant(system.mass_matrix, system.potential, system.input_matrix(),
-                 lambda s, u: system.vector_field(s, "angle", u), tuple(system.angles))
+    return Plant(
+        system.mass_matrix,
+        system.potential,
+        system.input_matrix(),
+        lambda s, u: system.vector_field(s, "angle", u),
+        tuple(system.angles),
+    )
 
 
 def learned_plant(model: torch.nn.Module, system: System, name: str) -> Plant:
@@ -153,25 +184,35 @@ def learned_plant(model: torch.nn.Module, system: System, name: str) -> Plant:
     from encons.models.symo import SyMo
 
     if not isinstance(system, ControlledMechanical) or type(system) not in SETTINGS:
-        raise ConfigError(f"system={system.name} has no controller here (no control inputs, or no swing-up "
-                          f"controller for it); allowed: a run on pendulum_control or cartpole")
+        raise ConfigError(
+            f"system={system.name} has no controller here (no control inputs, or no swing-up "
+            f"controller for it); allowed: a run on pendulum_control or cartpole"
+        )
     if not (isinstance(model, (LNode, SyMo, MassPotentialModel)) and model.supports_controls):
         missing = "energy (learned M(q) and V(q))" + ("" if model.supports_controls else " and takes no inputs")
-        raise ConfigError(f"model._target_={name} gives no {missing}, which the energy-based controller "
-                          f"needs; allowed: a run of {CONTROL_MODELS}")
+        raise ConfigError(
+            f"model._target_={name} gives no {missing}, which the energy-based controller "
+            f"needs; allowed: a run of {CONTROL_MODELS}"
+        )
     model = copy.deepcopy(model).double().eval().requires_grad_(False)
     b = model.input_matrix
     if not callable(b):
-        return Plant(model.mass, model.potential, b,
-                     lambda s, u: forced_euler_lagrange(model.mass, model.potential, b, s, u), tuple(system.angles))
+        return Plant(
+            model.mass,
+            model.potential,
+            b,
+            lambda s, u: forced_euler_lagrange(model.mass, model.potential, b, s, u),
+            tuple(system.angles),
+        )
     # a learned g(q): (M, V, g) and (M, V, g)/c move alike, so the energy's scale is free; c = ⟨g(0), B⟩/⟨B, B⟩
     # puts it in the system's units where the physics gives B (the energy pumping's gain assumes them)
     upright, known = b(torch.zeros(len(system.angles), dtype=torch.float64)), system.input_matrix()
     c = float((upright * known).sum() / known.square().sum())
     mass, potential = (lambda q: model.mass(q) / c), (lambda q: model.potential(q) / c)
     g = lambda q: b(q) / c
-    return Plant(mass, potential, upright / c,
-                 lambda s, u: forced_euler_lagrange(mass, potential, g, s, u), tuple(system.angles))
+    return Plant(
+        mass, potential, upright / c, lambda s, u: forced_euler_lagrange(mass, potential, g, s, u), tuple(system.angles)
+    )
 
 
 def linearise(plant: Plant, m: int) -> tuple[Tensor, Tensor]:
@@ -204,8 +245,9 @@ class SwingUp:
         a, b = linearise(plant, system.n_controls)
         self.linear = a, b  # at upright
         weights = torch.diag(torch.tensor(self.settings.q_weights, dtype=torch.float64))
-        self.gain, self.cost = lqr(a, b, weights, torch.eye(system.n_controls, dtype=torch.float64)
-                                   * self.settings.r_weight, h)
+        self.gain, self.cost = lqr(
+            a, b, weights, torch.eye(system.n_controls, dtype=torch.float64) * self.settings.r_weight, h
+        )
         self.is_cart = isinstance(system, CartPole)
         self.target = plant.energy(torch.zeros(1, 2 * system.n, dtype=torch.float64))  # learned E at rest upright
 
@@ -239,8 +281,14 @@ class SwingUp:
             return torch.where(self.near(x)[..., None], u_lqr, self.pump(s))
 
 
-def closed_loop(system: ControlledMechanical, controller: Callable[[Tensor], Tensor], starts: Tensor, h: float,
-                steps: int, substeps: int = 10) -> tuple[Tensor, Tensor]:
+def closed_loop(
+    system: ControlledMechanical,
+    controller: Callable[[Tensor], Tensor],
+    starts: Tensor,
+    h: float,
+    steps: int,
+    substeps: int = 10,
+) -> tuple[Tensor, Tensor]:
     """States (N, steps + 1, 2n) and held inputs (N, steps, m) of the true system under ``controller``
     sampled every ``h``; each period integrated by torchdiffeq RK4 with ``substeps`` steps, float64."""
     states, inputs = [starts.to(torch.float64)], []
@@ -248,27 +296,36 @@ def closed_loop(system: ControlledMechanical, controller: Callable[[Tensor], Ten
     for _ in range(steps):
         u = controller(states[-1])
         inputs.append(u)
-        nxt = odeint(lambda t, s: system.vector_field(s, "angle", u), states[-1], span, method="rk4",
-                     options={"step_size": h / substeps})[-1]
+        nxt = odeint(
+            lambda t, s: system.vector_field(s, "angle", u),
+            states[-1],
+            span,
+            method="rk4",
+            options={"step_size": h / substeps},
+        )[-1]
         states.append(nxt)
     return torch.stack(states, 1), torch.stack(inputs, 1)
 
 
-def score(plant: Plant, states: Tensor, inputs: Tensor, settings: Settings,
-          h: float) -> tuple[dict[str, float], Tensor]:
+def score(
+    plant: Plant, states: Tensor, inputs: Tensor, settings: Settings, h: float
+) -> tuple[dict[str, float], Tensor]:
     """Success rate, mean time to upright (successful starts; nan if none), mean effort ∫ u² dt and the
     largest |u| of one closed-loop set (``Settings`` tolerance and hold), and each start's time to
     upright (N,) (inf where it failed)."""
     tol = torch.tensor(settings.tolerance, dtype=torch.float64)
-    inside = (plant.error(states).abs() <= tol).all(-1)                        # (N, K + 1)
-    stays = inside.flip(-1).cumprod(-1).flip(-1).bool()                          # inside from here to the end
+    inside = (plant.error(states).abs() <= tol).all(-1)  # (N, K + 1)
+    stays = inside.flip(-1).cumprod(-1).flip(-1).bool()  # inside from here to the end
     first = torch.where(stays.any(-1), stays.int().argmax(-1), stays.shape[-1])  # first index that stays
     t_up = first.double() * h
     success = t_up <= (states.shape[1] - 1) * h - settings.hold + 1e-9
     effort = (inputs.square().sum(-1) * h).sum(-1)
-    metrics = {"success_rate": success.double().mean().item(),
-               "time_to_upright_s": t_up[success].mean().item() if success.any() else math.nan,
-               "effort": effort.mean().item(), "max_abs_u": inputs.abs().max().item()}
+    metrics = {
+        "success_rate": success.double().mean().item(),
+        "time_to_upright_s": t_up[success].mean().item() if success.any() else math.nan,
+        "effort": effort.mean().item(),
+        "max_abs_u": inputs.abs().max().item(),
+    }
     return metrics, torch.where(success, t_up, math.inf)
 
 
@@ -338,40 +395,65 @@ def settings_record(settings: Settings) -> dict:
     return {**asdict(settings), "tolerance": [None if math.isinf(v) else v for v in settings.tolerance]}
 
 
-def score_control(run, starts: int = 100, seed: int = 0, duration: float | None = None,
-                  ckpt: str = "best") -> dict[str, float]:
+def score_control(
+    run, starts: int = 100, seed: int = 0, duration: float | None = None, ckpt: str = "best"
+) -> dict[str, float]:
     """Score the controller built from a trained run (a ``Run``, a run folder or a ``.ckpt``) beside the
     true-model oracle on the true system; returns ``control/...`` and ``oracle/...`` metrics and writes
     them (``control_metrics.json``) and the figures to ``<run>/control``."""
-    from encons.evaluators import figures
-    from encons.training.runs import Run, load
     from rich.console import Console
     from rich.table import Table
+
+    from encons.evaluators import figures
+    from encons.training.runs import Run, load
 
     if not isinstance(run, Run):
         run = load(run, ckpt=ckpt)
     outcome = compare(run, starts, seed, duration)
     out = run.run_dir / "control"
     system = run.module.system
-    write_json(out / "control_metrics.json", {**outcome.metrics, "starts": starts, "seed": seed,
-                                               "duration_s": float(outcome.t[-1]),
-                                               "control_period_s": float(run.module.dt),
-                                               "settings": settings_record(SETTINGS[type(system)])})
+    write_json(
+        out / "control_metrics.json",
+        {
+            **outcome.metrics,
+            "starts": starts,
+            "seed": seed,
+            "duration_s": float(outcome.t[-1]),
+            "control_period_s": float(run.module.dt),
+            "settings": settings_record(SETTINGS[type(system)]),
+        },
+    )
     oracle = true_plant(system)
-    figures.control_figures(outcome.t, outcome.learned, outcome.oracle, outcome.t_up, oracle.energy,
-                          oracle.error, system, out, f"{system.name}: controller from {run.config.name}")
+    figures.control_figures(
+        outcome.t,
+        outcome.learned,
+        outcome.oracle,
+        outcome.t_up,
+        oracle.energy,
+        oracle.error,
+        system,
+        out,
+        f"{system.name}: controller from {run.config.name}",
+    )
     learned = learned_plant(run.model, system, run.config.model._target_)
     free = torch.zeros(1, system.n_controls, dtype=torch.float64)
-    figures.phase_portrait_figure((lambda s: learned.field(s, free.expand(len(s), -1)),
-                                 lambda s: oracle.field(s, free.expand(len(s), -1))), system, out,
-                                f"{system.name}: {run.config.name}")
-    table = Table(title=f"control: {run.config.name}, {starts} starts (seed {seed}), {float(outcome.t[-1]):g} s, "
-                        f"control period {run.module.dt} s")
+    figures.phase_portrait_figure(
+        (lambda s: learned.field(s, free.expand(len(s), -1)), lambda s: oracle.field(s, free.expand(len(s), -1))),
+        system,
+        out,
+        f"{system.name}: {run.config.name}",
+    )
+    table = Table(
+        title=f"control: {run.config.name}, {starts} starts (seed {seed}), {float(outcome.t[-1]):g} s, "
+        f"control period {run.module.dt} s"
+    )
     for column in ("metric", "from the learned model", "from the true model (oracle)"):
         table.add_column(column, justify="left" if column == "metric" else "right", no_wrap=column == "metric")
     for label, cells in printed_rows(outcome.metrics, system):
         table.add_row(label, *cells)
     console = Console()
     console.print(table)
-    console.print(f"outputs: {out}  (control_metrics.json, control_*.png: closed loops, success, learned vs true portrait)")
+    console.print(
+        f"outputs: {out}  (control_metrics.json, control_*.png: closed loops, success, learned vs true portrait)"
+    )
     return outcome.metrics

@@ -51,8 +51,11 @@ def table(spec: str, root: Path = ROOT) -> str:
         raise ConfigError(f"source={source!r} is not a committed report file; {allowed}")
     with path.open(newline="") as f:
         rows = list(csv.DictReader(f))
-    columns = [tuple(p.strip() for p in c.split(":", 1)) if ":" in c else (c.strip(), c.strip())
-               for c in columns_spec.split(",") if c.strip()]
+    columns = [
+        tuple(p.strip() for p in c.split(":", 1)) if ":" in c else (c.strip(), c.strip())
+        for c in columns_spec.split(",")
+        if c.strip()
+    ]
     missing = [c for c, _ in columns if rows and c not in rows[0]]
     if missing:
         raise ConfigError(f"columns={missing} not in {source}; {allowed}")

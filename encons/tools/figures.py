@@ -8,9 +8,18 @@ from pathlib import Path
 import matplotlib
 import torch
 
-from encons.evaluators.figures import ENERGY_ERR, PIXEL_MSE, REL_ERR, STATE_MSE, TIME, plain_log_ticks, save_png, subplots
+from encons.evaluators.figures import (
+    ENERGY_ERR,
+    PIXEL_MSE,
+    REL_ERR,
+    STATE_MSE,
+    TIME,
+    plain_log_ticks,
+    save_png,
+    subplots,
+)
 
-N_TRAIN_OFFSET = 1.04          # per model, on the log n_train axis
+N_TRAIN_OFFSET = 1.04  # per model, on the log n_train axis
 
 
 MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
@@ -19,11 +28,13 @@ MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
 STYLES = ("-", "--", "-.", ":")
 
 
-SANTOS_PANELS = {"test/mse_train": "one-step train MSE of q [rad², m²]",
-                 "test/mse_test": "one-step test MSE of q [rad², m²]",
-                 "test/mse_integration": "integration MSE of q, 500 steps [rad², m²]",
-                 "test/energy_mse_integration": "energy MSE along the integration [J²]",
-                 "test/mass_mse": "M(q) MSE [(kg m²)²]"}
+SANTOS_PANELS = {
+    "test/mse_train": "one-step train MSE of q [rad², m²]",
+    "test/mse_test": "one-step test MSE of q [rad², m²]",
+    "test/mse_integration": "integration MSE of q, 500 steps [rad², m²]",
+    "test/energy_mse_integration": "energy MSE along the integration [J²]",
+    "test/mass_mse": "M(q) MSE [(kg m²)²]",
+}
 
 
 def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, horizon: int = 4) -> list[Path]:
@@ -53,11 +64,24 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
         logs = [np.log10(np.concatenate(errors[m])) for m in models]
         mean = np.array([lg[np.isfinite(lg)].mean() for lg in logs])
         std = np.array([lg[np.isfinite(lg)].std() for lg in logs])
-        ax.errorbar(range(len(models)), 10 ** mean, yerr=[10 ** mean - 10 ** (mean - std), 10 ** (mean + std) - 10 ** mean],
-                    fmt="o", capsize=3, label="geometric mean over test trajectories and seeds,\nbars: ± 1 std of log₁₀")
-        arithmetic = [np.concatenate(errors[m]).mean() for m in models]   # the summary table's traj_rel_err
-        ax.plot(range(len(models)), arithmetic, "D", color="C3", ms=5, mfc="none",
-                label="arithmetic mean (the table's traj_rel_err)")
+        ax.errorbar(
+            range(len(models)),
+            10**mean,
+            yerr=[10**mean - 10 ** (mean - std), 10 ** (mean + std) - 10**mean],
+            fmt="o",
+            capsize=3,
+            label="geometric mean over test trajectories and seeds,\nbars: ± 1 std of log₁₀",
+        )
+        arithmetic = [np.concatenate(errors[m]).mean() for m in models]  # the summary table's traj_rel_err
+        ax.plot(
+            range(len(models)),
+            arithmetic,
+            "D",
+            color="C3",
+            ms=5,
+            mfc="none",
+            label="arithmetic mean (the table's traj_rel_err)",
+        )
         ax.set_xticks(range(len(models)), models, rotation=60, ha="right", rotation_mode="anchor")
         ax.set_yscale("log")
         plain_log_ticks(ax.yaxis)
@@ -67,11 +91,13 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
         ax.legend(fontsize=7)
     paths.append(save_png(fig, out_dir / "traj_rel_err.png"))
 
-    for key, label, name in (("rel_err", REL_ERR, "rel_err_vs_time.png"),
-                             ("energy_err", ENERGY_ERR, "energy_err_vs_time.png"),
-                             ("state_mse_model", STATE_MSE, "state_mse_vs_time.png"),
-                             ("energy_mse_model", "energy_mse_vs_time.png"),
-                             ("pixel_mse", PIXEL_MSE, "pixel_mse_vs_time.png")):
+    for key, label, name in (
+        ("rel_err", REL_ERR, "rel_err_vs_time.png"),
+        ("energy_err", ENERGY_ERR, "energy_err_vs_time.png"),
+        ("state_mse_model", STATE_MSE, "state_mse_vs_time.png"),
+        ("energy_mse_model", "energy_mse_vs_time.png"),
+        ("pixel_mse", PIXEL_MSE, "pixel_mse_vs_time.png"),
+    ):
         if not any(key in _curve_keys(row) for row in rows):
             continue
         fig, axes = subplots(1, len(systems), figsize=(4.5 * len(systems) + 2, 4), squeeze=False)
@@ -87,8 +113,13 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
                             curves.setdefault(row["model"], []).append((f["t"], curve))
             for model, runs in curves.items():
                 k = styles.setdefault(model, len(styles))
-                ax.plot(runs[0][0][1:], np.mean([c for _, c in runs], 0)[1:], label=model,
-                        color=matplotlib.colormaps["tab20"](k % 20), linestyle=("-", "--", ":")[k // 10 % 3])
+                ax.plot(
+                    runs[0][0][1:],
+                    np.mean([c for _, c in runs], 0)[1:],
+                    label=model,
+                    color=matplotlib.colormaps["tab20"](k % 20),
+                    linestyle=("-", "--", ":")[k // 10 % 3],
+                )
             ax.set_yscale("log")
             ax.set_xlabel(TIME)
             ax.set_ylabel(label)
@@ -143,7 +174,9 @@ def _control_panels(summary: list[dict], width: float):
     """The rows of ``summary`` scored by ``encons.tools.control`` by system, and a figure of one panel per system
     (None: no such row)."""
     entries = [e for e in summary if "test/control/success_rate" in e]
-    by_system = {system: [e for e in entries if e["system"] == system] for system in dict.fromkeys(e["system"] for e in entries)}
+    by_system = {
+        system: [e for e in entries if e["system"] == system] for system in dict.fromkeys(e["system"] for e in entries)
+    }
     if not by_system:
         return None
     fig, axes = subplots(1, len(by_system), figsize=(width * len(by_system), 4), squeeze=False, sharey=True)
@@ -159,10 +192,18 @@ def control_success_figure(summary: list[dict], out_dir: Path) -> list[Path]:
     fig, axes, by_system = panels
     for ax, (system, rows) in zip(axes[0], by_system.items()):
         x = torch.arange(len(rows), dtype=torch.float64)
-        for offset, side, label in ((-0.2, "control", "controller from the learned model"),
-                                    (0.2, "oracle", "same controller from the true model")):
-            ax.bar(x + offset, [e[f"test/{side}/success_rate"] for e in rows], width=0.4,
-                   yerr=[e.get(f"test/{side}/success_rate_sd", 0.0) for e in rows], capsize=3, label=label)
+        for offset, side, label in (
+            (-0.2, "control", "controller from the learned model"),
+            (0.2, "oracle", "same controller from the true model"),
+        ):
+            ax.bar(
+                x + offset,
+                [e[f"test/{side}/success_rate"] for e in rows],
+                width=0.4,
+                yerr=[e.get(f"test/{side}/success_rate_sd", 0.0) for e in rows],
+                capsize=3,
+                label=label,
+            )
         ax.set_xticks(x.tolist(), [e["model"] for e in rows])
         ax.set_ylim(0, 1.3)
         ax.set_yticks([0, 0.2, 0.4, 0.6, 0.8, 1.0])
@@ -188,9 +229,17 @@ def _against_n_train(ax, entries: list[dict], key: str, spread) -> set[int]:
         mean = [e[key] for e in rows]
         bars = [spread(e) for e in rows]
         nudge = N_TRAIN_OFFSET ** (k - (len(models) - 1) / 2)
-        ax.errorbar([e["n_train"] * nudge for e in rows], mean,
-                    yerr=[[min(b, 0.95 * m) for b, m in zip(bars, mean)], bars], marker=MARKERS[k % len(MARKERS)],
-                    ls=STYLES[k % len(STYLES)], capsize=3, color=f"C{k % 10}", alpha=0.85, label=model)
+        ax.errorbar(
+            [e["n_train"] * nudge for e in rows],
+            mean,
+            yerr=[[min(b, 0.95 * m) for b, m in zip(bars, mean)], bars],
+            marker=MARKERS[k % len(MARKERS)],
+            ls=STYLES[k % len(STYLES)],
+            capsize=3,
+            color=f"C{k % 10}",
+            alpha=0.85,
+            label=model,
+        )
         sizes.update(e["n_train"] for e in rows)
     ax.set_yscale("log")
     ax.legend(fontsize=7, title=f"points shifted ×{N_TRAIN_OFFSET:g}ᵏ in n_train to stay apart", title_fontsize=7)
@@ -206,15 +255,22 @@ def data_efficiency_figure(summary: list[dict], out_dir: Path) -> list[Path]:
     seeds = min(e.get("runs", 1) for e in summary)
     fig, axes = subplots(1, len(systems), figsize=(6.5 * len(systems), 4.2), squeeze=False)
     for ax, system in zip(axes[0], systems):
-        sizes = _against_n_train(ax, [e for e in summary if e["system"] == system], "test/traj_rel_err",
-                                 lambda e: e["test/traj_rel_err_sd"] if seeds >= 2 else e.get("test/traj_rel_err_std", 0.0))
+        sizes = _against_n_train(
+            ax,
+            [e for e in summary if e["system"] == system],
+            "test/traj_rel_err",
+            lambda e: e["test/traj_rel_err_sd"] if seeds >= 2 else e.get("test/traj_rel_err_std", 0.0),
+        )
         ax.set_xscale("log")
         plain_log_ticks(ax.xaxis, sizes)
         plain_log_ticks(ax.yaxis)
         ax.set_xlabel("training trajectories")
         ax.set_ylabel("trajectory relative error (T = 4) [–]")
-        ax.set_title(f"data efficiency on {system}\nmean over {seeds} seed(s); bars: ± 1 std over "
-                     + ("seeds" if seeds >= 2 else "test trajectories"), fontsize=9)
+        ax.set_title(
+            f"data efficiency on {system}\nmean over {seeds} seed(s); bars: ± 1 std over "
+            + ("seeds" if seeds >= 2 else "test trajectories"),
+            fontsize=9,
+        )
     return [save_png(fig, out_dir / "data_efficiency.png")]
 
 
@@ -245,9 +301,15 @@ def control_n_train_figure(summary: list[dict], out_dir: Path) -> list[Path]:
     for ax, (system, rows) in zip(axes[0], by_system.items()):
         for k, model in enumerate(dict.fromkeys(e["model"] for e in rows)):
             line = sorted((e for e in rows if e["model"] == model), key=lambda e: e["n_train"])
-            ax.errorbar([e["n_train"] for e in line], [e["test/control/success_rate"] for e in line],
-                        yerr=[e.get("test/control/success_rate_sd", 0.0) for e in line], marker="o", capsize=3,
-                        color=f"C{k}", label=model)
+            ax.errorbar(
+                [e["n_train"] for e in line],
+                [e["test/control/success_rate"] for e in line],
+                yerr=[e.get("test/control/success_rate_sd", 0.0) for e in line],
+                marker="o",
+                capsize=3,
+                color=f"C{k}",
+                label=model,
+            )
         oracle = [e["test/oracle/success_rate"] for e in rows]
         ax.axhline(sum(oracle) / len(oracle), color="k", ls="--", lw=1, label="oracle (true model)")
         ax.set_xscale("log", base=2)

@@ -60,8 +60,10 @@ def load_rows(out: Path) -> list[dict]:
         try:
             rows.append({**json.loads(f.read_text()), "run_dir": str(f.parent)})
         except ValueError as err:
-            raise ConfigError(f"{str(f)!r} is not a result row ({err}); allowed: a result.json written by "
-                              f"encons.tools.benchmark (delete it and rerun the benchmark to redo that run)") from None
+            raise ConfigError(
+                f"{str(f)!r} is not a result row ({err}); allowed: a result.json written by "
+                f"encons.tools.benchmark (delete it and rerun the benchmark to redo that run)"
+            ) from None
     return rows
 
 
@@ -73,9 +75,15 @@ def seed_summary(rows: list[dict]) -> list[dict]:
     metrics = list(dict.fromkeys(k for row in rows for k in row if k.startswith("test/") or k == "wall_time_s"))
     summary = []
     for (system, model, n_train, efficiency), group in groups.items():
-        entry = {"system": system, "model": model, "n_train": n_train, "data_efficiency": efficiency,
-                 "runs": len(group), "failed": sum(bool(r.get("error")) for r in group),
-                 "optimiser": " / ".join(dict.fromkeys(r["optimiser"] for r in group if r.get("optimiser")))}
+        entry = {
+            "system": system,
+            "model": model,
+            "n_train": n_train,
+            "data_efficiency": efficiency,
+            "runs": len(group),
+            "failed": sum(bool(r.get("error")) for r in group),
+            "optimiser": " / ".join(dict.fromkeys(r["optimiser"] for r in group if r.get("optimiser"))),
+        }
         for key in metrics:
             values = [r[key] for r in group if key in r and not r.get("error")]
             if values:
@@ -95,13 +103,22 @@ def oracle_entries(rows: list[dict]) -> list[dict]:
     by_system: dict[str, list[dict]] = defaultdict(list)
     for row in rows:
         if not row.get("error") and not row.get("data_efficiency"):
-            floor = {f"test/{k.removeprefix('test/oracle/')}": v for k, v in row.items() if k.startswith("test/oracle/")}
+            floor = {
+                f"test/{k.removeprefix('test/oracle/')}": v for k, v in row.items() if k.startswith("test/oracle/")
+            }
             if floor:
                 by_system[row["system"]].append(floor)
     entries = []
     for system, floors in by_system.items():
-        entry = {"system": system, "model": ORACLE, "n_train": "", "data_efficiency": False, "runs": len(floors),
-                 "failed": 0, "optimiser": "none (the true dynamics)"}
+        entry = {
+            "system": system,
+            "model": ORACLE,
+            "n_train": "",
+            "data_efficiency": False,
+            "runs": len(floors),
+            "failed": 0,
+            "optimiser": "none (the true dynamics)",
+        }
         for key in dict.fromkeys(k for f in floors for k in f):
             values = [f[key] for f in floors if key in f]
             mean = sum(values) / len(values)
@@ -116,13 +133,21 @@ def floor_notes(summary: list[dict], metric: str = "test/geom_rel_err") -> list[
     is close to what the evaluation itself can resolve."""
     notes = []
     for oracle in (e for e in summary if e["model"] == ORACLE and metric in e):
-        models = [e for e in summary if e["system"] == oracle["system"] and e["model"] != ORACLE
-                  and not e["data_efficiency"] and math.isfinite(e.get(metric, math.nan))]
+        models = [
+            e
+            for e in summary
+            if e["system"] == oracle["system"]
+            and e["model"] != ORACLE
+            and not e["data_efficiency"]
+            and math.isfinite(e.get(metric, math.nan))
+        ]
         if models:
             best = min(models, key=lambda e: e[metric])
             if best[metric] <= 10 * oracle[metric]:
-                notes.append(f"{oracle['system']}: the best model ({best['model']}, {metric.removeprefix('test/')} "
-                             f"{best[metric]:.3g}) is within 10× of the evaluation's floor (oracle {oracle[metric]:.3g}).")
+                notes.append(
+                    f"{oracle['system']}: the best model ({best['model']}, {metric.removeprefix('test/')} "
+                    f"{best[metric]:.3g}) is within 10× of the evaluation's floor (oracle {oracle[metric]:.3g})."
+                )
     return notes
 
 
@@ -149,23 +174,49 @@ def write_csv(path: Path, rows: list[dict]) -> None:
         writer.writerows(rows)
 
 
-HEADLINE = ("wall_time_s", "test/diverged", "test/traj_rel_err", "test/geom_rel_err", "test/vpt",
-            "test/energy_abs_err", "test/energy_rmse_median",
-            "test/state_mse", "test/state_mse_final", "test/energy_mse", "test/energy_mse_final", "test/accel_mse",
-            "test/baseline_constant/state_mse_final", "test/baseline_linear_ode/state_mse_final",
-            "test/mse_train", "test/mse_test", "test/mse_integration", "test/energy_mse_integration",
-            "test/mass_mse", "test/newton_unconverged", "test/newton_unconverged_integration",
-            "test/pixel_mse", "test/pixel_mse_final", "test/pixel_mse_final_median",
-            "test/baseline_constant/pixel_mse", "test/autoencoder/pixel_mse", "test/autoencoder/pixel_mse_final",
-            "test/control/success_rate", "test/oracle/success_rate", "test/control/time_to_upright_s",
-            "test/oracle/time_to_upright_s", "test/control/effort", "test/oracle/effort", "test/control/pred_rmse",
-            "test/control/b_rel_err")
+HEADLINE = (
+    "wall_time_s",
+    "test/diverged",
+    "test/traj_rel_err",
+    "test/geom_rel_err",
+    "test/vpt",
+    "test/energy_abs_err",
+    "test/energy_rmse_median",
+    "test/state_mse",
+    "test/state_mse_final",
+    "test/energy_mse",
+    "test/energy_mse_final",
+    "test/accel_mse",
+    "test/baseline_constant/state_mse_final",
+    "test/baseline_linear_ode/state_mse_final",
+    "test/mse_train",
+    "test/mse_test",
+    "test/mse_integration",
+    "test/energy_mse_integration",
+    "test/mass_mse",
+    "test/newton_unconverged",
+    "test/newton_unconverged_integration",
+    "test/pixel_mse",
+    "test/pixel_mse_final",
+    "test/pixel_mse_final_median",
+    "test/baseline_constant/pixel_mse",
+    "test/autoencoder/pixel_mse",
+    "test/autoencoder/pixel_mse_final",
+    "test/control/success_rate",
+    "test/oracle/success_rate",
+    "test/control/time_to_upright_s",
+    "test/oracle/time_to_upright_s",
+    "test/control/effort",
+    "test/oracle/effort",
+    "test/control/pred_rmse",
+    "test/control/b_rel_err",
+)
 
 
 def mean_sd(mean: float, sd: float, runs: int) -> str:
     """A cell "mean ± sd", or the mean alone where it is one run's value (no spread to give) or the spread is
     below float64 rounding of the mean (identical runs: 8.5e-18 beside 0.1 is no spread)."""
-    if runs <= 1 or not sd > 1e-12 * abs(mean):   # NaN sd: a spread that cannot be told, so none
+    if runs <= 1 or not sd > 1e-12 * abs(mean):  # NaN sd: a spread that cannot be told, so none
         return f"{mean:.3g}"
     return f"{mean:.3g} ± {sd:.2g}"
 
@@ -174,8 +225,11 @@ def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", head
     """A Markdown table: model × system rows, metrics as mean ± std, paper values beside (a published value
     named as a metric right after that metric's column, the others at the end); every metric, or with
     ``headline`` the ``HEADLINE`` ones the runs have."""
-    metrics = list(dict.fromkeys(k for e in summary for k in e
-                                 if (k.startswith("test/") or k == "wall_time_s") and not k.endswith("_sd")))
+    metrics = list(
+        dict.fromkeys(
+            k for e in summary for k in e if (k.startswith("test/") or k == "wall_time_s") and not k.endswith("_sd")
+        )
+    )
     if headline:
         metrics = [m for m in HEADLINE if m in metrics]
     paper_keys = list(dict.fromkeys(m for values in paper.values() for m in values))
@@ -185,16 +239,32 @@ def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", head
         if m.removeprefix("test/") in paper_keys:
             columns.append((None, m.removeprefix("test/")))
     columns += [(None, k) for k in paper_keys if (None, k) not in columns]
-    head = ["system", "model", "n_train", "runs", *[m.removeprefix("test/") if m else f"paper {k}" for m, k in columns],
-            "optimiser"]
+    head = [
+        "system",
+        "model",
+        "n_train",
+        "runs",
+        *[m.removeprefix("test/") if m else f"paper {k}" for m, k in columns],
+        "optimiser",
+    ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for e in summary:
         cells = [e["system"], e["model"], str(e["n_train"]), f"{e['runs'] - e['failed']}/{e['runs']}"]
         values = paper.get(f"{e['system']}/{e['model']}", {}) if not e["data_efficiency"] else {}
-        cells += [(mean_sd(e[m], e[m + "_sd"], e["runs"] - e["failed"]) if m in e
-                   else "failed" if e["failed"] == e["runs"] else "—")
-                  if m else f"{values[k]:.3g}" if k in values else ""
-                  for m, k in columns]  # —: a metric this model does not report (plain_inverse, newton_unconverged)
+        cells += [
+            (
+                mean_sd(e[m], e[m + "_sd"], e["runs"] - e["failed"])
+                if m in e
+                else "failed"
+                if e["failed"] == e["runs"]
+                else "—"
+            )
+            if m
+            else f"{values[k]:.3g}"
+            if k in values
+            else ""
+            for m, k in columns
+        ]  # —: a metric this model does not report (plain_inverse, newton_unconverged)
         cells.append(e.get("optimiser", ""))
         lines.append("| " + " | ".join(cells) + " |")
     note = f"\nPublished values: {source}\n" if source and paper_keys else ""
@@ -218,11 +288,17 @@ def write_report(out: str | Path) -> list[Path]:
     if (out / "benchmark.yaml").is_file():
         source = OmegaConf.load(out / "benchmark.yaml").get("paper_source", "")
     write_csv(out / "results.csv", [portable_row(r, out) for r in rows])
-    write_csv(out / "summary.csv", [{**e, **{f"paper {m}": v for m, v in
-                                            paper.get(f"{e['system']}/{e['model']}", {}).items()}}
-                                    for e in summary])
-    write_text(out / "summary.md", f"# {out.name}\n\n" + markdown(summary, paper, source, headline=True)
-               + "\n## Every metric\n\n" + markdown(summary, paper, source))
+    write_csv(
+        out / "summary.csv",
+        [{**e, **{f"paper {m}": v for m, v in paper.get(f"{e['system']}/{e['model']}", {}).items()}} for e in summary],
+    )
+    write_text(
+        out / "summary.md",
+        f"# {out.name}\n\n"
+        + markdown(summary, paper, source, headline=True)
+        + "\n## Every metric\n\n"
+        + markdown(summary, paper, source),
+    )
     grid = [r for r in rows if not r.get("data_efficiency") and not r.get("error")]
     grid_summary = [e for e in summary if not e["data_efficiency"] and e["model"] != ORACLE]
     files = [out / "results.csv", out / "summary.csv", out / "summary.md"]
@@ -253,17 +329,26 @@ def sweep_rows(out: Path) -> tuple[list[str], list[dict]]:
 
     jobs = sorted(p.parent.parent for p in out.glob("**/.hydra/overrides.yaml") if p.parent.parent != out)
     if not jobs:
-        raise ConfigError(f"folder={str(out)!r} holds no jobs of a multirun (no */.hydra/overrides.yaml); allowed: "
-                          f"the folder of a multirun (python -m encons.train -m ...) whose jobs started")
-    given = [dict(o.split("=", 1) for o in yaml.safe_load((j / ".hydra" / "overrides.yaml").read_text()) or []
-                  if "=" in o) for j in jobs]
+        raise ConfigError(
+            f"folder={str(out)!r} holds no jobs of a multirun (no */.hydra/overrides.yaml); allowed: "
+            f"the folder of a multirun (python -m encons.train -m ...) whose jobs started"
+        )
+    given = [
+        dict(o.split("=", 1) for o in yaml.safe_load((j / ".hydra" / "overrides.yaml").read_text()) or [] if "=" in o)
+        for j in jobs
+    ]
     keys = [k for k in dict.fromkeys(k for g in given for k in g) if len({g.get(k) for g in given}) > 1]
     rows = []
     for job, values in zip(jobs, given):
         metrics = job / "test_metrics.json"
         tested = json.loads(metrics.read_text()) if metrics.is_file() else {}
-        rows.append({**{k: values.get(k, "") for k in keys}, "job": str(job.relative_to(out)),
-                     **{f"test/{k}": v for k, v in tested.items()}})
+        rows.append(
+            {
+                **{k: values.get(k, "") for k in keys},
+                "job": str(job.relative_to(out)),
+                **{f"test/{k}": v for k, v in tested.items()},
+            }
+        )
     return keys, rows
 
 
@@ -273,17 +358,23 @@ def sweep_markdown(keys: list[str], rows: list[dict]) -> str:
     head = [*keys, *[m.removeprefix("test/") for m in metrics]]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
-        lines.append("| " + " | ".join([str(r[k]) for k in keys] + [
-            f"{r[m]:.3g}" if m in r else "not finished" for m in metrics]) + " |")
+        lines.append(
+            "| "
+            + " | ".join([str(r[k]) for k in keys] + [f"{r[m]:.3g}" if m in r else "not finished" for m in metrics])
+            + " |"
+        )
     text = "\n".join(lines) + "\n"
     if len(keys) != 2:
         return text
     by = {(r[keys[0]], r[keys[1]]): r for r in rows}
-    first, second = (sorted({r[k] for r in rows}, key=lambda v: (isinstance(_number(v), str), _number(v)))
-                     for k in keys)
+    first, second = (
+        sorted({r[k] for r in rows}, key=lambda v: (isinstance(_number(v), str), _number(v))) for k in keys
+    )
     for metric in [m for m in HEADLINE if m in metrics and "baseline" not in m]:  # baselines: the same in every cell
         text += f"\n{metric.removeprefix('test/')}: {keys[0]} (rows) × {keys[1]} (columns)\n\n"
-        text += "| " + " | ".join([f"{keys[0]} \\ {keys[1]}", *second]) + " |\n" + "|" + "---|" * (len(second) + 1) + "\n"
+        text += (
+            "| " + " | ".join([f"{keys[0]} \\ {keys[1]}", *second]) + " |\n" + "|" + "---|" * (len(second) + 1) + "\n"
+        )
         for a in first:
             cells = [f"{by[a, b][metric]:.3g}" if metric in by.get((a, b), {}) else "—" for b in second]
             text += "| " + " | ".join([a, *cells]) + " |\n"

@@ -47,9 +47,18 @@ class OptunaSweeper(Sweeper):
     the number of trials already stored, so a resumed study does not repeat its first trials;
     give each concurrent worker its own ``sampler.seed``."""
 
-    def __init__(self, sampler: DictConfig, direction: str, storage: str | None, study_name: str,
-                 n_trials: int, n_jobs: int, max_failure_rate: float, params: DictConfig | None,
-                 enqueue: list | None = None):
+    def __init__(
+        self,
+        sampler: DictConfig,
+        direction: str,
+        storage: str | None,
+        study_name: str,
+        n_trials: int,
+        n_jobs: int,
+        max_failure_rate: float,
+        params: DictConfig | None,
+        enqueue: list | None = None,
+    ):
         if direction not in ("minimize", "maximize"):
             raise ConfigError(f"hydra.sweeper.direction={direction!r} is unknown; allowed: minimize, maximize")
         for key, value in dict(n_trials=n_trials, n_jobs=n_jobs).items():
@@ -65,12 +74,14 @@ class OptunaSweeper(Sweeper):
     def setup(self, *, hydra_context: HydraContext, task_function: TaskFunction, config: DictConfig) -> None:
         self.config = config
         self.launcher = Plugins.instance().instantiate_launcher(
-            config=config, hydra_context=hydra_context, task_function=task_function)
+            config=config, hydra_context=hydra_context, task_function=task_function
+        )
 
     def sweep(self, arguments: list[str]) -> None:
         check_search_space([f"{k}={v}" for k, v in self.params.items()] + list(arguments))
         space, fixed, fixed_overrides = optuna_search_space(
-            [f"{k}={v}" for k, v in self.params.items()] + list(arguments))
+            [f"{k}={v}" for k, v in self.params.items()] + list(arguments)
+        )
         for name in fixed:
             space.pop(name, None)
         sweep_dir = Path(self.config.hydra.sweep.dir)
@@ -82,23 +93,37 @@ class OptunaSweeper(Sweeper):
         study.set_user_attr("optimized_metric", str(self.config.get("optimized_metric", "objective")))
         for params in self.enqueue:
             study.enqueue_trial(params, skip_if_exists=True)
-        log.info("study %s in %s: %d trials stored, %d to run", study.study_name, self.storage,
-                 len(study.trials), self.n_trials)
+        log.info(
+            "study %s in %s: %d trials stored, %d to run",
+            study.study_name,
+            self.storage,
+            len(study.trials),
+            self.n_trials,
+        )
         failed, job_idx = 0, 0
         while job_idx < self.n_trials:
             trials = [study.ask(space) for _ in range(min(self.n_jobs, self.n_trials - job_idx))]
-            overrides = [tuple(f"{k}={v}" for k, v in {**t.params, **fixed}.items()) + tuple(fixed_overrides)
-                         + (f"++{TRIAL_KEY}={t.number}",) for t in trials]
+            overrides = [
+                tuple(f"{k}={v}" for k, v in {**t.params, **fixed}.items())
+                + tuple(fixed_overrides)
+                + (f"++{TRIAL_KEY}={t.number}",)
+                for t in trials
+            ]
             returns = self.launcher.launch(overrides, initial_job_idx=job_idx)
             job_idx += len(trials)
             failed += sum(_tell(study, t, r) == TrialState.FAIL for t, r in zip(trials, returns))
             if failed > self.max_failure_rate * self.n_trials:
                 report(study, sweep_dir)
-                first = next(t.user_attrs["fail_reason"] for t in study.trials
-                             if t.state == TrialState.FAIL and "fail_reason" in t.user_attrs)
-                raise SweepError(f"hydra.sweeper.max_failure_rate={self.max_failure_rate}: {failed} of {job_idx} "
-                                 f"trials failed (first: {first.splitlines()[0]}); allowed: fix that, or a higher "
-                                 f"rate (reasons in {sweep_dir / 'trials.csv'})")
+                first = next(
+                    t.user_attrs["fail_reason"]
+                    for t in study.trials
+                    if t.state == TrialState.FAIL and "fail_reason" in t.user_attrs
+                )
+                raise SweepError(
+                    f"hydra.sweeper.max_failure_rate={self.max_failure_rate}: {failed} of {job_idx} "
+                    f"trials failed (first: {first.splitlines()[0]}); allowed: fix that, or a higher "
+                    f"rate (reasons in {sweep_dir / 'trials.csv'})"
+                )
         report(study, sweep_dir)
 
     def _sampler(self, n_stored: int) -> optuna.samplers.BaseSampler:
@@ -106,19 +131,24 @@ class OptunaSweeper(Sweeper):
         if config.get("seed") is not None:
             seed = config["seed"]
             if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed < 2**32:
-                raise ConfigError(f"hydra.sweeper.sampler.seed={seed!r} (default: the run's seed); "
-                                  f"allowed: an integer in 0..2**32-1")
+                raise ConfigError(
+                    f"hydra.sweeper.sampler.seed={seed!r} (default: the run's seed); allowed: an integer in 0..2**32-1"
+                )
             config["seed"] = int(SeedSequence([seed, n_stored]).generate_state(1)[0])
         try:
             sampler = instantiate(config, _execution_whitelist_=("optuna.samplers.*",))
         except Exception as err:  # noqa: BLE001 - an unknown sampler or keyword is the user's config
             cause = err.__cause__ or err
-            raise ConfigError(f"hydra.sweeper.sampler={config.get('_target_')!r}: {type(cause).__name__}: "
-                              f"{str(cause).splitlines()[0] if str(cause) else ''}; allowed: hydra/sweeper/sampler="
-                              f"tpe | random | cmaes | gp | qmc and their keywords") from None
+            raise ConfigError(
+                f"hydra.sweeper.sampler={config.get('_target_')!r}: {type(cause).__name__}: "
+                f"{str(cause).splitlines()[0] if str(cause) else ''}; allowed: hydra/sweeper/sampler="
+                f"tpe | random | cmaes | gp | qmc and their keywords"
+            ) from None
         if not isinstance(sampler, optuna.samplers.BaseSampler):
-            raise ConfigError(f"hydra.sweeper.sampler={config['_target_']} needs the search space up front; "
-                              f"for a grid use Hydra's basic sweeper (see sweeps/model_grid.yaml)")
+            raise ConfigError(
+                f"hydra.sweeper.sampler={config['_target_']} needs the search space up front; "
+                f"for a grid use Hydra's basic sweeper (see sweeps/model_grid.yaml)"
+            )
         return sampler
 
 
@@ -127,8 +157,10 @@ def check_search_space(overrides: list[str]) -> None:
     for override in OverridesParser.create().parse_overrides(overrides):
         value = override.value()
         if isinstance(value, IntervalSweep) and value.start > value.end:
-            raise ConfigError(f"{override.get_key_element()}={override.get_value_string()} has low {value.start} > "
-                              f"high {value.end}; allowed: interval(low, high) with low <= high")
+            raise ConfigError(
+                f"{override.get_key_element()}={override.get_value_string()} has low {value.start} > "
+                f"high {value.end}; allowed: interval(low, high) with low <= high"
+            )
 
 
 def check_storage(storage: str) -> optuna.storages.BaseStorage:
@@ -138,25 +170,37 @@ def check_storage(storage: str) -> optuna.storages.BaseStorage:
     if url.get_backend_name() == "sqlite" and url.database not in (None, "", ":memory:"):
         folder = Path(url.database).parent
         if not folder.is_dir():
-            raise ConfigError(f"sweeps.storage={storage!r}: folder {str(folder)!r} does not exist; allowed: "
-                              f"sqlite:///PATH in an existing folder or in sweeps.dir (created as the sweep's own), "
-                              f"or a database URL")
+            raise ConfigError(
+                f"sweeps.storage={storage!r}: folder {str(folder)!r} does not exist; allowed: "
+                f"sqlite:///PATH in an existing folder or in sweeps.dir (created as the sweep's own), "
+                f"or a database URL"
+            )
     try:
         return optuna.storages.get_storage(storage)
     except (ImportError, NoSuchModuleError) as err:
-        extra = {"postgresql": "pip install 'encons[postgres]' (psycopg 3, SQLAlchemy's driver for postgresql://)",
-                 "mysql": "a mysql+pymysql:// URL with pip install pymysql"}.get(url.get_backend_name(), "its database driver")
-        raise ConfigError(f"sweeps.storage={storage!r}: its database driver is missing ({err.__cause__ or err}); "
-                          f"allowed: {extra}, or a sqlite:/// URL") from None
+        extra = {
+            "postgresql": "pip install 'encons[postgres]' (psycopg 3, SQLAlchemy's driver for postgresql://)",
+            "mysql": "a mysql+pymysql:// URL with pip install pymysql",
+        }.get(url.get_backend_name(), "its database driver")
+        raise ConfigError(
+            f"sweeps.storage={storage!r}: its database driver is missing ({err.__cause__ or err}); "
+            f"allowed: {extra}, or a sqlite:/// URL"
+        ) from None
     except OperationalError as err:
-        raise ConfigError(f"sweeps.storage={storage!r} cannot be opened ({str(err.orig).strip().splitlines()[0]}); "
-                          f"allowed: a reachable database URL, or sqlite:///PATH in a writable folder") from None
+        raise ConfigError(
+            f"sweeps.storage={storage!r} cannot be opened ({str(err.orig).strip().splitlines()[0]}); "
+            f"allowed: a reachable database URL, or sqlite:///PATH in a writable folder"
+        ) from None
 
 
 def open_study(storage: str | None, study_name: str, direction: str) -> optuna.Study:
     """Create the study, or load it when it exists (``check_storage`` first)."""
-    return optuna.create_study(storage=check_storage(storage) if storage else None, study_name=study_name,
-                               direction=direction, load_if_exists=True)
+    return optuna.create_study(
+        storage=check_storage(storage) if storage else None,
+        study_name=study_name,
+        direction=direction,
+        load_if_exists=True,
+    )
 
 
 def _tell(study: optuna.Study, trial: optuna.Trial, ret: JobReturn) -> TrialState:
@@ -182,18 +226,20 @@ def _tell(study: optuna.Study, trial: optuna.Trial, ret: JobReturn) -> TrialStat
     return TrialState.FAIL
 
 
-def pruning_callback(storage: str, study_name: str, trial: int | None, monitor: str,
-                     pruner: optuna.pruners.BasePruner | None):
+def pruning_callback(
+    storage: str, study_name: str, trial: int | None, monitor: str, pruner: optuna.pruners.BasePruner | None
+):
     """Optuna's Lightning pruning callback for trial number ``trial`` of the stored study, judged
     by ``pruner`` (``None``: never prune) on ``monitor`` after every validation epoch."""
     from optuna_integration.pytorch_lightning import PyTorchLightningPruningCallback
 
     if trial is None:
-        raise ConfigError(f"{TRIAL_KEY} is unset: an Optuna sweep runs with -m "
-                          f"(python -m encons.train -m sweeps=NAME)")
+        raise ConfigError(f"{TRIAL_KEY} is unset: an Optuna sweep runs with -m (python -m encons.train -m sweeps=NAME)")
     if storage is None:
-        raise ConfigError("sweeps.storage=null: a trial reaches its study through a storage; give an "
-                          "SQLAlchemy URL (sqlite:///..., postgresql://...)")
+        raise ConfigError(
+            "sweeps.storage=null: a trial reaches its study through a storage; give an "
+            "SQLAlchemy URL (sqlite:///..., postgresql://...)"
+        )
 
     class Pruning(PyTorchLightningPruningCallback):
         def on_fit_end(self, trainer, pl_module) -> None:
@@ -209,10 +255,18 @@ def report(study: optuna.Study, out_dir: Path) -> None:
     """Print the best trial; save ``trials.csv``, ``optimization_results.yaml`` and figures."""
     trials = study.get_trials(deepcopy=False)
     names = sorted({k for t in trials for k in t.params})
-    rows = [{"number": t.number, "state": t.state.name, "value": t.value,
-             "duration_s": t.duration.total_seconds() if t.duration else None,
-             "last_step": t.last_step, **t.params, "fail_reason": t.user_attrs.get("fail_reason")}
-            for t in trials]
+    rows = [
+        {
+            "number": t.number,
+            "state": t.state.name,
+            "value": t.value,
+            "duration_s": t.duration.total_seconds() if t.duration else None,
+            "last_step": t.last_step,
+            **t.params,
+            "fail_reason": t.user_attrs.get("fail_reason"),
+        }
+        for t in trials
+    ]
     table = io.StringIO()
     writer = csv.DictWriter(table, ["number", "state", "value", "duration_s", "last_step", *names, "fail_reason"])
     writer.writeheader()
@@ -225,14 +279,20 @@ def report(study: optuna.Study, out_dir: Path) -> None:
         print(f"study {study.study_name}: no complete trial ({counts}); table: {out_dir / 'trials.csv'}")
         return
     best = study.best_trial
-    results = {"study": study.study_name, "best_trial": best.number, "best_value": best.value,
-               "best_params": best.params}
+    results = {
+        "study": study.study_name,
+        "best_trial": best.number,
+        "best_value": best.value,
+        "best_params": best.params,
+    }
     write_yaml(out_dir / "optimization_results.yaml", results)
     _save_figures(study, out_dir, plot_importance=len(complete) > 1 and len(names) > 0)
-    print(f"study {study.study_name}: {len(trials)} trials ({counts})\n"
-          f"best trial {best.number}: value {best.value:.6g}\n"
-          f"best params: {' '.join(f'{k}={v}' for k, v in best.params.items())}\n"
-          f"table and figures: {out_dir}")
+    print(
+        f"study {study.study_name}: {len(trials)} trials ({counts})\n"
+        f"best trial {best.number}: value {best.value:.6g}\n"
+        f"best params: {' '.join(f'{k}={v}' for k, v in best.params.items())}\n"
+        f"table and figures: {out_dir}"
+    )
 
 
 def _save_figures(study: optuna.Study, out_dir: Path, plot_importance: bool) -> None:

@@ -22,9 +22,8 @@ from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig
 
-from encons.infra import bounds, checkpoints
-
 from encons.config import trust
+from encons.infra import bounds, checkpoints
 from encons.infra.bounds import declare
 from encons.infra.errors import ConfigError
 
@@ -49,8 +48,11 @@ class Attempt:
         """The summary's line on the solve (empty without a choice of solve)."""
         if self.plain is None:
             return ""
-        return "solve: " + ("the plain inverse (model.guard=0)" if self.plain
-                            else f"guarded (model.guard={self.cfg.model.guard:g}): {self.why}")
+        return "solve: " + (
+            "the plain inverse (model.guard=0)"
+            if self.plain
+            else f"guarded (model.guard={self.cfg.model.guard:g}): {self.why}"
+        )
 
 
 def has_guard(cls: type) -> bool:

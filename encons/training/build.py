@@ -20,9 +20,15 @@ from hydra.errors import InstantiationException
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from encons.config import trust
+from encons.config.check import (
+    Checked,
+    Request,
+    apply_presets,
+    check_node,
+    run_config,  # noqa: F401 - where scripts have imported it from
+    validate,
+)
 from encons.infra.bounds import Count, Fraction, NonNegative, Positive, Range, Seed, declare
-from encons.config.check import Checked, Request, apply_presets, check_node, validate
-from encons.config.check import run_config  # noqa: F401 - where scripts have imported it from
 from encons.infra.errors import ConfigError, EnconsError
 from encons.infra.paths import config_dir
 
@@ -30,12 +36,16 @@ if TYPE_CHECKING:
     from encons.data.datamodule import TrajectoryDataModule
     from encons.models.base import DynamicsModel
     from encons.models.observation import Observation
-    from encons.training.module import TrainingModule
     from encons.systems.base import System
+    from encons.training.module import TrainingModule
 
 
-def compose(overrides: Sequence[str] = (), output_dir: str | Path | None = None,
-            cache_dir: str | Path | None = None, config_name: str = "train") -> DictConfig:
+def compose(
+    overrides: Sequence[str] = (),
+    output_dir: str | Path | None = None,
+    cache_dir: str | Path | None = None,
+    config_name: str = "train",
+) -> DictConfig:
     """``conf/<config_name>.yaml`` composed with ``overrides`` as the CLI would, with its ``hydra`` node.
 
     Its ``${hydra:...}`` values (e.g. ``name``) are resolved here, so a later compose in the same
@@ -72,6 +82,7 @@ def compose(overrides: Sequence[str] = (), output_dir: str | Path | None = None,
 
 def _resolve_hydra_references(cfg: DictConfig) -> None:
     """Replace every ``${hydra:...}`` interpolation outside the ``hydra`` node by its value now."""
+
     def walk(node: Any, key: str) -> None:
         if isinstance(node, dict):
             for k, v in node.items():
@@ -92,8 +103,10 @@ def catalogue(group: str) -> list[str]:
     """
     folder = Path(config_dir()) / group
     if not folder.is_dir():
-        raise ConfigError(f"config group {group!r} does not exist; allowed: "
-                          f"{', '.join(sorted(p.name for p in Path(config_dir()).iterdir() if p.is_dir()))}")
+        raise ConfigError(
+            f"config group {group!r} does not exist; allowed: "
+            f"{', '.join(sorted(p.name for p in Path(config_dir()).iterdir() if p.is_dir()))}"
+        )
     return sorted(p.stem for p in folder.glob("*.yaml") if not p.name.startswith("_"))
 
 
@@ -129,11 +142,16 @@ def instantiate_node(cfg: DictConfig | Checked, key: str, request: Request = Req
             raise cause from None
         message = str(cause).splitlines()[0] if str(cause) else type(cause).__name__
         given = {k: v for k, v in values.items() if not k.startswith("_") and not isinstance(v, dict)}
-        named = ({k: v for k, v in given.items() if k.lower() in message.lower()}
-                 or {k: v for k, v in given.items() if f"{key}.{k}" in request.overridden()} or given)
+        named = (
+            {k: v for k, v in given.items() if k.lower() in message.lower()}
+            or {k: v for k, v in given.items() if f"{key}.{k}" in request.overridden()}
+            or given
+        )
         shown = ", ".join(f"{key}.{k}={v}" for k, v in named.items())
-        raise ConfigError(f"{shown or key}: {type(cause).__name__}: {message}; allowed: the values documented "
-                          f"in conf/{key.split('.')[0]}/ for {values.get('_target_', '?')}") from None
+        raise ConfigError(
+            f"{shown or key}: {type(cause).__name__}: {message}; allowed: the values documented "
+            f"in conf/{key.split('.')[0]}/ for {values.get('_target_', '?')}"
+        ) from None
 
 
 def build_system(cfg: DictConfig | Checked, request: Request = Request()) -> System:
@@ -152,8 +170,9 @@ def build_observation(cfg: DictConfig | Checked, system: System, request: Reques
     return instantiate_node(cfg, "observation", request, system=system)
 
 
-def build_model(cfg: DictConfig | Checked, system: System, observation: Observation | None = None,
-                request: Request = Request()) -> DynamicsModel:
+def build_model(
+    cfg: DictConfig | Checked, system: System, observation: Observation | None = None, request: Request = Request()
+) -> DynamicsModel:
     """Instantiate ``cfg.model`` for ``system`` seen through ``observation`` (default: built from
     ``cfg.observation``) after checking that the (latent) system offers what it needs (all of the
     model's capabilities for a plain config; for a ``Checked`` one, what only the system can say)."""
@@ -173,8 +192,9 @@ def build_model(cfg: DictConfig | Checked, system: System, observation: Observat
 
 
 @declare("", seed=Seed, horizon=Count, compile=bool, test=bool)  # ``test``: read by encons.training.runs.train
-def build(cfg: DictConfig | Checked, request: Request | None = None,
-          recorded: Mapping[str, float] | None = None) -> tuple[TrajectoryDataModule, TrainingModule]:
+def build(
+    cfg: DictConfig | Checked, request: Request | None = None, recorded: Mapping[str, float] | None = None
+) -> tuple[TrajectoryDataModule, TrainingModule]:
     """System → data → model → LightningModule from a checked config (``encons.config.check.validate``; a plain
     one is validated first, with ``request``, default the one its ``hydra`` node carries), seeded by
     ``cfg.seed``, its folders made. ``recorded``: facts of the run the test reports beside its scores
@@ -204,8 +224,11 @@ def make_folders(cfg: DictConfig) -> None:
     """Create the run's output folders, the cache folder and those of its loggers and callbacks, refusing a
     path that is a file or unwritable."""
     out = Path(cfg.paths.output_dir)
-    folders = [("paths.output_dir", out), ("paths.output_dir", out / "figures"),
-               ("paths.cache_dir", Path(cfg.paths.cache_dir))]  # checkpoints/: the callbacks' dirpath, if any
+    folders = [
+        ("paths.output_dir", out),
+        ("paths.output_dir", out / "figures"),
+        ("paths.cache_dir", Path(cfg.paths.cache_dir)),
+    ]  # checkpoints/: the callbacks' dirpath, if any
     for group, leaf in FOLDER_KEYS:  # folders a logger or callback writes to
         for name, node in (cfg.get(group) or {}).items():
             if isinstance(node, DictConfig) and node.get(leaf) is not None:
@@ -213,12 +236,16 @@ def make_folders(cfg: DictConfig) -> None:
     for key, folder in folders:
         blocking = next((p for p in (folder, *folder.parents) if p.exists() and not p.is_dir()), None)
         if blocking is not None:
-            raise ConfigError(f"{key}={str(folder)!r}: {str(blocking)!r} is a file, not a folder; "
-                              f"allowed: a folder path (move the file or pick another)")
+            raise ConfigError(
+                f"{key}={str(folder)!r}: {str(blocking)!r} is a file, not a folder; "
+                f"allowed: a folder path (move the file or pick another)"
+            )
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as err:
-            raise ConfigError(f"{key}={str(folder)!r} cannot be created ({err.strerror}); allowed: a writable folder") from None
+            raise ConfigError(
+                f"{key}={str(folder)!r} cannot be created ({err.strerror}); allowed: a writable folder"
+            ) from None
         if not os.access(folder, os.W_OK | os.X_OK):
             raise ConfigError(f"{key}={str(folder)!r} is not writable; allowed: a writable folder")
 
@@ -233,25 +260,44 @@ def _instantiate(checked: Checked, recorded: Mapping[str, float] | None):
     model = build_model(checked, system, observation)
     objective = checked.objective
     data_cfg = {**OmegaConf.to_container(cfg.data, resolve=True), "objective": objective}
-    data = TrajectoryDataModule(system, observation.data_chart(system, model.chart),
-                                OmegaConf.to_container(cfg.system, resolve=True),
-                                cache_dir=cfg.paths.cache_dir, **data_cfg)
+    data = TrajectoryDataModule(
+        system,
+        observation.data_chart(system, model.chart),
+        OmegaConf.to_container(cfg.system, resolve=True),
+        cache_dir=cfg.paths.cache_dir,
+        **data_cfg,
+    )
     data.prepare_data()
     data.setup()
-    observation.check_data(data.arrays["train"], f"the data of system '{system.name}'"
-                           + (f" ({data.path})" if data.path else ""), data.chunk_len)
+    observation.check_data(
+        data.arrays["train"],
+        f"the data of system '{system.name}'" + (f" ({data.path})" if data.path else ""),
+        data.chunk_len,
+    )
     test_steps = data.states["test"].shape[1] - 1
     if cfg.horizon > test_steps:
-        raise ConfigError(f"horizon={cfg.horizon} exceeds the {test_steps} steps of a test trajectory; "
-                          f"allowed: 1..{test_steps}")
+        raise ConfigError(
+            f"horizon={cfg.horizon} exceeds the {test_steps} steps of a test trajectory; allowed: 1..{test_steps}"
+        )
     regulariser = instantiate_node(checked, "regulariser") if cfg.get("regulariser") else None
     optimizer, scheduler = build_optimizer(checked, model)
-    module = TrainingModule(model, system, data.dt, instantiate_node(checked, "integrator"), optimizer,
-                            scheduler, objective=objective, regulariser=regulariser, observation=observation,
-                            horizon=cfg.horizon, model_name=cfg.get("model_name"),
-                            evaluation=build_evaluation(checked),
-                            evaluators=build_evaluators(checked, observation.identity),
-                            recorded=recorded, validation=cfg.validation.criterion)
+    module = TrainingModule(
+        model,
+        system,
+        data.dt,
+        instantiate_node(checked, "integrator"),
+        optimizer,
+        scheduler,
+        objective=objective,
+        regulariser=regulariser,
+        observation=observation,
+        horizon=cfg.horizon,
+        model_name=cfg.get("model_name"),
+        evaluation=build_evaluation(checked),
+        evaluators=build_evaluators(checked, observation.identity),
+        recorded=recorded,
+        validation=cfg.validation.criterion,
+    )
     return data, module
 
 
@@ -306,15 +352,19 @@ def _route_lightning_logs() -> None:
 
 
 @declare("", figures=bool)
-@declare("trainer", max_epochs=Annotated[int, Range(ge=1, says="an integer >= 1")] | None, gradient_clip_val=NonNegative | None)
+@declare(
+    "trainer",
+    max_epochs=Annotated[int, Range(ge=1, says="an integer >= 1")] | None,
+    gradient_clip_val=NonNegative | None,
+)
 def build_trainer(cfg: DictConfig | Checked, request: Request = Request()):
     """The Lightning Trainer of ``cfg.trainer`` with the configured loggers and callbacks (a plain config is
     validated first, and the folders made); every checkpoint it writes carries the resolved run config
     (``encons.infra.checkpoints``) and is written atomically (``encons.infra.lightning_io``); a test's results go to
     ``cfg.paths.output_dir`` (``encons.training.callbacks.TestResults``; its figures unless ``figures=false``)."""
-    from encons.training.callbacks import ProgressBar, RunConfigInCheckpoints, TestResults
     from encons.infra.compat import drop_wandb_anonymous
     from encons.infra.lightning_io import AtomicCheckpointIO
+    from encons.training.callbacks import ProgressBar, RunConfigInCheckpoints, TestResults
 
     checked = cfg if isinstance(cfg, Checked) else validate(cfg, request)
     cfg = checked.cfg
@@ -325,8 +375,9 @@ def build_trainer(cfg: DictConfig | Checked, request: Request = Request()):
         drop_wandb_anonymous(lg)
     callbacks = [instantiate_node(checked, f"callbacks.{name}") for name in (cfg.get("callbacks") or {})]
     callbacks += [RunConfigInCheckpoints(checked.resolved), TestResults(cfg.paths.output_dir, cfg.get("figures", True))]
-    callbacks += [ProgressBar()] if cfg.trainer.get("enable_progress_bar", True) else []   # epochs from 1
+    callbacks += [ProgressBar()] if cfg.trainer.get("enable_progress_bar", True) else []  # epochs from 1
     none = {"limit_val_batches": 0} if cfg.validation.criterion == "none" else {}  # validation.criterion=none
-    trainer = instantiate_node(checked, "trainer", logger=loggers or False, callbacks=callbacks,
-                               plugins=[AtomicCheckpointIO()], **none)
+    trainer = instantiate_node(
+        checked, "trainer", logger=loggers or False, callbacks=callbacks, plugins=[AtomicCheckpointIO()], **none
+    )
     return trainer, loggers

@@ -18,12 +18,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import lightning.pytorch as pl
+from lightning.pytorch.callbacks import ModelCheckpoint, RichProgressBar
 from omegaconf import DictConfig, OmegaConf
 
-from lightning.pytorch.callbacks import ModelCheckpoint, RichProgressBar
-
 from encons.evaluators import figures
-
 from encons.infra import checkpoints
 from encons.infra.bounds import Count, Positive
 from encons.infra.io import save_npz, write_json
@@ -77,7 +75,7 @@ class EpochLine(pl.Callback):
 
     def on_train_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         self.started, self.first_epoch = time.perf_counter(), trainer.current_epoch
-        self.shown = None                       # when the console last got a line
+        self.shown = None  # when the console last got a line
 
     def on_train_epoch_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         if not trainer.is_global_zero:
@@ -87,19 +85,27 @@ class EpochLine(pl.Callback):
         now = time.perf_counter()
         elapsed = now - self.started
         keys = (*self.metrics, monitored(trainer))
-        shown = [f"{k} {float(trainer.callback_metrics[k]):.4g}" for k in dict.fromkeys(keys)
-                 if k in trainer.callback_metrics]
-        eta = (f", ETA {duration(elapsed / (done - self.first_epoch) * (total - done))}"
-               if total and done > self.first_epoch else "")
-        line = (f"epoch {done}{f' of {total}' if total else ''} (step {trainer.global_step}): {', '.join(shown)}, "
-                f"elapsed {duration(elapsed)}{eta}")
+        shown = [
+            f"{k} {float(trainer.callback_metrics[k]):.4g}"
+            for k in dict.fromkeys(keys)
+            if k in trainer.callback_metrics
+        ]
+        eta = (
+            f", ETA {duration(elapsed / (done - self.first_epoch) * (total - done))}"
+            if total and done > self.first_epoch
+            else ""
+        )
+        line = (
+            f"epoch {done}{f' of {total}' if total else ''} (step {trainer.global_step}): {', '.join(shown)}, "
+            f"elapsed {duration(elapsed)}{eta}"
+        )
         last = done == total or (trainer.max_steps > 0 and trainer.global_step >= trainer.max_steps)
         due = self.shown is None or now - self.shown >= self.every_s or last
         if due and trainer.progress_bar_callback is not None and not sys.stdout.isatty():
             self.shown = now
-            log.info(line)              # console and log files
+            log.info(line)  # console and log files
         else:
-            to_log_files(line)          # the log files only: the progress bar shows it live, or not yet due
+            to_log_files(line)  # the log files only: the progress bar shows it live, or not yet due
 
 
 class CostLine(pl.Callback):
@@ -127,13 +133,20 @@ class CostLine(pl.Callback):
         row["train"] = row["total"] - row["validation"] - row["checkpoint"]
         self.rows.append(row)
         if trainer.is_global_zero:
-            to_log_files(f"epoch {int(row['epoch'])} cost: train {row['train']:.3g} s, validation "
-                         f"{row['validation']:.3g} s, checkpoint {row['checkpoint']:.3g} s")
+            to_log_files(
+                f"epoch {int(row['epoch'])} cost: train {row['train']:.3g} s, validation "
+                f"{row['validation']:.3g} s, checkpoint {row['checkpoint']:.3g} s"
+            )
 
     def on_train_epoch_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         self._close(trainer)
-        self.open = {"epoch": trainer.current_epoch + 1, "start": time.perf_counter(),
-                     "written": self._written(trainer), "validation": 0.0, "validated": 0}
+        self.open = {
+            "epoch": trainer.current_epoch + 1,
+            "start": time.perf_counter(),
+            "written": self._written(trainer),
+            "validation": 0.0,
+            "validated": 0,
+        }
 
     def on_validation_epoch_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         self.val_start = time.perf_counter()
@@ -149,8 +162,14 @@ class CostLine(pl.Callback):
             return
         n = len(self.rows)
         mean = {k: sum(r[k] for r in self.rows) / n for k in ("train", "validation", "checkpoint", "total")}
-        log.info("cost per epoch (mean of %d): train %.3g s, validation %.3g s (%d validations), checkpoint %.3g s",
-                 n, mean["train"], mean["validation"], sum(int(r["validated"]) for r in self.rows), mean["checkpoint"])
+        log.info(
+            "cost per epoch (mean of %d): train %.3g s, validation %.3g s (%d validations), checkpoint %.3g s",
+            n,
+            mean["train"],
+            mean["validation"],
+            sum(int(r["validated"]) for r in self.rows),
+            mean["checkpoint"],
+        )
         self.output_dir.mkdir(parents=True, exist_ok=True)
         write_json(self.output_dir / "costs.json", {"mean": mean, "epochs": self.rows})
 
@@ -190,9 +209,18 @@ class StallLine(pl.Callback):
                 "stalled: %s has stayed at %.6g (within %g relative) for %d validations since epoch %d (now epoch "
                 "%d, step %d); the model is not learning. Likely remedies: another optimizer.lr (lower if the loss "
                 "jumped before it froze, higher if it never moved)%s; callbacks.stall.patience=%d sets when this is said",
-                key, value, self.rtol, self.count, self.since, trainer.current_epoch + 1, trainer.global_step,
-                f", or objective={' / '.join(others)} (docs/data.md: which objective for a recording)" if others else "",
-                self.patience)
+                key,
+                value,
+                self.rtol,
+                self.count,
+                self.since,
+                trainer.current_epoch + 1,
+                trainer.global_step,
+                f", or objective={' / '.join(others)} (docs/data.md: which objective for a recording)"
+                if others
+                else "",
+                self.patience,
+            )
 
 
 class BestCheckpoint(ModelCheckpoint):
@@ -230,8 +258,11 @@ class TestResults(pl.Callback):
         if not trainer.is_global_zero:
             return
         drawing = module.evaluators.values() if self.figures else ()
-        paths = [figures.save_png(fig, self.output_dir / "figures" / f"{stem}.png", layout=False)
-                 for evaluator in drawing for stem, fig in evaluator.figures(module).items()]
+        paths = [
+            figures.save_png(fig, self.output_dir / "figures" / f"{stem}.png", layout=False)
+            for evaluator in drawing
+            for stem, fig in evaluator.figures(module).items()
+        ]
         for logger in trainer.loggers:
             figures.log_figures(logger, paths)
         write_json(self.output_dir / "test_metrics.json", module.test_metrics)
@@ -264,11 +295,19 @@ class MemberCheckpoints(pl.Callback):
                 continue
             if old is None and math.isnan(value):
                 continue
-            path = self.dirs[i] / "checkpoints" / f"best-epoch{trainer.current_epoch + 1:04d}.ckpt"  # from 1, as the log
-            save_checkpoint({"epoch": trainer.current_epoch, "global_step": trainer.global_step,
-                             "pytorch-lightning_version": pl.__version__,
-                             "state_dict": module.members[i].state_dict(),
-                             checkpoints.CONFIG_KEY: self.configs[i]}, path)
+            path = (
+                self.dirs[i] / "checkpoints" / f"best-epoch{trainer.current_epoch + 1:04d}.ckpt"
+            )  # from 1, as the log
+            save_checkpoint(
+                {
+                    "epoch": trainer.current_epoch,
+                    "global_step": trainer.global_step,
+                    "pytorch-lightning_version": pl.__version__,
+                    "state_dict": module.members[i].state_dict(),
+                    checkpoints.CONFIG_KEY: self.configs[i],
+                },
+                path,
+            )
             if old is not None and old[1] != path:
                 old[1].unlink(missing_ok=True)
             self.best[i] = (value, path)

@@ -53,10 +53,14 @@ log = logging.getLogger(__name__)
 def check_seeds(seeds: Any) -> list[int]:
     """The ``seeds`` list, refused in one line unless it is a non-empty list of distinct integer seeds."""
     values = list(seeds) if isinstance(seeds, (list, tuple)) or OmegaConf.is_list(seeds) else None
-    if (not values or not all(isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**32 for s in values)
-            or len(set(values)) != len(values)):
-        raise ConfigError(f"seeds={seeds}; allowed: a non-empty list of distinct integer seeds in 0..2**32-1, "
-                          f"e.g. seeds=[0,1,2]")
+    if (
+        not values
+        or not all(isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**32 for s in values)
+        or len(set(values)) != len(values)
+    ):
+        raise ConfigError(
+            f"seeds={seeds}; allowed: a non-empty list of distinct integer seeds in 0..2**32-1, e.g. seeds=[0,1,2]"
+        )
     return values
 
 
@@ -64,15 +68,21 @@ def refuse(cfg: DictConfig, request: Request) -> None:
     """Refuse, in one line each, what an ensemble cannot be: data that differ per seed, DDP, an explicit ``seed``
     beside ``seeds``. (``train`` refuses the plain-inverse retry once the config is checked: it needs the model.)"""
     if "seed" in request.overridden():
-        raise ConfigError(f"seed={cfg.seed} beside seeds={list(cfg.seeds)}: the members' seeds are the list; "
-                          f"allowed: one of seed=K or seeds=[...]")
+        raise ConfigError(
+            f"seed={cfg.seed} beside seeds={list(cfg.seeds)}: the members' seeds are the list; "
+            f"allowed: one of seed=K or seeds=[...]"
+        )
     devices, strategy = cfg.trainer.get("devices", 1), str(cfg.trainer.get("strategy", "auto"))
     if (isinstance(devices, int) and devices > 1) or devices in ("auto", -1) or "ddp" in strategy:
-        raise ConfigError(f"trainer.devices={devices} trainer.strategy={strategy} with seeds: an ensemble trains "
-                          f"its members in one process on one device; allowed: trainer.devices=1 (no DDP) with seeds")
+        raise ConfigError(
+            f"trainer.devices={devices} trainer.strategy={strategy} with seeds: an ensemble trains "
+            f"its members in one process on one device; allowed: trainer.devices=1 (no DDP) with seeds"
+        )
     if "${seed" in str(OmegaConf.to_yaml(OmegaConf.masked_copy(cfg, ["data"]), resolve=False)):
-        raise ConfigError("data.seed follows seed, so each member would train on other data; allowed: a fixed "
-                          "data.seed with seeds (the members share their batches)")
+        raise ConfigError(
+            "data.seed follows seed, so each member would train on other data; allowed: a fixed "
+            "data.seed with seeds (the members share their batches)"
+        )
 
 
 def member_config(cfg: DictConfig, seed: int, output_dir: Path) -> DictConfig:
@@ -95,8 +105,13 @@ def _checkpointers(cfg: DictConfig, targets: Mapping[str, Any]) -> dict[str, Dic
     """The callbacks of ``cfg`` that are Lightning ``ModelCheckpoint``s, by class (encons' ``BestCheckpoint`` is one)."""
     from lightning.pytorch.callbacks import ModelCheckpoint
 
-    return {name: node for name, node in (cfg.get("callbacks") or {}).items() if isinstance(node, DictConfig)
-            and isinstance(cls := targets.get(str(node.get("_target_"))), type) and issubclass(cls, ModelCheckpoint)}
+    return {
+        name: node
+        for name, node in (cfg.get("callbacks") or {}).items()
+        if isinstance(node, DictConfig)
+        and isinstance(cls := targets.get(str(node.get("_target_"))), type)
+        and issubclass(cls, ModelCheckpoint)
+    }
 
 
 def _monitor(cfg: DictConfig, targets: Mapping[str, Any]) -> tuple[str, str] | None:
@@ -107,24 +122,31 @@ def _monitor(cfg: DictConfig, targets: Mapping[str, Any]) -> tuple[str, str] | N
     return None
 
 
-def train(cfg: DictConfig, summary: bool, request: Request,
-          member_dir: Callable[[int], Path] | None = None, stacked: bool | None = None) -> Ensemble:
+def train(
+    cfg: DictConfig,
+    summary: bool,
+    request: Request,
+    member_dir: Callable[[int], Path] | None = None,
+    stacked: bool | None = None,
+) -> Ensemble:
     """Train the ensemble ``cfg.seeds`` of ``cfg`` (see the module docstring); member ``k`` writes to
     ``member_dir(k)`` (default ``<run>/seed<k>``) and is returned as a :class:`~encons.training.results.Run`.
     ``stacked``: None picks the stacked path where ``encons.training.stacked.why_not`` and the first batch allow it;
     False forces the loop."""
-    from encons.training.build import build, build_trainer
     from encons.config.check import run_config, validate
-    from encons.training.fitting import fit
     from encons.infra.io import write_json, write_yaml
+    from encons.training.build import build, build_trainer
+    from encons.training.fitting import fit
 
     started = time.perf_counter()
     seeds = check_seeds(cfg.seeds)
     refuse(cfg, request)
     checked = validate(cfg, request)  # the one validation pass: the members differ from it in seed and folders only
     if cfg.get("plain_solve") and attempts.has_guard(checked.model):
-        raise ConfigError("plain_solve=true retrains a run from scratch when the plain inverse diverges, which "
-                          "one member of an ensemble cannot do alone; allowed: plain_solve=false with seeds")
+        raise ConfigError(
+            "plain_solve=true retrains a run from scratch when the plain inverse diverges, which "
+            "one member of an ensemble cannot do alone; allowed: plain_solve=false with seeds"
+        )
     run_dir = Path(cfg.paths.output_dir)
     dirs = [member_dir(s) if member_dir else run_dir / f"seed{s}" for s in seeds]
     configs = [member_config(cfg, s, d) for s, d in zip(seeds, dirs)]
@@ -139,8 +161,10 @@ def train(cfg: DictConfig, summary: bool, request: Request,
     if resume is not None:
         saved_state = checkpoints.read(resume, "ckpt_path").get(ENSEMBLE_KEY)
         if saved_state is None:
-            raise ConfigError(f"ckpt_path={resume} is not a seed ensemble's checkpoint (a single run's, or a member's "
-                              f"best weights); allowed: ckpt_path=last, or the ensemble's checkpoints/last.ckpt")
+            raise ConfigError(
+                f"ckpt_path={resume} is not a seed ensemble's checkpoint (a single run's, or a member's "
+                f"best weights); allowed: ckpt_path=last, or the ensemble's checkpoints/last.ckpt"
+            )
         stacked = saved_state["path"] if stacked is None else stacked  # the path its checkpoint was written on
     built = [build(checked.derived(c)) for c in configs]
     data, members = built[0][0], [m for _, m in built]
@@ -163,8 +187,13 @@ def train(cfg: DictConfig, summary: bool, request: Request,
         keeper = None
     if resume is not None:  # resuming writes into the run's own checkpoints/ on purpose
         warnings.filterwarnings("ignore", message=r"Checkpoint directory .* exists and is not empty")
-    log.info("ensemble of %d members (seeds %s), path: %s%s", len(seeds), seeds, module.path,
-             f"; resumed from {resume}" if resume else "")
+    log.info(
+        "ensemble of %d members (seeds %s), path: %s%s",
+        len(seeds),
+        seeds,
+        module.path,
+        f"; resumed from {resume}" if resume else "",
+    )
     try:
         fit(cfg, trainer, module, data, resume, request)
     finally:
@@ -173,8 +202,9 @@ def train(cfg: DictConfig, summary: bool, request: Request,
 
             wandb.finish()
     module.release()
-    return _test_members(cfg, checked, module, data, trainer, MemberFiles(configs, saved, dirs), keeper, started,
-                         summary)
+    return _test_members(
+        cfg, checked, module, data, trainer, MemberFiles(configs, saved, dirs), keeper, started, summary
+    )
 
 
 def _module(cfg: DictConfig, members: list, seeds: list[int], data, stacked: bool | str | None) -> EnsembleModule:
@@ -205,8 +235,13 @@ def _module(cfg: DictConfig, members: list, seeds: list[int], data, stacked: boo
     if stacked is None:
         fast, slow = stacking.step_times(module.stacked, members, batch)
         if fast >= slow:
-            return _loop(cfg, members, seeds, f"loop: measured faster on the first batch ({module.path}: "
-                                              f"{1e3 * fast:.3g} ms per step, loop: {1e3 * slow:.3g} ms)")
+            return _loop(
+                cfg,
+                members,
+                seeds,
+                f"loop: measured faster on the first batch ({module.path}: "
+                f"{1e3 * fast:.3g} ms per step, loop: {1e3 * slow:.3g} ms)",
+            )
     return module
 
 
@@ -241,12 +276,21 @@ class MemberFiles:
     dirs: list[Path]
 
 
-def _test_members(cfg: DictConfig, checked: Checked, module: EnsembleModule, data, trainer: pl.Trainer,
-                  files: MemberFiles, keeper: MemberCheckpoints | None, started: float, summary: bool) -> Ensemble:
+def _test_members(
+    cfg: DictConfig,
+    checked: Checked,
+    module: EnsembleModule,
+    data,
+    trainer: pl.Trainer,
+    files: MemberFiles,
+    keeper: MemberCheckpoints | None,
+    started: float,
+    summary: bool,
+) -> Ensemble:
     """Test each member that did not diverge on its best checkpoint (else its last weights), as its separate
     run would; write the ensemble's ``test_metrics.json`` and summary."""
-    from encons.training.build import build_trainer
     from encons.infra.io import write_json
+    from encons.training.build import build_trainer
     from encons.training.summary import print_summary
 
     seeds, configs, saved, dirs = module.seeds, files.configs, files.saved, files.dirs
@@ -282,13 +326,16 @@ def _test_members(cfg: DictConfig, checked: Checked, module: EnsembleModule, dat
     tested = [module.members[i] for i in range(len(seeds)) if seeds[i] in per_member]
     if cfg.test and cfg.get("figures", True) and len(tested) > 1:
         _ensemble_figures(tested, [s for s in seeds if s in per_member], run_dir / "figures")
-    tests = summarise({s: {k.removeprefix("test/"): v for k, v in r.items() if k.startswith("test/")}
-                       for s, r in per_member.items()})
+    tests = summarise(
+        {s: {k.removeprefix("test/"): v for k, v in r.items() if k.startswith("test/")} for s, r in per_member.items()}
+    )
     write_json(run_dir / "test_metrics.json", {**tests, "members": len(seeds), "diverged": len(diverged)})
     metrics["members"], metrics["diverged"] = float(len(seeds)), float(len(diverged))
-    note = (f"{spread_line(metrics, len(per_member))}; ensemble of seeds {seeds} ({module.path}); _sd: sample std, "
-            f"_min/_max; member folders: {', '.join(str(d) for d in dirs)}"
-            + "".join(f"; seed {s} diverged: {w}" for s, w in diverged.items()))
+    note = (
+        f"{spread_line(metrics, len(per_member))}; ensemble of seeds {seeds} ({module.path}); _sd: sample std, "
+        f"_min/_max; member folders: {', '.join(str(d) for d in dirs)}"
+        + "".join(f"; seed {s} diverged: {w}" for s, w in diverged.items())
+    )
     shown = {k: v for k, v in metrics.items() if not k.endswith(("_min", "_max"))}
     print_summary(f"{module.members[0].run_title()} × {len(seeds)} seeds", shown, run_dir, note=note, console=summary)
     return Ensemble(runs, seeds, diverged, metrics, run_dir, module.path, per_member)

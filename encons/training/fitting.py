@@ -59,14 +59,16 @@ def fit(cfg: DictConfig, trainer: Any, module: Any, data: Any, resume: str | Non
             trainer.fit(module, datamodule=data, ckpt_path=resume, weights_only=True)
         except SIGTERMException:
             name = "SIGINT" if received else "SIGTERM"
-            raise Interrupted(resume_line(cfg, request, trainer.current_epoch, name),
-                              status=130 if received else 143) from None
+            raise Interrupted(
+                resume_line(cfg, request, trainer.current_epoch, name), status=130 if received else 143
+            ) from None
         except MisconfigurationException as err:
             names = logged_metric_names(err)
             if names is None:
                 raise
-            raise ConfigError(f"optimized_metric={cfg.optimized_metric!r} is not a metric this run logs; allowed: "
-                              f"{', '.join(names)}") from None
+            raise ConfigError(
+                f"optimized_metric={cfg.optimized_metric!r} is not a metric this run logs; allowed: {', '.join(names)}"
+            ) from None
 
 
 def resume_line(cfg: DictConfig, request: Request, epoch: int, name: str = "SIGTERM") -> str:
@@ -76,7 +78,10 @@ def resume_line(cfg: DictConfig, request: Request, epoch: int, name: str = "SIGT
     given = list(request.overrides)
     kept = [o for o in given if not o.lstrip("+~").startswith(("ckpt_path=", "hydra.run.dir="))]
     if not last.is_file():
-        return f"{name} during fit, epoch {epoch + 1}, before the first checkpoint; start again: " + \
-            shlex.join(["python", "-m", "encons.train", *given])
-    return (f"{name} during fit, epoch {epoch + 1} (checkpoints/last.ckpt holds the last whole epoch); resume: "
-            + shlex.join(["python", "-m", "encons.train", *kept, f"ckpt_path={last}", f"hydra.run.dir={run_dir}"]))
+        return f"{name} during fit, epoch {epoch + 1}, before the first checkpoint; start again: " + shlex.join(
+            ["python", "-m", "encons.train", *given]
+        )
+    return (
+        f"{name} during fit, epoch {epoch + 1} (checkpoints/last.ckpt holds the last whole epoch); resume: "
+        + shlex.join(["python", "-m", "encons.train", *kept, f"ckpt_path={last}", f"hydra.run.dir={run_dir}"])
+    )

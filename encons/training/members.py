@@ -71,14 +71,18 @@ class EnsembleModule(pl.LightningModule):
     each as its separate run would train (see the module docstring). ``clip`` is the trainer's gradient
     clipping (value, algorithm), applied per member."""
 
-    def __init__(self, members: Sequence[pl.LightningModule], seeds: Sequence[int],
-                 clip: tuple[float | None, str | None] = (None, None)):
+    def __init__(
+        self,
+        members: Sequence[pl.LightningModule],
+        seeds: Sequence[int],
+        clip: tuple[float | None, str | None] = (None, None),
+    ):
         super().__init__()
         self.members = torch.nn.ModuleList(members)
         self.seeds = list(seeds)
         self.clip = clip
         self.automatic_optimization = False
-        self.diverged: dict[int, str] = {}     # member index -> why
+        self.diverged: dict[int, str] = {}  # member index -> why
         self.path = "loop"
         self.schedules: list[Schedule | None] = []
         self.rng = [torch.get_rng_state() for _ in members]  # each member's torch RNG, as its own run left it
@@ -88,6 +92,7 @@ class EnsembleModule(pl.LightningModule):
     def _member_logger(self, i: int) -> Callable[..., None]:
         def log_member(name: str, value: Any, prog_bar: bool = False, **kwargs: Any) -> None:
             self.log(f"seed{self.seeds[i]}/{name}", value, **kwargs)
+
         return log_member
 
     def release(self) -> None:
@@ -111,7 +116,9 @@ class EnsembleModule(pl.LightningModule):
             if isinstance(conf, dict):
                 sched = conf["lr_scheduler"]
                 optimizers.append(conf["optimizer"])
-                self.schedules.append(Schedule(sched["scheduler"], sched.get("interval", "epoch"), sched.get("monitor")))
+                self.schedules.append(
+                    Schedule(sched["scheduler"], sched.get("interval", "epoch"), sched.get("monitor"))
+                )
             else:
                 optimizers.append(conf)
                 self.schedules.append(None)
@@ -130,8 +137,13 @@ class EnsembleModule(pl.LightningModule):
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         """What Lightning does not keep of an ensemble (its ``last.ckpt``): each member's RNG and schedules
         (stepped here, not by Lightning) and which members diverged."""
-        checkpoint[ENSEMBLE_KEY] = {"seeds": list(self.seeds), "rng": list(self.rng), "diverged": dict(self.diverged),
-                                    "schedules": self.schedule_states(), "path": self.path}
+        checkpoint[ENSEMBLE_KEY] = {
+            "seeds": list(self.seeds),
+            "rng": list(self.rng),
+            "diverged": dict(self.diverged),
+            "schedules": self.schedule_states(),
+            "path": self.path,
+        }
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         self.__dict__["restored"] = checkpoint.get(ENSEMBLE_KEY)  # applied once the optimisers exist
@@ -170,8 +182,12 @@ class EnsembleModule(pl.LightningModule):
         opt = self.optimizers()
         losses = self.member_losses(batch, batch_idx)
         if losses:
-            self.log("train/loss", torch.stack([v.detach() for v in losses.values()]).mean(), prog_bar=True,
-                     batch_size=len(batch["states"]))
+            self.log(
+                "train/loss",
+                torch.stack([v.detach() for v in losses.values()]).mean(),
+                prog_bar=True,
+                batch_size=len(batch["states"]),
+            )
         opt.optimizer.active = list(losses)
         if not losses:
             return
@@ -217,16 +233,27 @@ class EnsembleModule(pl.LightningModule):
 class StackedEnsemble(EnsembleModule):
     """``EnsembleModule`` whose members train as one ``StackedTraining`` (one forward and backward for all)."""
 
-    def __init__(self, members: Sequence[TrainingModule], seeds: Sequence[int], clip=(None, None),
-                 dimension: bool = True):
+    def __init__(
+        self, members: Sequence[TrainingModule], seeds: Sequence[int], clip=(None, None), dimension: bool = True
+    ):
         super().__init__(members, seeds, clip)
         m = members[0]
-        model = stacking.StackedModel([x.model for x in members],
-                                      dimension=dimension and stacking.dimension_penalty(m.model, m.regulariser))
+        model = stacking.StackedModel(
+            [x.model for x in members], dimension=dimension and stacking.dimension_penalty(m.model, m.regulariser)
+        )
         self.path = f"stacked ({'ensemble dimension' if model.dimension is not None else 'vmap'})"
-        self.stacked = stacking.StackedTraining(model, m.system, m.dt, m.integrator, m.optimizer, m.scheduler,
-                                                objective=m.objective, regulariser=m.regulariser, horizon=m.horizon,
-                                                model_name=m.model_name)
+        self.stacked = stacking.StackedTraining(
+            model,
+            m.system,
+            m.dt,
+            m.integrator,
+            m.optimizer,
+            m.scheduler,
+            objective=m.objective,
+            regulariser=m.regulariser,
+            horizon=m.horizon,
+            model_name=m.model_name,
+        )
         self.factors: list[Any] = []  # per member: a one-parameter optimiser whose lr its plateau scheduler moves
 
     def configure_optimizers(self):
@@ -252,8 +279,11 @@ class StackedEnsemble(EnsembleModule):
 
     def schedule_states(self) -> dict:
         shared = getattr(self, "shared", None)
-        return {**super().schedule_states(), "shared": None if shared is None else shared.scheduler.state_dict(),
-                "factors": [shadow.state_dict() for shadow in self.factors]}
+        return {
+            **super().schedule_states(),
+            "shared": None if shared is None else shared.scheduler.state_dict(),
+            "factors": [shadow.state_dict() for shadow in self.factors],
+        }
 
     def load_schedule_states(self, states: dict) -> None:
         super().load_schedule_states(states)
@@ -273,8 +303,10 @@ class StackedEnsemble(EnsembleModule):
             if penalty is not None:
                 self.log(f"seed{self.seeds[i]}/train/regulariser", penalty[i].detach(), batch_size=size)
             if not bool(finite[i]):
-                self.diverged[i] = (f"training diverged: loss is {float(losses[i])} at epoch {self.current_epoch}, "
-                                    f"step {self.global_step}")
+                self.diverged[i] = (
+                    f"training diverged: loss is {float(losses[i])} at epoch {self.current_epoch}, "
+                    f"step {self.global_step}"
+                )
                 self._diverge(i, Exception(self.diverged[i]))
         active = self.active
         if not active:

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import inspect
 import logging
-from functools import partial
 from collections.abc import Mapping
+from functools import partial
 from pathlib import Path
 from typing import Any, Callable
 
@@ -26,17 +26,16 @@ import torch
 from torch import Tensor
 from torch.optim import Optimizer
 
-from encons.infra import checkpoints
-
-from encons.numerics import metrics
-from encons.infra.errors import ConfigError, DivergenceError
-from encons.numerics.evaluation import Evaluation
 from encons.evaluators.base import Evaluator, TestBatch
-from encons.numerics.integrators import Integrator, rollout
+from encons.infra import checkpoints
+from encons.infra.errors import ConfigError, DivergenceError
 from encons.models.base import DynamicsModel
 from encons.models.observation import Observation
-from encons.training.objectives import OBJECTIVES
+from encons.numerics import metrics
+from encons.numerics.evaluation import Evaluation
+from encons.numerics.integrators import Integrator, rollout
 from encons.systems.base import System
+from encons.training.objectives import OBJECTIVES
 
 log = logging.getLogger(__name__)
 Regulariser = Callable[[DynamicsModel, Tensor, Tensor | None], Tensor]
@@ -50,12 +49,24 @@ class TrainingModule(pl.LightningModule):
     Objectives and evaluators see it as an ``encons.numerics.learner.Learner``; its arguments come checked
     (``encons.config.check.validate``), so it does not check them again."""
 
-    def __init__(self, model: DynamicsModel, system: System, dt: float, integrator: Integrator,
-                 optimizer: Callable[..., Optimizer] | None = None, scheduler: Callable[..., Any] | None = None,
-                 objective: str | None = None, regulariser: Regulariser | None = None,
-                 horizon: int = 4, observation: Observation | None = None, model_name: str | None = None,
-                 evaluation: Evaluation | None = None, evaluators: Mapping[str, Evaluator] | None = None,
-                 recorded: Mapping[str, float] | None = None, validation: str = "rollout"):
+    def __init__(
+        self,
+        model: DynamicsModel,
+        system: System,
+        dt: float,
+        integrator: Integrator,
+        optimizer: Callable[..., Optimizer] | None = None,
+        scheduler: Callable[..., Any] | None = None,
+        objective: str | None = None,
+        regulariser: Regulariser | None = None,
+        horizon: int = 4,
+        observation: Observation | None = None,
+        model_name: str | None = None,
+        evaluation: Evaluation | None = None,
+        evaluators: Mapping[str, Evaluator] | None = None,
+        recorded: Mapping[str, float] | None = None,
+        validation: str = "rollout",
+    ):
         super().__init__()
         self.model_name = model_name  # the model's config name (hnn_angle, not the class HNN) for titles
         objective = objective or model.objectives[0]  # checked against model and observation by encons.config.check
@@ -93,7 +104,9 @@ class TrainingModule(pl.LightningModule):
 
     def rollout_loss(self, x: Tensor, states: Tensor, pred: Tensor) -> Tensor:
         """L1 of the rollout against the (encoded) states, summed over the window, plus the observation's terms."""
-        return self.reduce((pred[:, : states.shape[1]] - states).abs().sum((-1, -2))) + self.observation.loss(x, states, pred)
+        return self.reduce((pred[:, : states.shape[1]] - states).abs().sum((-1, -2))) + self.observation.loss(
+            x, states, pred
+        )
 
     def reduce(self, terms: Tensor) -> Tensor:
         """The batch mean of a loss's terms (leading axis: windows or points); ``encons.training.stacked`` means per member."""
@@ -117,7 +130,8 @@ class TrainingModule(pl.LightningModule):
         if not torch.isfinite(loss):
             raise DivergenceError(
                 f"training diverged: loss is {loss.item()} at epoch {self.current_epoch + 1}, step "
-                f"{self.global_step}; {self._kept_checkpoint()}; allowed: a lower optimizer.lr (or a larger model.mass_eps / model.guard where the model has one)")
+                f"{self.global_step}; {self._kept_checkpoint()}; allowed: a lower optimizer.lr (or a larger model.mass_eps / model.guard where the model has one)"
+            )
         return loss
 
     def penalty(self, batch: Batch) -> Tensor | None:
@@ -144,8 +158,11 @@ class TrainingModule(pl.LightningModule):
         """What a diverged run leaves to resume from, said truthfully."""
         # the "last" callback (monitor null, filename last) records its file as best_model_path;
         # last_model_path is set only by save_last=True
-        paths = [path for cb in self.trainer.checkpoint_callbacks
-                 for path in (cb.last_model_path, cb.best_model_path if cb.monitor is None else "")]
+        paths = [
+            path
+            for cb in self.trainer.checkpoint_callbacks
+            for path in (cb.last_model_path, cb.best_model_path if cb.monitor is None else "")
+        ]
         kept = [Path(p) for p in paths if p and Path(p).is_file()]
         if not kept:
             return "no checkpoint was written before it (none to resume from)"
@@ -195,11 +212,15 @@ class TrainingModule(pl.LightningModule):
         self.test_metrics, self.test_curves = {}, {}
         for name, evaluator in self.evaluators.items():
             result = evaluator.compute(self)
-            for kind, merged, new in (("metric", self.test_metrics, result.metrics),
-                                      ("curve", self.test_curves, result.curves)):
+            for kind, merged, new in (
+                ("metric", self.test_metrics, result.metrics),
+                ("curve", self.test_curves, result.curves),
+            ):
                 if clash := sorted(set(merged) & set(new)):
-                    raise ConfigError(f"evaluators.{name} gives the {kind} {clash[0]!r} another evaluator of this "
-                                      f"run gives too; allowed: evaluators whose {kind} names differ")
+                    raise ConfigError(
+                        f"evaluators.{name} gives the {kind} {clash[0]!r} another evaluator of this "
+                        f"run gives too; allowed: evaluators whose {kind} names differ"
+                    )
                 merged.update(new)
         self.test_metrics.update(self.recorded)
         self.log_dict({f"test/{k}": v for k, v in self.test_metrics.items()}, sync_dist=True)
@@ -210,8 +231,7 @@ class TrainingModule(pl.LightningModule):
         if self.regulariser is not None:
             model += f" + {getattr(self.regulariser, 'label', type(self.regulariser).__name__)}"
         if not self.observation.identity:
-            return (f"{model} on {self.system.name} ({type(self.observation).__name__}, "
-                    f"latent size {2 * self.model.n})")
+            return f"{model} on {self.system.name} ({type(self.observation).__name__}, latent size {2 * self.model.n})"
         return f"{model} on {self.system.name} (learns in the {self.model.chart} chart)"
 
     def configure_optimizers(self):
@@ -229,8 +249,14 @@ class TrainingModule(pl.LightningModule):
             return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
         sched = self.scheduler(opt)
         if isinstance(sched, torch.optim.lr_scheduler.ReduceLROnPlateau):
-            return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "monitor": "val/loss",   # after each validation
-                                                        "frequency": self.trainer.check_val_every_n_epoch}}
+            return {
+                "optimizer": opt,
+                "lr_scheduler": {
+                    "scheduler": sched,
+                    "monitor": "val/loss",  # after each validation
+                    "frequency": self.trainer.check_val_every_n_epoch,
+                },
+            }
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched}}
 
 

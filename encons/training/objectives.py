@@ -13,8 +13,8 @@ from typing import TYPE_CHECKING, Callable
 
 from torch import Tensor
 
-from encons.numerics import metrics
 from encons.infra.errors import ConfigError
+from encons.numerics import metrics
 from encons.numerics.integrators import state_derivative
 
 if TYPE_CHECKING:
@@ -27,6 +27,7 @@ OBJECTIVES: dict[str, Objective] = {}
 
 def objective(name: str) -> Callable[[Objective], Objective]:
     """Register the decorated function as objective ``name``."""
+
     def register(fn: Objective) -> Objective:
         OBJECTIVES[name] = fn
         return fn
@@ -46,7 +47,9 @@ def rollout(module: Learner, batch: Batch) -> Tensor:
 def residual(module: Learner, batch: Batch) -> Tensor:
     """The squared norm of a discrete model's own residual (e.g. SyMo's discrete Euler–Lagrange equations)."""
     _, states = module.observe(batch)
-    return module.reduce((module.model.residual(states, module.times(states.shape[1], states), batch.get("u")) ** 2).sum(-1))
+    return module.reduce(
+        (module.model.residual(states, module.times(states.shape[1], states), batch.get("u")) ** 2).sum(-1)
+    )
 
 
 @objective("onestep")
@@ -64,8 +67,10 @@ def onestep(module: Learner, batch: Batch) -> Tensor:
 def _rates(module: Learner, batch: Batch, name: str) -> tuple[Tensor, Tensor]:
     """The model's state derivatives at the batch's states and the true ones (``rates``)."""
     if "rates" not in batch:
-        raise ConfigError(f"objective={name} needs batches with rates; allowed: a data module built "
-                          f"with objective='{name}' (data.objective: ${{objective}})")
+        raise ConfigError(
+            f"objective={name} needs batches with rates; allowed: a data module built "
+            f"with objective='{name}' (data.objective: ${{objective}})"
+        )
     _, states = module.observe(batch)
     return state_derivative(module.model, states, batch.get("u")), batch["rates"]
 

@@ -25,7 +25,7 @@ class Run:
     data: TrajectoryDataModule
     config: DictConfig
     run_dir: Path
-    checkpoint: Path | None = None     # None: the in-memory weights (no checkpoint was kept)
+    checkpoint: Path | None = None  # None: the in-memory weights (no checkpoint was kept)
     metrics: dict[str, float] = field(default_factory=dict)
     checked: Checked | None = field(default=None, repr=False)  # its validated config, where load made it
 
@@ -76,8 +76,10 @@ def spread_line(metrics: dict[str, float], members: int) -> str:
     mean, sd = metrics[key], metrics.get(f"{key}_sd", 0.0)
     if members < 2 or sd <= 1e-12 * abs(mean):
         return f"{key.removeprefix('test/')} {mean:.4g} (mean over {members} member{'s' * (members != 1)}, no spread)"
-    return (f"{key.removeprefix('test/')} {mean:.4g} ± {sd:.2g} (mean ± sample std over {members} members, "
-            f"min {metrics[key + '_min']:.4g}, max {metrics[key + '_max']:.4g})")
+    return (
+        f"{key.removeprefix('test/')} {mean:.4g} ± {sd:.2g} (mean ± sample std over {members} members, "
+        f"min {metrics[key + '_min']:.4g}, max {metrics[key + '_max']:.4g})"
+    )
 
 
 def summarise(per_member: dict[int, dict[str, float]]) -> dict[str, float]:

@@ -20,13 +20,12 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from encons.training import attempts, fitting
-
-from encons.infra import checkpoints, compat
-from encons.training.build import build, build_trainer
 from encons.config.check import Checked, Request, validate
+from encons.infra import checkpoints, compat
 from encons.infra.errors import ConfigError, DivergenceError, Interrupted
 from encons.infra.io import write_yaml
+from encons.training import attempts, fitting
+from encons.training.build import build, build_trainer
 from encons.training.results import Ensemble, Run, member_folders, summarise
 
 log = logging.getLogger(__name__)
@@ -110,8 +109,10 @@ def _composed(overrides: object) -> DictConfig:
 
     items = [overrides] if isinstance(overrides, str) else overrides
     if not isinstance(items, (list, tuple)) or not all(isinstance(o, str) for o in items):
-        raise ConfigError(f"cfg={overrides!r} has type {type(overrides).__name__}; allowed: a config from "
-                          f"encons.compose(...), or its overrides as key=value strings")
+        raise ConfigError(
+            f"cfg={overrides!r} has type {type(overrides).__name__}; allowed: a config from "
+            f"encons.compose(...), or its overrides as key=value strings"
+        )
     return compose(list(items))
 
 
@@ -162,13 +163,16 @@ def _attempt(attempt: attempts.Attempt, checked: Checked, summary: bool, started
         if best is not None:
             tested = Path(best.best_model_path)
             results[f"best/{best.monitor}"] = float(best.best_model_score)
-            results["best_epoch"] = float(checkpoints.read(tested)["epoch"] + 1)   # from 1, as the log counts
+            results["best_epoch"] = float(checkpoints.read(tested)["epoch"] + 1)  # from 1, as the log counts
         if cfg.test:
-            trainer.test(module, datamodule=data, ckpt_path=str(tested) if tested else None, verbose=False,
-                         weights_only=True)
+            trainer.test(
+                module, datamodule=data, ckpt_path=str(tested) if tested else None, verbose=False, weights_only=True
+            )
             if trainer.received_sigterm:  # Lightning finishes a one-batch test stage before it looks
-                raise Interrupted(f"SIGTERM during test; the trained checkpoints are complete, test them: "
-                                  f"python -m encons.evaluate {shlex.quote(str(run_dir))}")
+                raise Interrupted(
+                    f"SIGTERM during test; the trained checkpoints are complete, test them: "
+                    f"python -m encons.evaluate {shlex.quote(str(run_dir))}"
+                )
             results.update({f"test/{k}": v for k, v in module.test_metrics.items()})
         elif tested is not None:
             module.load_state_dict(checkpoints.read(tested)["state_dict"])
@@ -177,8 +181,17 @@ def _attempt(attempt: attempts.Attempt, checked: Checked, summary: bool, started
     results["wall_time_s"] = time.perf_counter() - started
     results["threads"] = float(torch.get_num_threads())  # what wall_time_s ran on (encons.infra.threads)
     if trainer.is_global_zero:
-        note = "; ".join(filter(None, (_which(tested, results), module.evaluation.describe(), attempt.describe(),
-                                       horizon_note(module, data) if cfg.test else "")))
+        note = "; ".join(
+            filter(
+                None,
+                (
+                    _which(tested, results),
+                    module.evaluation.describe(),
+                    attempt.describe(),
+                    horizon_note(module, data) if cfg.test else "",
+                ),
+            )
+        )
         print_summary(module.run_title(), results, run_dir, note=note, console=summary)
     return Run(module, data, config, run_dir, tested, results)
 
@@ -213,12 +226,16 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
     elif path.is_dir() and ((path / "checkpoints").is_dir() or (path / "config.yaml").is_file()):
         run_dir, ckpt_file = path, checkpoints.find(path, ckpt)
     else:
-        raise ConfigError(f"{str(path)!r} is not a training run folder (no checkpoints/) or a .ckpt file; allowed: a run folder that train wrote, or its .ckpt")
+        raise ConfigError(
+            f"{str(path)!r} is not a training run folder (no checkpoints/) or a .ckpt file; allowed: a run folder that train wrote, or its .ckpt"
+        )
     state = checkpoints.read(ckpt_file)
     if checkpoints.CONFIG_KEY in state:
         cfg = OmegaConf.create(checkpoints.current_targets(state[checkpoints.CONFIG_KEY]))
     elif (run_dir / "config.yaml").is_file():
-        cfg = OmegaConf.create(checkpoints.current_targets(OmegaConf.to_container(OmegaConf.load(run_dir / "config.yaml"))))
+        cfg = OmegaConf.create(
+            checkpoints.current_targets(OmegaConf.to_container(OmegaConf.load(run_dir / "config.yaml")))
+        )
     else:
         raise ConfigError(f"checkpoint {str(ckpt_file)!r} carries no config and has no config.yaml beside it")
     cfg = OmegaConf.merge(cfg, _key_overrides(cfg, overrides))
@@ -229,8 +246,10 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
     try:
         checkpoints.load_weights(module, state["state_dict"])
     except RuntimeError:
-        raise ConfigError(f"overrides {list(overrides)} change the model, so the weights of {ckpt_file.name} no "
-                          f"longer fit; allowed: overrides of data.*, horizon, integrator.*, evaluation.*") from None
+        raise ConfigError(
+            f"overrides {list(overrides)} change the model, so the weights of {ckpt_file.name} no "
+            f"longer fit; allowed: overrides of data.*, horizon, integrator.*, evaluation.*"
+        ) from None
     module.eval()
     return Run(module, data, cfg, run_dir, ckpt_file, checked=checked)
 
@@ -244,8 +263,10 @@ def _ensemble(path: Path, overrides: Iterable[str], ckpt: str) -> Ensemble | Non
     seeds, folders = found
     missing = [str(f) for f in folders if not f.is_dir()]
     if missing:
-        raise ConfigError(f"{str(path)!r} is a seed ensemble whose member folder {missing[0]!r} is gone; allowed: "
-                          f"an ensemble folder with its members, or one member's folder")
+        raise ConfigError(
+            f"{str(path)!r} is a seed ensemble whose member folder {missing[0]!r} is gone; allowed: "
+            f"an ensemble folder with its members, or one member's folder"
+        )
     members = [load(f, overrides, ckpt) for f in folders]
     return Ensemble(members, seeds, {}, {}, path)
 
@@ -259,8 +280,10 @@ def _key_overrides(cfg: DictConfig, overrides: Iterable[str]) -> DictConfig:
         if not eq or not key:
             raise ConfigError(f"{item!r} is not a key=value override; allowed: key=value (data.test_steps=400)")
         if isinstance(OmegaConf.select(cfg, key.lstrip("+")), DictConfig):
-            raise ConfigError(f"{item}: {key} is a whole group of the saved run, which evaluation cannot swap; "
-                              f"allowed: overrides of its keys (data.test_steps=400, horizon=400, integrator.method=...)")
+            raise ConfigError(
+                f"{item}: {key} is a whole group of the saved run, which evaluation cannot swap; "
+                f"allowed: overrides of its keys (data.test_steps=400, horizon=400, integrator.method=...)"
+            )
     return OmegaConf.from_dotlist(overrides)
 
 
@@ -287,8 +310,11 @@ def evaluate(run: Run | Ensemble | str | Path, overrides: Iterable[str] = (), ck
     from encons.training.summary import print_summary
 
     if isinstance(run, (str, Path)) or list(overrides):
-        run = load(run.run_dir if isinstance(run, Ensemble) else run.checkpoint if isinstance(run, Run) else run,
-                   overrides, ckpt)
+        run = load(
+            run.run_dir if isinstance(run, Ensemble) else run.checkpoint if isinstance(run, Run) else run,
+            overrides,
+            ckpt,
+        )
     if isinstance(run, Ensemble):
         return _evaluate_ensemble(run)
     config = run.config.copy()
@@ -299,8 +325,10 @@ def evaluate(run: Run | Ensemble | str | Path, overrides: Iterable[str] = (), ck
         trainer, _ = build_trainer(run.checked.derived(config) if run.checked is not None else config)
         trainer.test(run.module, datamodule=run.data, verbose=False, weights_only=True)
     run.metrics = {f"test/{k}": v for k, v in run.module.test_metrics.items()}
-    note = (f"tested: {run.checkpoint.name if run.checkpoint else 'in-memory weights'}; "
-            f"{run.module.evaluation.describe()}; {horizon_note(run.module, run.data)}")
+    note = (
+        f"tested: {run.checkpoint.name if run.checkpoint else 'in-memory weights'}; "
+        f"{run.module.evaluation.describe()}; {horizon_note(run.module, run.data)}"
+    )
     print_summary(run.module.run_title(), run.metrics, out, note=note)
     return run.metrics
 
@@ -316,8 +344,12 @@ def _evaluate_ensemble(ensemble: Ensemble) -> dict[str, float]:
     out = _new_evaluation_folder(ensemble.run_dir)
     write_json(out / "test_metrics.json", {k.removeprefix("test/"): v for k, v in metrics.items()})
     shown = {k: v for k, v in metrics.items() if not k.endswith(("_min", "_max"))}
-    print_summary(f"{ensemble.members[0].module.run_title()} × {len(ensemble.seeds)} seeds", shown, out,
-                  note=f"members: {', '.join(str(m.run_dir) for m in ensemble.members)}; each as its own evaluate")
+    print_summary(
+        f"{ensemble.members[0].module.run_title()} × {len(ensemble.seeds)} seeds",
+        shown,
+        out,
+        note=f"members: {', '.join(str(m.run_dir) for m in ensemble.members)}; each as its own evaluate",
+    )
     ensemble.metrics = metrics
     return metrics
 
@@ -328,5 +360,7 @@ def horizon_note(module, data) -> str:
     steps = data.states["test"].shape[1] - 1
     if steps <= module.horizon:
         return f"traj_rel_err sums all {steps} steps of each test window (horizon={module.horizon})"
-    return (f"traj_rel_err sums the first {module.horizon} of {steps} steps of each test window (horizon="
-            f"{module.horizon}, the papers' protocol); traj_rel_err_window sums all {steps}")
+    return (
+        f"traj_rel_err sums the first {module.horizon} of {steps} steps of each test window (horizon="
+        f"{module.horizon}, the papers' protocol); traj_rel_err_window sums all {steps}"
+    )

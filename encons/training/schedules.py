@@ -21,5 +21,7 @@ class WarmupCosine(LambdaLR, Declared):
     def __init__(self, optimizer: Optimizer, total_steps: int, warmup: Annotated[float, Range(ge=0, lt=1)] = 0.0):
         warm = int(warmup * total_steps)
         decay = max(1, total_steps - warm)
-        super().__init__(optimizer, lambda step: (step + 1) / warm if step < warm else
-                         0.5 * (1 + math.cos(math.pi * (step - warm) / decay)))
+        super().__init__(
+            optimizer,
+            lambda step: (step + 1) / warm if step < warm else 0.5 * (1 + math.cos(math.pi * (step - warm) / decay)),
+        )

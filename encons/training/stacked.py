@@ -62,8 +62,11 @@ def dimension_model(models: Sequence[DynamicsModel]) -> nn.Module | None:
     stacked = copy.deepcopy(models[0])
     for name in linears:
         parent, _, leaf = name.rpartition(".")
-        setattr(stacked.get_submodule(parent) if parent else stacked, leaf,
-                EnsembleLinear([m.get_submodule(name) for m in models]))
+        setattr(
+            stacked.get_submodule(parent) if parent else stacked,
+            leaf,
+            EnsembleLinear([m.get_submodule(name) for m in models]),
+        )
     return stacked
 
 
@@ -98,7 +101,9 @@ class StackedModel(nn.Module):
         if self.dimension is not None:
             self.names, self.buffer_names = [], []
             layers = [layer for layer in self.dimension.modules() if isinstance(layer, EnsembleLinear)]
-            self.weights = nn.ParameterList([w for layer in layers for w in (layer.weight, layer.bias) if w is not None])
+            self.weights = nn.ParameterList(
+                [w for layer in layers for w in (layer.weight, layer.bias) if w is not None]
+            )
             self.__dict__["template"] = self.dimension
             return
         params, buffers = stack_module_state(list(models))
@@ -135,8 +140,9 @@ class StackedModel(nn.Module):
         buffers = {f"model.{n}": v for n, v in buffers.items()}
         dims = tuple(0 if f else None for f in folded)
         args = tuple(self.fold(a) if f else a for a, f in zip(args, folded))
-        out = vmap(lambda p, b, *xs: functional_call(template, (p, b), xs), in_dims=(0, 0, *dims))(params, buffers,
-                                                                                                   *args)
+        out = vmap(lambda p, b, *xs: functional_call(template, (p, b), xs), in_dims=(0, 0, *dims))(
+            params, buffers, *args
+        )
         return out.reshape(-1, *out.shape[2:]) if any(folded) else out
 
     def call(self, name: str, args: tuple, folded: tuple[bool, ...]) -> Any:
@@ -149,8 +155,11 @@ class StackedModel(nn.Module):
         return out.reshape(-1, *out.shape[2:])
 
     def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
-        return self.call("forward", (t, z), (False, True)) if u is None else \
-            self.call("forward", (t, z, u), (False, True, True))
+        return (
+            self.call("forward", (t, z), (False, True))
+            if u is None
+            else self.call("forward", (t, z, u), (False, True, True))
+        )
 
     def to_internal(self, s: Tensor) -> Tensor:
         return self.call("to_internal", (s,), (True,))
@@ -159,14 +168,20 @@ class StackedModel(nn.Module):
         return self.call("from_internal", (z,), (True,))
 
     def residual(self, states: Tensor, t: Tensor, u: Tensor | None = None) -> Tensor:
-        return self.call("residual", (states, t), (True, False)) if u is None else \
-            self.call("residual", (states, t, u), (True, False, True))
+        return (
+            self.call("residual", (states, t), (True, False))
+            if u is None
+            else self.call("residual", (states, t, u), (True, False, True))
+        )
 
     def rollout(self, start: Tensor, t: Tensor, u: Tensor | None = None) -> Tensor:
         """A discrete model's rollout (SyMo/E2E-SyMo: Newton iterations, each sample of each member converging on
         its own), with the ensemble dimension only: ``vmap`` cannot pass its stopping test."""
-        return self.call("rollout", (start, t), (True, False)) if u is None else \
-            self.call("rollout", (start, t, u), (True, False, True))
+        return (
+            self.call("rollout", (start, t), (True, False))
+            if u is None
+            else self.call("rollout", (start, t, u), (True, False, True))
+        )
 
     @contextmanager
     def rollout_scope(self) -> Iterator[None]:
@@ -187,7 +202,6 @@ class StackedModel(nn.Module):
         basis = torch.eye(z.shape[-1], dtype=z.dtype, device=z.device).unsqueeze(1).expand(-1, *z.shape)
         jac = vmap(pullback)(basis)[0].movedim(0, 1)  # (B, d out, d in)
         return regulariser.weight * regulariser.violation(jac).reshape(self.k, -1).mean(1)
-
 
     @torch.no_grad()
     def copy_to(self, models: Sequence[nn.Module]) -> None:
@@ -211,8 +225,9 @@ def dimension_penalty(model: DynamicsModel, regulariser: Any) -> bool:
     """Whether ``StackedModel.penalty`` takes ``regulariser`` with the ensemble dimension: a Jacobian penalty
     (``encons.numerics.regularisers.JacobianPenalty``: a weight and a violation per Jacobian) of the default constrained
     field (the internal field at ``to_internal(s)``; an INN's latent field is another)."""
-    return (regulariser is None or callable(getattr(regulariser, "violation", None))) and \
-        type(model).constrained_field is DynamicsModel.constrained_field
+    return (regulariser is None or callable(getattr(regulariser, "violation", None))) and type(
+        model
+    ).constrained_field is DynamicsModel.constrained_field
 
 
 class StackedTraining(TrainingModule):
@@ -263,10 +278,12 @@ def why_not(cfg: Any, members: Sequence[TrainingModule]) -> str | None:
     return None
 
 
-def step_times(stacked: StackedTraining, members: Sequence[TrainingModule], batch: dict,
-               repeats: int = 2) -> tuple[float, float]:
+def step_times(
+    stacked: StackedTraining, members: Sequence[TrainingModule], batch: dict, repeats: int = 2
+) -> tuple[float, float]:
     """Seconds of one forward and backward of the members' training losses on ``batch``: stacked, and member by
     member (the loop path), the faster of ``repeats`` after a warm-up; the gradients are cleared after."""
+
     def step_stacked() -> None:
         stacked.training_loss(batch).sum().backward()
 

@@ -13,8 +13,9 @@ from rich.table import Table
 from encons.infra.progress import to_log_files
 
 
-def print_summary(title: str, results: dict[str, float], output_dir: Path, note: str = "",
-                  console: bool = True) -> None:
+def print_summary(
+    title: str, results: dict[str, float], output_dir: Path, note: str = "", console: bool = True
+) -> None:
     """One table of the run's validation and test metrics, ``note`` (which weights were tested) and
     where its files are (those of checkpoints/, figures/ and test_metrics.json that it holds), on the console
     (unless ``console`` is false) and in the run's log files (``train.log`` under the CLI)."""
@@ -53,8 +54,10 @@ def headline(results: dict[str, float]) -> list[str]:
     windows = results.get("test/windows")
     if windows is None or "test/traj_rel_err_window" not in results:
         return []
-    names = ["model", *(p.split("/")[1] for p in results if p.startswith("test/baseline_")
-                        and p.endswith("/traj_rel_err_window"))]
+    names = [
+        "model",
+        *(p.split("/")[1] for p in results if p.startswith("test/baseline_") and p.endswith("/traj_rel_err_window")),
+    ]
 
     def score(name: str, metric: str) -> float:
         return results.get(f"test/{'' if name == 'model' else name + '/'}{metric}", math.nan)
@@ -65,16 +68,25 @@ def headline(results: dict[str, float]) -> list[str]:
     def order(metric: str) -> list[str]:
         return sorted(names, key=lambda n: (math.isnan(score(n, metric)), score(n, metric)))
 
-    lines = [f"whole test window, mean of {windows:.0f} test window(s): traj_rel_err_window "
-             f"{listed('traj_rel_err_window')}"
-             + (f"; state_mse (per coordinate / its test-set spread) {listed('state_mse')}"
-                if "test/state_mse" in results else "")]
+    lines = [
+        f"whole test window, mean of {windows:.0f} test window(s): traj_rel_err_window "
+        f"{listed('traj_rel_err_window')}"
+        + (
+            f"; state_mse (per coordinate / its test-set spread) {listed('state_mse')}"
+            if "test/state_mse" in results
+            else ""
+        )
+    ]
     whole, horizon = order("traj_rel_err_window"), order("traj_rel_err")
     if whole != horizon:
-        lines.append(f"note: the scored horizon ranks them differently: traj_rel_err {' < '.join(horizon)}, but over "
-                     f"the whole window {' < '.join(whole)}")
+        lines.append(
+            f"note: the scored horizon ranks them differently: traj_rel_err {' < '.join(horizon)}, but over "
+            f"the whole window {' < '.join(whole)}"
+        )
     if windows < FEW_WINDOWS:
-        lines.append(f"note: {windows:.0f} test window(s) give these scores no spread to speak of (the _std are over "
-                     f"{windows:.0f}; more: data.n_test, or for a recording a longer file, "
-                     f"data.recording.test_stride, a shorter data.test_steps)")
+        lines.append(
+            f"note: {windows:.0f} test window(s) give these scores no spread to speak of (the _std are over "
+            f"{windows:.0f}; more: data.n_test, or for a recording a longer file, "
+            f"data.recording.test_stride, a shorter data.test_steps)"
+        )
     return lines
