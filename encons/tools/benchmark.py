@@ -271,7 +271,7 @@ def run_ensemble(members: list[PlannedRun], out: Path, cache_dir: str | None, co
     try:
         with runs.log_file(ens_dir / "train.log"):
             trained = ensemble.train(
-                cfg, False, Request.of(cfg), runs.Run, member_dir=lambda seed: finished(by_seed[seed], out).parent
+                cfg, False, Request.of(cfg), member_dir=lambda seed: finished(by_seed[seed], out).parent
             )
         wall, error = time.perf_counter() - started, ""
     except Interrupted as err:
