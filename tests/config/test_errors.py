@@ -47,7 +47,7 @@ def refused(tmp_path, overrides, key, error=EnconsError):
         (["model=inn_node", "model.blocks=0"], "model.blocks=0"),
         (["regulariser=hamiltonian", "regulariser.weight=-1"], "regulariser.weight=-1"),
         (["regulariser=hamiltonian", "regulariser.jacobian=sideways"], "regulariser.jacobian='sideways'"),
-        (["integrator.method=rk5"], "integrator.method='rk5'"),
+        (["integrator.method=rk5"], "integrator.method='rk5' is unknown; allowed:"),
         (["system=gyroscope", "system.inertias=[1,2]"], "system.inertias"),
     ],
 )
@@ -86,8 +86,8 @@ def test_wrong_types_name_key_value_and_type(tmp_path, overrides, key, expected)
         (["data.test_steps=5"], "data.test_steps=5"),
         (["horizon=50"], "horizon=50"),
         (["horizon=0"], "horizon=0"),
-        (["data.chunk_len=1"], "data.chunk_len=1"),
-        (["data.n_train=0"], "data.n_train=0"),
+        (["data.chunk_len=1"], "data.chunk_len=1; allowed: [2, "),
+        (["data.n_train=0"], "data.n_train=0; allowed: >= 1"),
         (["model.depth=0"], "model.depth=0"),
     ],
 )
@@ -183,9 +183,6 @@ def test_cache_files_are_group_readable_and_orphans_of_dead_writers_go(tmp_path)
 @pytest.mark.parametrize(
     "args, key",
     [
-        (["model=nope"], "model=nope is unknown; allowed: chnn"),
-        (["system=pendulum1", "system.n_links=2.5"], "system.n_links=2.5"),
-        (["modl.hidden=3"], "modl.hidden is not a key"),
         (["-m", "sweeps=optuna", "hydra.sweeper.n_trials=0"], "hydra.sweeper.n_trials=0"),
         (["-m", "sweeps=optuna", "sweeps.storage=mysql://u@localhost/x"], "sweeps.storage='mysql://u@localhost/x'"),
         (["-m", "seed=-1"], "seed=-1"),
@@ -203,7 +200,6 @@ def test_cache_files_are_group_readable_and_orphans_of_dead_writers_go(tmp_path)
             ],
             "first: ConfigError: data.n_train=-1",
         ),
-        (["trainer.accelerator=tpu"], "trainer.accelerator=tpu"),
         (["seed=["], "seed=["),
     ],
 )
@@ -345,9 +341,7 @@ def test_sweeper_keys_are_one_line(tmp_path):
         return OptunaSweeper(OmegaConf.create(sampler or {"_target_": "optuna.samplers.TPESampler"}), **args)
 
     for keys, key in (
-        (dict(n_trials=0), "hydra.sweeper.n_trials=0"),
         (dict(n_jobs=-1), "hydra.sweeper.n_jobs=-1"),
-        (dict(max_failure_rate=2), "hydra.sweeper.max_failure_rate=2"),
         (dict(direction="up"), "hydra.sweeper.direction='up'"),
     ):
         with pytest.raises(ConfigError, match=f"^{key}.*; allowed: "):

@@ -1,6 +1,7 @@
 """Bad inputs at every entry point (train, evaluate, benchmark, report, sweep CLIs and the Python API),
 one or more per config group: each ends non-zero in one ``encons: error: ...; allowed: ...`` line naming
-the key or file, with no traceback; the API raises encons' own error types. Run in this process."""
+the key or file, with no traceback; the API raises encons' own error types. Run in this process. A value the
+checker refuses at build (constructors' bounds, types, ranges) is in tests/config/test_errors.py, not again here."""
 
 from __future__ import annotations
 
@@ -19,52 +20,40 @@ TRAIN = [  # (overrides, text the error line must hold)
     (["system=cartpole", "model=node", "system.u_max=nan"], "system.u_max=nan"),
     (["system=cartpole", "model=node", "system.init_range=[0.5,inf,0.05,3.0]"], "system.init_range"),
     (["system=mass_spring", "system.mass=[-1]"], "system.mass="),
-    (["system=mass_spring", "system.mass=-1"], "system.mass=-1"),
     (["system=pendulum", "system.lengths=0"], "system.lengths=0"),
     (["system=pendulum", "system.g=-9.81"], "system.g=-9.81"),
-    (["system=pendulum1", "system.n_links=0"], "system.n_links=0"),
-    (["system=nope"], "system=nope"),
+    (["system=nope"], "system=nope is unknown; allowed:"),
     # data
-    (["data.n_train=0"], "data.n_train=0"),
-    (["data.chunk_len=1"], "data.chunk_len=1"),
     (["data.batch_size=0"], "data.batch_size=0"),
     (["data.dt=nan"], "data.dt=nan"),
-    (["data.noise=-1"], "data.noise=-1"),
     (["data.n_steps=0"], "data.n_steps=0"),
-    (["data.test_steps=-5"], "data.test_steps=-5"),
     (["data.substeps=0"], "data.substeps=0"),
     # model
-    (["model=nope"], "model=nope"),
-    (["model.hidden=0"], "model.hidden=0"),
+    (["model=nope"], "model=nope is unknown; allowed: chnn,"),
+    (["model.hidden=0"], "model.hidden=0; allowed: a positive integer"),
     (["model.hidden=abc"], "model.hidden='abc'"),
     (["model=chnn", "system=mass_spring"], "model"),
     # integrator, regulariser, optim, observation
-    (["integrator=nope"], "integrator=nope"),
+    (["integrator=nope"], "integrator=nope is unknown; allowed: dopri5, euler, midpoint, rk4"),
     (["integrator=dopri5", "integrator.rtol=0"], "integrator.rtol=0"),
-    (["regulariser=hamiltonian", "regulariser.weight=-1"], "regulariser.weight=-1"),
-    (["optimizer.lr=0"], "optimizer.lr=0"),
+    (["optimizer.lr=0"], "optimizer.lr=0"),  # and lr=-1: the same bound
     (["optimizer.lr=inf"], "optimizer.lr=inf"),
-    (["optimizer.weight_decay=-1"], "optimizer.weight_decay=-1"),
     (["optimizer=nope"], "optimizer=nope"),
     (["scheduler=plateau", "scheduler.factor=0"], "scheduler.factor=0"),
     (["system=pixel_pendulum", "observation.latent=1"], "observation.latent=1"),
     # trainer, logger, callbacks, paths, top level
-    (["trainer.max_epochs=0"], "trainer.max_epochs=0"),
+    (["trainer.max_epochs=0"], "trainer.max_epochs=0; allowed: an integer >= 1"),
     (["trainer.max_epochs=-1"], "trainer.max_epochs=-1"),
-    (["trainer.gradient_clip_val=-1"], "trainer.gradient_clip_val=-1"),
     (["logger=nope"], "logger=nope"),
     (["logger=csv", "logger.csv.save_dir={file}"], "logger.csv.save_dir="),
     (["paths.cache_dir={file}"], "paths.cache_dir="),
-    (["seed=-1"], "seed=-1"),
-    (["horizon=0"], "horizon=0"),
     (["objective=nope"], "objective=nope"),
     (["optimized_metric=val/nope"], "optimized_metric="),
     (["ckpt_path={tmp}/nope.ckpt"], "ckpt_path="),
     (["ckpt_path={empty}"], "ckpt_path="),
     (["ckpt_path={bad_ckpt}"], "ckpt_path="),
-    (["ckpt_path=last"], "ckpt_path=last"),
+    (["ckpt_path=last"], "ckpt_path=last: no earlier run"),
     (["system=from_file", "system.path={file}"], "file.txt"),
-    (["data.n_val=0"], "data.n_val=0"),
     (["observation=nope"], "observation=nope"),
     (["regulariser=hamiltonian", "model=symo"], "regulariser="),
     (["compile=maybe"], "compile="),
@@ -88,7 +77,6 @@ TRAIN = [  # (overrides, text the error line must hold)
 ]
 
 OTHER = [  # (module, argv, text the error line must hold)
-    ("encons.evaluate", ["{tmp}/nope"], "nope"),
     ("encons.evaluate", ["{file}"], "file.txt"),
     ("encons.evaluate", ["{empty}"], "empty"),
     ("encons.evaluate", ["{run}", "model=hnn"], "model=hnn"),
