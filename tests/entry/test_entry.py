@@ -8,6 +8,7 @@ import os
 import re
 import subprocess
 import sys
+import types
 from pathlib import Path
 
 import optuna
@@ -38,8 +39,17 @@ def test_encons_all_is_the_list_the_manual_gives():
     assert sorted(encons.__all__) == manual_all()
 
 
-def test_every_name_of_encons_all_resolves():
-    assert all(getattr(encons, name) is not None for name in encons.__all__)
+def test_every_name_of_encons_all_is_the_api_object_of_that_name():
+    """``encons.<name>`` is the object the API defines under that name (``score_control``: the control
+    tool's), a class or a function of that name, never a module."""
+    from encons.tools.control import score_control
+
+    expected = {name: getattr(api, name, None) for name in encons.__all__} | {"score_control": score_control}
+    for name in encons.__all__:
+        value = getattr(encons, name)
+        assert value is expected[name] and callable(value) and value.__name__ == name, (name, value)
+        assert not isinstance(value, types.ModuleType), name
+    assert isinstance(encons.Run, type) and isinstance(encons.Ensemble, type)
 
 
 def test_importing_the_modules_named_like_api_functions_leaves_the_functions_callable():
