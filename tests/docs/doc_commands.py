@@ -3,6 +3,8 @@ is documentation only. ``tests/docs/test_docs.py`` fails on a fenced command lis
 test that does not exist. Commands are written as the docs give them, continuation lines joined and
 comments dropped."""
 
+# ruff: noqa: E501 (a table of commands as the docs print them and the tests that run them, one per line)
+
 #: command -> the test that runs it (or its overrides at debug size), "tests/<file>.py::<test>"
 RUN = {
     "python -m encons.train model=hnn_angle system=pendulum1 debug=fast": "tests/entry/test_cli.py::test_cli_trains_quietly_and_writes_outputs",
