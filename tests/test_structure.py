@@ -1,7 +1,7 @@
 """The shape of the package: imports go one way through the layers below, with no import cycle between
 modules (every import counted: lazy ones, those under ``if TYPE_CHECKING:`` and ``if __name__ ==
 "__main__":``), and what the user asked for is passed down, never read from Hydra's process-global state.
-End-to-end tests of extending encons live in ``tests/test_extending.py``."""
+End-to-end tests of extending encons live in ``tests/extending/test_user_components.py``."""
 
 from __future__ import annotations
 

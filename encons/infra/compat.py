@@ -1,7 +1,7 @@
 """Every use of an upstream library's private internals or message text, in one place.
 
 Each function names the upstream version it was written against (the pins in pyproject.toml);
-``tests/test_compat.py`` holds one test per workaround, so an upgrade that breaks one fails there.
+``tests/infra/test_compat.py`` holds one test per workaround, so an upgrade that breaks one fails there.
 """
 
 from __future__ import annotations

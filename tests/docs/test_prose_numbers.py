@@ -1,0 +1,107 @@
+"""Every number a reader sees in README.md, docs/*.md and the reports' README.md / RUN.md is tied to a committed
+file, marked as not a result, or in a paragraph still listed as pending (the rules: ``tests/docs/prose_numbers.py``).
+A planted wrong digit fails, naming the file and the paragraph."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from tests.docs import prose_numbers as pn
+
+ROOT = Path(__file__).parents[2]
+PENDING = ROOT / "tests" / "docs" / "prose_numbers_pending.txt"
+
+
+def pending() -> set[str]:
+    return {line.strip() for line in PENDING.read_text().splitlines() if line.strip() and not line.startswith("#")}
+
+
+def test_every_prose_number_is_tied_to_a_file_or_marked():
+    verdict = pn.check(ROOT)
+    listed = pending()
+    untied = [u for u in verdict.untied if verdict.where[u] not in listed]
+    assert not untied, (
+        "numbers not in any committed file the paragraph names (name the file, correct the "
+        "number, or mark it <!-- not-a-result: REASON N -->):\n" + "\n".join(untied)
+    )
+    gone = sorted(listed - verdict.paragraphs)
+    assert not gone, (
+        "tests/docs/prose_numbers_pending.txt lists paragraphs that are tied now or no longer exist; "
+        "remove them:\n" + "\n".join(gone)
+    )
+    print(
+        f"prose numbers: {verdict.tied} tied to files, {verdict.recorded} in reports' own tables, "
+        f"{verdict.settings} settings by their word, {verdict.marked} marked not-a-result, "
+        f"{len(verdict.untied)} in {len(listed)} pending paragraphs"
+    )
+
+
+def _copy(tmp_path: Path) -> Path:
+    shutil.copy(ROOT / "README.md", tmp_path / "README.md")
+    shutil.copytree(ROOT / "docs", tmp_path / "docs")
+    shutil.copytree(
+        ROOT / "benchmarks" / "reports",
+        tmp_path / "benchmarks" / "reports",
+        ignore=shutil.ignore_patterns("*.png", "*.npz"),
+    )
+    return tmp_path
+
+
+def test_a_planted_wrong_digit_fails_naming_the_file_and_the_sentence(tmp_path):
+    root = _copy(tmp_path)
+    papers = root / "docs" / "papers.md"
+    text = papers.read_text()
+    assert "(3.07e-5 against the baseline's 3.44e-5" in text
+    before = pn.check(root, [papers])
+    assert not any("3.0" in u for u in before.untied)
+    papers.write_text(text.replace("(3.07e-5 against", "(3.08e-5 against"))
+    after = pn.check(root, [papers])
+    planted = [u for u in after.untied if ": 3.08e-5 not in " in u]
+    assert len(planted) == 1
+    assert planted[0].startswith("docs/papers.md:")
+    assert "benchmarks/reports/xiao-300/epoch300/summary.csv" in planted[0]
+    assert "the energy MSE at the last time" in planted[0]
+
+
+def test_a_report_readme_is_tied_to_the_files_beside_it(tmp_path):
+    root = _copy(tmp_path)
+    readme = root / "benchmarks" / "reports" / "control" / "README.md"
+    text = readme.read_text()
+    assert "at b_rel_err 0.103, just above 0.1" in text
+    assert not [u for u in pn.check(root, [readme]).untied if "0.103" in u]
+    readme.write_text(text.replace("at b_rel_err 0.103, just", "at b_rel_err 0.1037, just"))
+    wrong = [u for u in pn.check(root, [readme]).untied if ": 0.1037 not in " in u]
+    assert len(wrong) == 1 and wrong[0].startswith("benchmarks/reports/control/README.md:")
+
+
+def test_the_usual_renderings_match(tmp_path):
+    source = tmp_path / "numbers.csv"
+    source.write_text("a,b,c\n3.0731868976897446e-05,0.947,1000\n")
+    for printed in ("3.07e-5", "3.07e-05", "0.0000307", "94.7", "0.947", "1,000", "1000"):
+        assert pn.matches(printed, source), printed
+    for printed in ("3.08e-5", "94.6", "1,001"):
+        assert not pn.matches(printed, source), printed
+    assert pn.is_ratio("1.71", ["0.17", "0.0994"]) and not pn.is_ratio("1.8", ["0.17", "0.0994"])
+
+
+def test_a_mark_exempts_only_the_numbers_it_lists(tmp_path):
+    doc = tmp_path / "docs" / "page.md"
+    doc.parent.mkdir()
+    doc.write_text("Trained for 800 of them and 801 more <!-- not-a-result: config 800 -->.\n")
+    verdict = pn.check(tmp_path, [doc])
+    assert verdict.marked == 1 and [u.split(" not in ")[0] for u in verdict.untied] == ["docs/page.md:1: 801"]
+
+
+def test_dates_equations_and_a_list_lead_in(tmp_path):
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "r.csv").write_text("x\n1.77\n")
+    doc = tmp_path / "docs" / "page.md"
+    doc.parent.mkdir()
+    doc.write_text(
+        "Run on 27 November 2026 at 01:11–01:18 (2026-11-26 before), by eq. 15 and Theorem 1.\n\n"
+        "Measured (`data/r.csv`):\n\n- ratio 1.77× at K = 2;\n- ratio 1.78× at K = 4.\n\n"
+        "After the list: 1.77× again.\n"
+    )
+    untied = [u.split(" not in ")[0] for u in pn.check(tmp_path, [doc]).untied]
+    assert untied == ["docs/page.md:6: 1.78", "docs/page.md:8: 1.77"]
