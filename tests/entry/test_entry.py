@@ -3,7 +3,6 @@ aliases, the resolvers registered before Hydra builds its launcher, and ``encons
 
 from __future__ import annotations
 
-import importlib
 import os
 import re
 import subprocess
@@ -50,15 +49,6 @@ def test_every_name_of_encons_all_is_the_api_object_of_that_name():
         assert value is expected[name] and callable(value) and value.__name__ == name, (name, value)
         assert not isinstance(value, types.ModuleType), name
     assert isinstance(encons.Run, type) and isinstance(encons.Ensemble, type)
-
-
-def test_importing_the_modules_named_like_api_functions_leaves_the_functions_callable():
-    """``encons.training.build``, ``encons.train`` and ``encons.evaluate`` are also modules; imported, each is callable
-    as the API's function of that name."""
-    for name in ("build", "train", "evaluate"):
-        module = importlib.import_module(f"encons.{name}")
-        assert getattr(encons, name) is module and type(module).__call__ is getattr(api, name)
-    assert encons.training.build.build is api.build and encons.training.build.compose  # still the module too
 
 
 def test_python_m_encons_names_its_commands_and_refuses_another(capsys):
