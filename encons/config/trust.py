@@ -53,7 +53,7 @@ def locate(target: str, key: str = "", trusted: tuple[str, ...] | None = None) -
     for split in range(len(parts) - 1, 0, -1):
         module = ".".join(parts[:split])
         try:
-            obj = importlib.import_module(module)
+            obj: Any = importlib.import_module(module)
         except ModuleNotFoundError as err:
             if err.name is None or not (module == err.name or module.startswith(f"{err.name}.")):
                 raise

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import lightning.pytorch as pl
 import torch
@@ -91,7 +91,7 @@ class WindowSampler(Sampler):
         return iter(zip(order.tolist(), starts[order].tolist()))
 
 
-def _identity(batch: Tensor) -> Tensor:
+def _identity(batch: Any) -> Any:  # Windows.__getitems__ makes the batch (dict[str, Tensor]); DataLoader types it list
     return batch
 
 

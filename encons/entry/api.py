@@ -54,7 +54,9 @@ def train(cfg: DictConfig | str | Sequence[str], summary: bool = True) -> Run | 
     return runs.train(cfg if isinstance(cfg, DictConfig) else compose(cfg), summary)
 
 
-def compose(*overrides: str, output_dir: str | Path | None = None, cache_dir: str | Path | None = None) -> DictConfig:
+def compose(
+    *overrides: str | Sequence[str], output_dir: str | Path | None = None, cache_dir: str | Path | None = None
+) -> DictConfig:
     """The run config the CLI would compose from ``overrides`` (``"model=hnn"``, ``"trainer.max_epochs=5"``;
     a list works too). ``output_dir`` defaults to the CLI's run folder (``outputs/<system>-<model>/<time>``)."""
     flat = [o for item in overrides for o in ([item] if isinstance(item, str) else item)]

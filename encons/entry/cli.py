@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Callable
 from contextlib import nullcontext
 
 from omegaconf import DictConfig
@@ -211,7 +212,7 @@ def control(argv: list[str] | None = None) -> None:
 
 
 #: ``python -m encons <command>``: each command's function.
-COMMANDS = {
+COMMANDS: dict[str, Callable[..., None]] = {
     "train": train,
     "evaluate": evaluate,
     "benchmark": benchmark,

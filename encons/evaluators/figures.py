@@ -158,7 +158,7 @@ def rollout_figures(
     baseline: Tensor | None = None,
     angles: Tensor | None = None,
     names: list[str] | None = None,
-    time_label: str = None,
+    time_label: str | None = None,
     chart: str | None = None,
 ) -> dict[str, Figure]:
     """Rollout vs truth (every coordinate, positions and velocities) of three test trajectories — the

@@ -53,7 +53,9 @@ class DynamicsModel(nn.Module, Declared):
             )
 
     def __init__(self, system: System | None = None, chart: str | None = None):
-        if not hasattr(system, "check_chart"):  # a subclass's super().__init__() without the system encons passed it
+        if system is None or not hasattr(
+            system, "check_chart"
+        ):  # a subclass's super().__init__() without the system encons passed it
             cls = type(self)
             raise ConfigError(
                 f"model._target_={cls.__module__}.{cls.__qualname__}: its __init__ calls "
@@ -118,7 +120,7 @@ class DiscreteModel(DynamicsModel):
 
     discrete = True
     history = 2
-    objectives = ("rollout", "onestep")
+    objectives: ClassVar[tuple[str, ...]] = ("rollout", "onestep")
 
     def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
         raise TypeError(f"{type(self).__name__} is a discrete model: it has no vector field")

@@ -21,8 +21,10 @@ import json
 import shutil
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -31,6 +33,9 @@ from encons.infra.errors import ConfigError, EnconsError, Interrupted
 from encons.infra.io import write_json, write_yaml
 from encons.infra.paths import config_dir
 from encons.tools.report import recorded
+
+if TYPE_CHECKING:
+    from encons.training.results import Run
 
 
 @dataclass
@@ -88,7 +93,7 @@ def expand(cfg: DictConfig) -> list[PlannedRun]:
     by_name = [m for m in (*c["models"], *c["n_train_models"]) if isinstance(m, str)]
     family = {m: family_overrides(m, per_family, searched) for m in dict.fromkeys(by_name)}  # after common: refine it
     # an entry: system, label, overrides before common, n_train, published numbers, overrides after common
-    entries = [
+    entries: list[tuple[Any, ...]] = [
         (s, m, [f"model={m}", *per_model.get(m, [])], None, {}, family[m]) for s in c["systems"] for m in c["models"]
     ]
     entries += [(r["system"], r["label"], list(r["overrides"]), None, r.get("paper", {}), []) for r in c["runs"]]
@@ -152,7 +157,7 @@ def preset_keys(train: list[str]) -> set[str]:
         path = Path(config_dir()) / "debug" / f"{choice}.yaml"
         if group != "debug" or not path.is_file():
             continue
-        preset = OmegaConf.to_container(OmegaConf.load(path))
+        preset = cast("dict[str, Any]", OmegaConf.to_container(OmegaConf.load(path)))  # a YAML mapping: a dict
         stack = [("", {k: v for k, v in preset.items() if k not in ("defaults", "preset_keys")})]
         while stack:
             prefix, node = stack.pop()
@@ -163,7 +168,7 @@ def preset_keys(train: list[str]) -> set[str]:
     return keys
 
 
-def family_overrides(model: str, per_family: dict, searched: list[str] = ()) -> list[str]:
+def family_overrides(model: str, per_family: dict, searched: Sequence[str] = ()) -> list[str]:
     """The overrides ``per_family`` gives ``model``'s family: the ``family`` its class declares
     (``DynamicsModel.family``, e.g. ``constrained`` for CHNN and CLNN). A profile with ``per_family`` refuses a
     model whose family it does not list, so no model falls back to another setting unseen."""
@@ -220,7 +225,8 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
             "",
             time.perf_counter() - started,
         )  # training and the test of this process (a resumed run: from the resume on)
-        steps = trained.module.trainer.global_step
+        # a planned run is one seed's (a cell's seeds train together through ensemble.train): a Run
+        steps = cast("Run", trained).module.trainer.global_step
         if control:
             from encons.tools.control import score_control
 

@@ -26,10 +26,14 @@ import json
 import math
 from collections import defaultdict
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
 
 from rich.console import Console
 
 from encons.infra.errors import ConfigError
+
+if TYPE_CHECKING:
+    from omegaconf import DictConfig
 from encons.infra.io import atomic_open, write_text
 
 
@@ -158,7 +162,7 @@ def published(out: Path) -> dict[str, dict]:
     path = out / "benchmark.yaml"
     if not path.is_file():
         return {}
-    cfg = OmegaConf.to_container(OmegaConf.load(path))
+    cfg = cast("dict[str, Any]", OmegaConf.to_container(OmegaConf.load(path)))  # a YAML mapping: a dict
     paper = dict(cfg.get("paper") or {})
     for run in cfg.get("runs") or []:
         if run.get("paper"):
@@ -286,7 +290,7 @@ def write_report(out: str | Path) -> list[Path]:
     paper = published(out)
     source = ""
     if (out / "benchmark.yaml").is_file():
-        source = OmegaConf.load(out / "benchmark.yaml").get("paper_source", "")
+        source = cast("DictConfig", OmegaConf.load(out / "benchmark.yaml")).get("paper_source", "")  # a mapping
     write_csv(out / "results.csv", [portable_row(r, out) for r in rows])
     write_csv(
         out / "summary.csv",

@@ -30,7 +30,7 @@ import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import lightning.pytorch as pl
 import torch
@@ -181,7 +181,8 @@ def train(
     module = _module(cfg, members, seeds, data, stacked)
     monitor = _monitor(cfg, checked.targets)
     if monitor is not None:
-        trainer.callbacks.append(MemberCheckpoints(dirs, [OmegaConf.to_container(c) for c in saved], *monitor))
+        plain = [cast(dict, OmegaConf.to_container(c)) for c in saved]  # a DictConfig's container: a dict
+        trainer.callbacks.append(MemberCheckpoints(dirs, plain, *monitor))
         keeper = trainer.callbacks[-1]
     else:
         keeper = None
@@ -303,7 +304,7 @@ def _test_members(
             runs.append(Run(member, data, saved[i], d, None, {}))
             continue
         tested = keeper.best[i][1] if keeper is not None and i in keeper.best else None
-        if tested is not None:
+        if keeper is not None and tested is not None:  # tested: a path only where there is a keeper
             state = checkpoints.read(tested)
             member.load_state_dict(state["state_dict"])
             results[f"best/{keeper.monitor}"] = keeper.best[i][0]
@@ -323,9 +324,9 @@ def _test_members(
         runs.append(Run(member, data, saved[i], d, tested, results))
     metrics = summarise(per_member)
     run_dir = Path(cfg.paths.output_dir)
-    tested = [module.members[i] for i in range(len(seeds)) if seeds[i] in per_member]
-    if cfg.test and cfg.get("figures", True) and len(tested) > 1:
-        _ensemble_figures(tested, [s for s in seeds if s in per_member], run_dir / "figures")
+    scored = [module.members[i] for i in range(len(seeds)) if seeds[i] in per_member]
+    if cfg.test and cfg.get("figures", True) and len(scored) > 1:
+        _ensemble_figures(scored, [s for s in seeds if s in per_member], run_dir / "figures")
     tests = summarise(
         {s: {k.removeprefix("test/"): v for k, v in r.items() if k.startswith("test/")} for s, r in per_member.items()}
     )

@@ -18,11 +18,12 @@ import logging
 from collections.abc import Mapping
 from functools import partial
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, cast
 
 import lightning.pytorch as pl
 import numpy as np
 import torch
+from lightning.pytorch.callbacks import ModelCheckpoint
 from torch import Tensor
 from torch.optim import Optimizer
 
@@ -152,6 +153,7 @@ class TrainingModule(pl.LightningModule):
 
     def regularise(self, points: Tensor, u: Tensor | None) -> Tensor:
         """The regulariser on the model at ``points`` (B, 2n) under inputs ``u`` (B, m) or None."""
+        assert self.regulariser is not None  # called only for a run with a regulariser
         return self.regulariser(self.model, points, u)
 
     def _kept_checkpoint(self) -> str:
@@ -160,13 +162,13 @@ class TrainingModule(pl.LightningModule):
         # last_model_path is set only by save_last=True
         paths = [
             path
-            for cb in self.trainer.checkpoint_callbacks
+            for cb in cast("list[ModelCheckpoint]", self.trainer.checkpoint_callbacks)  # encons' are ModelCheckpoints
             for path in (cb.last_model_path, cb.best_model_path if cb.monitor is None else "")
         ]
         kept = [Path(p) for p in paths if p and Path(p).is_file()]
         if not kept:
             return "no checkpoint was written before it (none to resume from)"
-        epoch = checkpoints.read(kept[0]).get("epoch")
+        epoch = cast(int, checkpoints.read(kept[0]).get("epoch"))  # Lightning writes it in every checkpoint
         return f"{kept[0]} holds the last good weights (epoch {epoch + 1}); resume with ckpt_path=last"
 
     def compared(self, x: Tensor, pred: Tensor) -> tuple[Tensor, Tensor]:
@@ -212,10 +214,11 @@ class TrainingModule(pl.LightningModule):
         self.test_metrics, self.test_curves = {}, {}
         for name, evaluator in self.evaluators.items():
             result = evaluator.compute(self)
-            for kind, merged, new in (
+            merges: tuple[tuple[str, dict[str, Any], Mapping[str, Any]], ...] = (
                 ("metric", self.test_metrics, result.metrics),
                 ("curve", self.test_curves, result.curves),
-            ):
+            )
+            for kind, merged, new in merges:
                 if clash := sorted(set(merged) & set(new)):
                     raise ConfigError(
                         f"evaluators.{name} gives the {kind} {clash[0]!r} another evaluator of this "
