@@ -18,10 +18,10 @@ the first row. Cells are numbers, except the trial column, whose labels may be a
 How it is cut (``load_recording``), for each trial on its own (a file without trials is one trial):
 
 1. A step longer than ``gap`` × the median step (dropped samples) is a gap: it splits the trial
-   into unbroken stretches; dt is the mean of the steps within ``jitter`` of the median. Any other step must lie within dt · (1 ± ``jitter``)
-   (default 1e-3 relative: float32 time stamps of a long recording jitter by ~1e-4..1e-3); its
-   samples are then taken as dt apart. A step beyond that is refused in one line, or with
-   ``resample`` each stretch is linearly interpolated onto the grid t_0 + k dt (inputs held).
+   into unbroken stretches; dt is the mean of the steps within ``jitter`` of the median. Any other step must lie within
+   dt · (1 ± ``jitter``) (default 1e-3 relative: float32 time stamps of a long recording jitter by ~1e-4..1e-3); its
+   samples are then taken as dt apart. A step beyond that is refused in one line, or with ``resample`` each stretch is
+   linearly interpolated onto the grid t_0 + k dt (inputs held).
 2. Coordinates marked in ``angles`` are unwrapped inside each stretch (``numpy.unwrap``: each
    step taken as the one of least magnitude, so |Δq| < π per sample is assumed), so that wrapped
    recordings (angles in [−π, π)) and unwrapped ones give continuous trajectories.

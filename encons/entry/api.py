@@ -7,8 +7,8 @@
     encons.evaluate(again)               # the same test metrics, to the digit
 
 A facade over ``encons.training.build`` (compose, instantiate), ``encons.config.check`` (validate once) and
-``encons.training.runs`` (train, load, evaluate); the CLI (``encons.entry.cli``) calls the same functions. Lightning and torch are imported on
-first use, not at import.
+``encons.training.runs`` (train, load, evaluate); the CLI (``encons.entry.cli``) calls the same functions. Lightning and
+torch are imported on first use, not at import.
 """
 
 from __future__ import annotations
@@ -34,10 +34,10 @@ __all__ = [
     "build_trainer",
     "train",
     "load",
-    "evaluate",  # noqa: F822
-    "rollout",
+    "evaluate",
+    "rollout",  # noqa: F822 - served by the module __getattr__ below (imported on first use)
     "catalogue",
-]  # rollout: from __getattr__
+]
 
 
 def __getattr__(name: str):  # ``rollout`` re-exported without importing torch at ``import encons.entry.api``

@@ -3,10 +3,10 @@
 Data come as ``s = (q, q̇)`` in the model's chart; ``to_internal`` maps them to the internal
 state a continuous field acts on (e.g. ``(q, p)`` for Hamiltonian models, p = M(q) q̇) and
 ``from_internal`` maps back. (An observation model's ``encode``/``decode`` are another map:
-observations such as frames to states and back, ``encons.models.observation``.) Exogenous inputs ``u`` (controls, per-trajectory parameters; shape (..., m)) travel beside
-the state in one argument, never inside it. ``encons.numerics.integrators.rollout`` is the one way to roll
-any model out: continuous fields through torchdiffeq, discrete models (``DiscreteModel``) by their
-own ``rollout``.
+observations such as frames to states and back, ``encons.models.observation``.) Exogenous inputs ``u`` (controls,
+per-trajectory parameters; shape (..., m)) travel beside the state in one argument, never inside it.
+``encons.numerics.integrators.rollout`` is the one way to roll any model out: continuous fields through torchdiffeq,
+discrete models (``DiscreteModel``) by their own ``rollout``.
 
 What a model supports is declared by class attributes, checked once when a run is built
 (``encons.config.check.check_capabilities``): ``discrete``, ``supports_controls``, ``needs_constraints``,

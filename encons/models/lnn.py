@@ -28,7 +28,8 @@ def lagrangian_derivatives(lagrangian: Callable[[Tensor], Tensor], s: Tensor) ->
     (..., 2n) of a batch-aware scalar L(s), by autodiff (any L).
 
     ∇L comes from one batched grad; the Hessian rows from n + 1 vector products with it,
-    vmapped over the vectors only (reverse over reverse, rather than forward over reverse): (q̇, 0) gives (∇_q ∇_q̇ᵀ L) q̇ and (0, e_i) the rows of H.
+    vmapped over the vectors only (reverse over reverse, rather than forward over reverse): (q̇, 0) gives (∇_q ∇_q̇ᵀ L)
+    q̇ and (0, e_i) the rows of H.
     """
     n = s.shape[-1] // 2
     qd = s[..., n:]

@@ -162,8 +162,8 @@ class SyMo(DiscreteModel):
         halved step decreases keeps its iterate and stops iterating: every later iteration would repeat
         that step exactly (the samples' computations are independent), so the result is the one ``iters``
         iterations give. When every sample takes its full step, that trial's vjp gives the next Jacobian
-        (no second evaluation at the same point). Returns (root, ∂g/∂x at the root, Newton iterations taken, mask of the samples
-        not converged after ``iters`` iterations).
+        (no second evaluation at the same point). Returns (root, ∂g/∂x at the root, Newton iterations taken, mask of the
+        samples not converged after ``iters`` iterations).
         """
         c, q, x = c.detach(), q.detach(), guess.detach()
 

@@ -1,6 +1,7 @@
 """Benchmark runner: the runs of a profile (conf/profile/*.yaml), trained one by one, then the report.
 
-    python -m encons.benchmark [profile=smoke|quick|zhong|finzi|lim_kasim|pixels|santos|xiao|control] [seeds=[0,1]] [out=DIR]
+    python -m encons.benchmark [profile=smoke|quick|zhong|finzi|lim_kasim|pixels|santos|xiao|control]
+        [seeds=[0,1]] [out=DIR]
         ['train=["trainer.max_epochs=50"]']   (quoted: Hydra's grammar wants '=' inside a list quoted)
 
 A profile lists its runs as a grid (``systems`` × ``models``), as explicit ``runs`` (a label and
@@ -10,9 +11,10 @@ each is trained for every seed of ``seeds``, the seeds of one cell as one ensemb
 (``encons.training.ensemble``: each member the run of its seed, with its own ``runs/<id>/``), on datasets cached under
 ``paths.cache_dir`` (one per system and data config, shared by every model and seed). A finished
 run leaves ``runs/<id>/result.json``; a rerun skips it, so an interrupted benchmark resumes where it
-stopped. Progress (stdout, the stream a run logs to) prints ``benchmark run k of n (id), elapsed, ETA``. ``models=all`` /
-``systems=all`` take every option of ``conf/model`` / ``conf/system``. The report (``encons.tools.report``) is written
-to ``out`` at the end and can be rebuilt alone with ``python -m encons.report OUT``.
+stopped. Progress (stdout, the stream a run logs to) prints ``benchmark run k of n (id), elapsed, ETA``.
+``models=all`` / ``systems=all`` take every option of ``conf/model`` / ``conf/system``. The report
+(``encons.tools.report``) is written to ``out`` at the end and can be rebuilt alone with
+``python -m encons.report OUT``.
 """
 
 from __future__ import annotations
@@ -51,7 +53,8 @@ class PlannedRun:
 
     @property
     def cell(self) -> str:
-        """The (system, model, size) cell: the runs of its seeds train as one ensemble (``encons.training.ensemble``)."""
+        """The (system, model, size) cell: the runs of its seeds train as one ensemble
+        (``encons.training.ensemble``)."""
         size = f"-n{self.n_train}" if self.n_train is not None else ""
         return f"{self.system}-{self.label}{size}".replace("/", "_").replace("'", "p")
 
@@ -421,7 +424,8 @@ def run_profile(cfg: DictConfig) -> Path:
 
 
 def usage() -> str:
-    """``--help``: this module's usage, the profiles found in ``conf/profile`` and the keys of ``conf/benchmark.yaml``."""
+    """``--help``: this module's usage, the profiles found in ``conf/profile`` and the keys of
+    ``conf/benchmark.yaml``."""
     profiles = sorted(p.stem for p in (Path(config_dir()) / "profile").glob("*.yaml"))
     keys = (Path(config_dir()) / "benchmark.yaml").read_text()
     return f"{__doc__}\nprofiles: {', '.join(profiles)}\n\nconf/benchmark.yaml:\n{keys}"

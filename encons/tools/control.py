@@ -210,7 +210,10 @@ def learned_plant(model: torch.nn.Module, system: System, name: str) -> Plant:
     upright, known = b(torch.zeros(len(system.angles), dtype=torch.float64)), system.input_matrix()
     c = float((upright * known).sum() / known.square().sum())
     mass, potential = (lambda q: model.mass(q) / c), (lambda q: model.potential(q) / c)
-    g = lambda q: b(q) / c
+
+    def g(q: Tensor) -> Tensor:
+        return b(q) / c
+
     return Plant(
         mass, potential, upright / c, lambda s, u: forced_euler_lagrange(mass, potential, g, s, u), tuple(system.angles)
     )

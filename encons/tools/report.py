@@ -3,7 +3,8 @@ benchmark's report rebuilt from its finished runs.
 
     python -m encons.report DIR     # DIR: a benchmark's output folder (it holds runs/*/result.json)
     python -m encons.report SWEEP   # SWEEP: a Hydra multirun folder (it holds multirun.yaml)
-    python -m encons.report --docs  # the result tables of README.md and docs/ from benchmarks/reports/ (encons.tools.docs)
+    python -m encons.report --docs  # the result tables of README.md and docs/ from benchmarks/reports/
+                                    # (encons.tools.docs)
 
 Writes ``results.csv`` (one row per run), ``summary.csv`` and ``summary.md`` (every test metric per
 model × system, mean ± std over seeds, beside the paper's published value where the profile gives

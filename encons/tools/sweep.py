@@ -162,7 +162,8 @@ class OptunaSweeper(Sweeper):
 
 
 def check_search_space(overrides: list[str]) -> None:
-    """Refuse an ``interval(low, high)`` whose bounds are reversed (Optuna's distribution would raise), naming the key."""
+    """Refuse an ``interval(low, high)`` whose bounds are reversed (Optuna's distribution would raise), naming the
+    key."""
     for override in OverridesParser.create().parse_overrides(overrides):
         value = override.value()
         if (

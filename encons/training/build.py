@@ -212,7 +212,8 @@ def build(
 
 
 def check(cfg: DictConfig, request: Request = Request()) -> Checked:
-    """``encons.config.check.validate`` (kept under this name): every check of a composed config before anything is built."""
+    """``encons.config.check.validate`` (kept under this name): every check of a composed config before anything is
+    built."""
     return validate(cfg, request)
 
 

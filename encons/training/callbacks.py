@@ -214,7 +214,8 @@ class StallLine(pl.Callback):
             log.warning(
                 "stalled: %s has stayed at %.6g (within %g relative) for %d validations since epoch %d (now epoch "
                 "%d, step %d); the model is not learning. Likely remedies: another optimizer.lr (lower if the loss "
-                "jumped before it froze, higher if it never moved)%s; callbacks.stall.patience=%d sets when this is said",
+                "jumped before it froze, higher if it never moved)%s; callbacks.stall.patience=%d sets when this is "
+                "said",
                 key,
                 value,
                 self.rtol,

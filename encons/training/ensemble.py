@@ -10,9 +10,9 @@ whose loss turns non-finite is reported diverged and left out from then on; the 
 
 Two paths compute the members' losses (``EnsembleModule.path``):
 
-- ``stacked``: the members' networks as one stacked model (``encons.training.stacked``: ``torch.func.stack_module_state``
-  + ``functional_call`` + ``vmap`` over the member axis, folded into the batch axis), one forward and one
-  backward for all members; for the models and settings ``encons.training.stacked.why_not`` accepts;
+- ``stacked``: the members' networks as one stacked model (``encons.training.stacked``:
+  ``torch.func.stack_module_state`` + ``functional_call`` + ``vmap`` over the member axis, folded into the batch axis),
+  one forward and one backward for all members; for the models and settings ``encons.training.stacked.why_not`` accepts;
 - ``loop``: each member's own ``training_step`` in turn (one backward of their sum) — every model, every
   objective, regulariser, observation and schedule, e.g. ``ReduceLROnPlateau`` on a member's own validation.
 
@@ -102,7 +102,8 @@ def member_config(cfg: DictConfig, seed: int, output_dir: Path) -> DictConfig:
 
 
 def _checkpointers(cfg: DictConfig, targets: Mapping[str, Any]) -> dict[str, DictConfig]:
-    """The callbacks of ``cfg`` that are Lightning ``ModelCheckpoint``s, by class (encons' ``BestCheckpoint`` is one)."""
+    """The callbacks of ``cfg`` that are Lightning ``ModelCheckpoint``s, by class (encons'
+    ``BestCheckpoint`` is one)."""
     from lightning.pytorch.callbacks import ModelCheckpoint
 
     return {

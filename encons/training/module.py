@@ -2,13 +2,13 @@
 
 The objective is one of ``encons.training.objectives`` (rollout, derivative, acceleration, onestep, residual), chosen
 among those the model lists in ``objectives``. An optional regulariser adds a weighted penalty;
-optimiser and scheduler are the ``_partial_`` configs of ``conf/optimizer`` and ``conf/scheduler``. Batches are dicts (see ``encons.data.datamodule``): ``states`` and, where
-present, inputs ``u``, ``rates`` and frames ``obs``.
-The ``observation`` (``encons.models.observation``) maps the batch entry it reads to the states the
-model rolls out, and adds its own loss terms: the identity by default; with an autoencoder the
-rollout objective acts on encoded latent states, the regulariser on the latent field at them, and
-validation compares decoded frames with the true ones. Testing feeds the ``evaluators``
-(``encons.evaluators``), which score; ``encons.training.callbacks.TestResults`` writes what they scored.
+optimiser and scheduler are the ``_partial_`` configs of ``conf/optimizer`` and ``conf/scheduler``. Batches are dicts
+(see ``encons.data.datamodule``): ``states`` and, where present, inputs ``u``, ``rates`` and frames ``obs``. The
+``observation`` (``encons.models.observation``) maps the batch entry it reads to the states the model rolls out, and
+adds its own loss terms: the identity by default; with an autoencoder the rollout objective acts on encoded latent
+states, the regulariser on the latent field at them, and validation compares decoded frames with the true ones. Testing
+feeds the ``evaluators`` (``encons.evaluators``), which score; ``encons.training.callbacks.TestResults`` writes what
+they scored.
 """
 
 from __future__ import annotations
@@ -110,7 +110,8 @@ class TrainingModule(pl.LightningModule):
         )
 
     def reduce(self, terms: Tensor) -> Tensor:
-        """The batch mean of a loss's terms (leading axis: windows or points); ``encons.training.stacked`` means per member."""
+        """The batch mean of a loss's terms (leading axis: windows or points); ``encons.training.stacked`` means per
+        member."""
         return terms.mean()
 
     def to_common(self, states: Tensor) -> Tensor:
@@ -131,7 +132,8 @@ class TrainingModule(pl.LightningModule):
         if not torch.isfinite(loss):
             raise DivergenceError(
                 f"training diverged: loss is {loss.item()} at epoch {self.current_epoch + 1}, step "
-                f"{self.global_step}; {self._kept_checkpoint()}; allowed: a lower optimizer.lr (or a larger model.mass_eps / model.guard where the model has one)"
+                f"{self.global_step}; {self._kept_checkpoint()}; allowed: a lower optimizer.lr (or a larger "
+                f"model.mass_eps / model.guard where the model has one)"
             )
         return loss
 
@@ -242,7 +244,8 @@ class TrainingModule(pl.LightningModule):
 
         A scheduler that takes ``total_steps`` gets Lightning's estimate for ``max_epochs`` and steps per
         optimiser step (a run stopped by ``max_time`` or ``max_steps`` ends before its decay does);
-        ``ReduceLROnPlateau`` steps after each validation (``validation.every``) on ``val/loss``; any other scheduler each epoch.
+        ``ReduceLROnPlateau`` steps after each validation (``validation.every``) on ``val/loss``; any other scheduler
+        each epoch.
         """
         opt = self.optimizer(self.parameters())
         if self.scheduler is None:

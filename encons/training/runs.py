@@ -228,7 +228,8 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
         run_dir, ckpt_file = path, checkpoints.find(path, ckpt)
     else:
         raise ConfigError(
-            f"{str(path)!r} is not a training run folder (no checkpoints/) or a .ckpt file; allowed: a run folder that train wrote, or its .ckpt"
+            f"{str(path)!r} is not a training run folder (no checkpoints/) or a .ckpt file; allowed: a run folder "
+            f"that train wrote, or its .ckpt"
         )
     state = checkpoints.read(ckpt_file)
     if checkpoints.CONFIG_KEY in state:

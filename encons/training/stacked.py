@@ -277,7 +277,10 @@ def why_not(cfg: Any, members: Sequence[TrainingModule]) -> str | None:
         return "compile=true compiles one model's field"
     opt = member.optimizer.func if hasattr(member.optimizer, "func") else member.optimizer
     if getattr(opt, "__name__", "") not in ELEMENTWISE:
-        return f"optimizer {getattr(opt, '__name__', opt)} may mix elements across members; allowed stacked: {', '.join(ELEMENTWISE)}"
+        return (
+            f"optimizer {getattr(opt, '__name__', opt)} may mix elements across members; allowed stacked: "
+            f"{', '.join(ELEMENTWISE)}"
+        )
     return None
 
 
