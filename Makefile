@@ -4,13 +4,16 @@ VENV    ?= .venv
 BIN     := $(VENV)/bin
 ARGS    ?=
 
-.PHONY: install test test-fast train bench benchmark report clean
+.PHONY: install lint test test-fast train bench benchmark report clean
 
 install:  ## fresh virtual environment: CPU torch first (pinned), then encons with its dev extra
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q torch==2.13.0
 	$(BIN)/pip install -q -e ".[dev]"
+
+lint:  ## ruff (lint and format check) on the package, its tests and benchmarks, and mypy on encons/ ([tool.ruff], [tool.mypy]); what CI runs first
+	$(BIN)/ruff check encons tests benchmarks && $(BIN)/ruff format --check encons tests benchmarks && $(BIN)/mypy
 
 test:  ## every test, fast tier and the end-to-end, DDP, PostgreSQL and wheel tests (marked slow), on all cores; what CI runs
 	$(BIN)/python -m pytest -n auto --dist worksteal

@@ -221,7 +221,8 @@ def measure(
 def mlp_rows(ks: list[int], steps: int, repeats: int, width: int = 200, rows: int = 30, dim: int = 2) -> list[dict]:
     """Forward + backward of the lim_kasim network (2 × ``width`` softplus MLP on ``rows`` states of ``dim``) for K
     members three ways: K separate nets in turn; ``vmap`` of ``functional_call`` over stacked weights (what
-    ``encons.training.stacked`` does); an ensemble dimension written into the layers (``baddbmm`` on (K, in, out) weights)."""
+    ``encons.training.stacked`` does); an ensemble dimension written into the layers (``baddbmm`` on (K, in, out)
+    weights)."""
     from torch.func import functional_call, stack_module_state, vmap
 
     from encons.models.networks import mlp

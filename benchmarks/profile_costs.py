@@ -159,7 +159,8 @@ def write(out: Path, rows: list[dict], args) -> None:
         f"Written by `{' '.join(['python', *sys.argv])}` at commit {commit}, "
         f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, one thread, `nice -n 10`, "
         f"load average at the end {os.getloadavg()[0]:.1f} on 2 shared cores (each row's load in the run log). "
-        "Seconds per epoch are means over epochs 2..N of the run's `costs.json` (`encons.training.callbacks.CostLine`); "
+        "Seconds per epoch are means over epochs 2..N of the run's `costs.json` "
+        "(`encons.training.callbacks.CostLine`); "
         "full = epoch × the profile's `trainer.max_epochs` (no test, no data simulation). "
         "`before`: the profile as on main before validation.* (every epoch, the rollout criterion); "
         "`after`: with the profile's `validation.*`.",

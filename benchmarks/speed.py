@@ -14,8 +14,8 @@ samples, each with its full Hessian (``torch.autograd.functional.hessian``), tim
 ``--naive-samples`` windows and scaled to the batch (the loop is linear in it). Timed: the fastest of
 a few steps, as wall time and as process CPU time, the floor and each model alternately over
 ``--repeats`` rounds, the fastest of each (the pair sees the same load); ratios use CPU time, which
-other people's load on a shared machine disturbs least (run with ``--threads 1`` there). Peak memory: the high-water mark
-of the tensors torch allocates during one step (profiler memory events, in order). Also times
+other people's load on a shared machine disturbs least (run with ``--threads 1`` there). Peak memory: the high-water
+mark of the tensors torch allocates during one step (profiler memory events, in order). Also times
 dataset generation (1,000 trajectories × 100 steps; target ≤ 2 s for pendulum2) and, for the
 ``--compile`` models, the same step with the field through ``torch.compile`` (``compile=true``): its
 compile time (the first step, from an empty inductor cache only on a fresh machine) and speed-up

@@ -1,6 +1,7 @@
 """``python -m encons.benchmark [profile=NAME] [overrides]``: the command ``python -m encons benchmark``, nothing else.
 
-The library is :mod:`encons.tools.benchmark`, so importing this file is refused with that name (a name is a module or a function, never both).
+The library is :mod:`encons.tools.benchmark`, so importing this file is refused with that name (a name is a module or a
+function, never both).
 """
 
 import sys

@@ -1,6 +1,8 @@
-"""``python -m encons.control RUN [ckpt=…] [starts=…] [seed=…] [duration=…]``: the command ``python -m encons control``, nothing else.
+"""``python -m encons.control RUN [ckpt=…] [starts=…] [seed=…] [duration=…]``: the command ``python -m encons control``,
+nothing else.
 
-The library is :mod:`encons.tools.control`, so importing this file is refused with that name (a name is a module or a function, never both).
+The library is :mod:`encons.tools.control`, so importing this file is refused with that name (a name is a module or a
+function, never both).
 """
 
 import sys

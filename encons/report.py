@@ -1,6 +1,7 @@
 """``python -m encons.report DIR``: the command ``python -m encons report``, nothing else.
 
-The library is :mod:`encons.tools.report`, so importing this file is refused with that name (a name is a module or a function, never both).
+The library is :mod:`encons.tools.report`, so importing this file is refused with that name (a name is a module or a
+function, never both).
 """
 
 import sys

@@ -1,6 +1,7 @@
 """``python -m encons.sweep STORAGE STUDY [OUT]``: the command ``python -m encons sweep``, nothing else.
 
-The library is :mod:`encons.tools.sweep`, so importing this file is refused with that name (a name is a module or a function, never both).
+The library is :mod:`encons.tools.sweep`, so importing this file is refused with that name (a name is a module or a
+function, never both).
 """
 
 import sys

@@ -13,7 +13,7 @@ import inspect
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from omegaconf import DictConfig, OmegaConf, open_dict
 
@@ -23,6 +23,7 @@ from encons.infra.errors import ConfigError
 
 if TYPE_CHECKING:
     from encons.models.base import DynamicsModel
+    from encons.models.observation import Observation
     from encons.systems.base import System
 
 
@@ -40,7 +41,8 @@ class Request:
         hydra = cfg.get("hydra") if isinstance(cfg, DictConfig) else None
         if hydra is None:
             return cls()
-        choices = {k: v for k, v in OmegaConf.to_container(hydra.runtime.choices).items() if isinstance(v, str)}
+        picked = cast("dict[str, Any]", OmegaConf.to_container(hydra.runtime.choices))  # a DictConfig's: a dict
+        choices = {k: v for k, v in picked.items() if isinstance(v, str)}
         return cls(choices, tuple(hydra.overrides.task))
 
     def overridden(self) -> set[str]:
@@ -73,9 +75,8 @@ class Checked:
 
 def run_config(cfg: DictConfig) -> DictConfig:
     """The resolved run config without Hydra's own node: what a run is rebuilt from."""
-    return OmegaConf.create(
-        OmegaConf.to_container(OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"]), resolve=True)
-    )
+    keys: list[Any] = [k for k in cfg if k != "hydra"]
+    return cast(DictConfig, OmegaConf.create(OmegaConf.to_container(OmegaConf.masked_copy(cfg, keys), resolve=True)))
 
 
 def _frozen(cfg: DictConfig) -> DictConfig:
@@ -108,7 +109,8 @@ def validate(cfg: DictConfig, request: Request | None = None) -> Checked:
     from encons.data.datamodule import TrajectoryDataModule
 
     request = Request.of(cfg) if request is None else request
-    task = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])
+    keys: list[Any] = [k for k in cfg if k != "hydra"]
+    task = OmegaConf.masked_copy(cfg, keys)
     missing = sorted(
         OmegaConf.missing_keys(task), key=lambda k: not _is_unset(task, k)
     )  # "???" before what refers to it
@@ -116,7 +118,7 @@ def validate(cfg: DictConfig, request: Request | None = None) -> Checked:
         raise ConfigError(f"{missing[0]} has no value; allowed: give it one ({missing[0]}=...)")
     resolved = run_config(cfg)
     trusted = trust.trusted_targets()
-    targets = trust.check_targets(OmegaConf.to_container(resolved), trusted)
+    targets = trust.check_targets(cast(dict, OmegaConf.to_container(resolved)), trusted)  # a DictConfig's: a dict
     check_node(cfg, "")
     check_node(cfg, "data", TrajectoryDataModule)
     keys = [k for k in NODES if cfg.get(k)]
@@ -202,7 +204,7 @@ def check_node(cfg: DictConfig, key: str, target: Any = None, targets: Mapping[s
         return
     declared = dict(bounds.DECLARED.get(key, {}))
     if key:
-        values = OmegaConf.to_container(node, resolve=True)
+        values = cast("dict[str, Any]", OmegaConf.to_container(node, resolve=True))  # a DictConfig's: a dict
         name = values.get("_target_")
         if target is None and isinstance(name, str):
             target = targets[name] if targets is not None and name in targets else trust.locate(name, key)
@@ -241,7 +243,7 @@ def objective_of(cfg: DictConfig) -> str:
     return cfg.objective or trust.locate(cfg.model._target_, "model").objectives[0]
 
 
-def check_observation(cls: type, objective: str) -> None:
+def check_observation(cls: type[Observation], objective: str) -> None:
     """Refuse an objective the observation model (class ``cls``, ``encons.models.observation``) cannot train."""
     if cls.objectives is not None and objective not in cls.objectives:
         raise ConfigError(

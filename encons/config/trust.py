@@ -3,8 +3,8 @@
 A target is trusted when it matches :func:`trusted_targets` (Hydra's rule: an exact name, or a
 package prefix ending in ``.*``), and it resolves to an object defined in the package it names: an
 alias such as ``encons.config.trust.os.system`` (a module reached by attribute) is refused. The list is
-encons, Lightning, torch's optimisers and schedulers, Optuna's pruners and samplers, and ``ENCONS_TRUSTED_TARGETS`` as the process
-environment holds it; a config file cannot widen it (see ``encons.entry.cli``).
+encons, Lightning, torch's optimisers and schedulers, Optuna's pruners and samplers, and ``ENCONS_TRUSTED_TARGETS`` as
+the process environment holds it; a config file cannot widen it (see ``encons.entry.cli``).
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def locate(target: str, key: str = "", trusted: tuple[str, ...] | None = None) -
     for split in range(len(parts) - 1, 0, -1):
         module = ".".join(parts[:split])
         try:
-            obj = importlib.import_module(module)
+            obj: Any = importlib.import_module(module)
         except ModuleNotFoundError as err:
             if err.name is None or not (module == err.name or module.startswith(f"{err.name}.")):
                 raise

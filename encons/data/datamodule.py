@@ -5,29 +5,26 @@ same windows as an uninterrupted one: ``windows="random"``, one per trajectory p
 start; ``"all"``, every window of every trajectory once per epoch, shuffled (a pass over all states, as a
 dataset of samples would make it; n_steps + 2 − chunk_len times the steps per epoch).
 Validation yields fixed windows, ``val_batch_size`` per batch (null: all of them in one batch; the validation loss is
-their mean either way, so it only sets how many rollouts run side by side); test yields whole trajectories. Noise (σ = ``noise``) is
-added to training states only: validation and test compare rollouts with the clean simulated
-trajectories (for a loaded file, with what the file holds), so the validation error that sweeps,
-pruners and the best checkpoint steer by sees the model, not the noise floor.
-Batches are dicts: ``states`` (B, T, 2n); ``u`` (B, T, m), the inputs of each step, when the
-system takes inputs; ``obs`` (B, T, H, W), frames of the same times, when the system renders frames
+their mean either way, so it only sets how many rollouts run side by side); test yields whole trajectories. Noise (σ =
+``noise``) is added to training states only: validation and test compare rollouts with the clean simulated trajectories
+(for a loaded file, with what the file holds), so the validation error that sweeps, pruners and the best checkpoint
+steer by sees the model, not the noise floor. Batches are dicts: ``states`` (B, T, 2n); ``u`` (B, T, m), the inputs of
+each step, when the system takes inputs; ``obs`` (B, T, H, W), frames of the same times, when the system renders frames
 (``System.frame_shape``; rendered once and cached beside the states) or the file holds them; and for
-``objective="derivative"`` (Lim & Kasim eq. (2)) or ``"acceleration"`` (Xiao et al. §3) ``rates``:
-ds/dt, the true field at the clean simulated states (the authors' protocol), or central differences
-of the observed states for loaded data (second order, one-sided at trajectory ends; so q̈ comes from
-the recorded q̇).
-A loaded recording (``.npz`` or delimited text, one or several trials) is cut by time as
-``encons.data.recording`` says (options ``recording``: ``encons.data.recording.OPTIONS``).
-An epoch is ceil(n_train / batch_size) optimiser steps with ``windows="random"``, ceil(n_train × windows per
-trajectory / batch_size) with ``"all"`` (logged at setup): with a small file and ``"random"`` that may be one
-step, so budget such runs with ``trainer.max_steps`` or use ``"all"``.
+``objective="derivative"`` (Lim & Kasim eq. (2)) or ``"acceleration"`` (Xiao et al. §3) ``rates``: ds/dt, the true field
+at the clean simulated states (the authors' protocol), or central differences of the observed states for loaded data
+(second order, one-sided at trajectory ends; so q̈ comes from the recorded q̇). A loaded recording (``.npz`` or
+delimited text, one or several trials) is cut by time as ``encons.data.recording`` says (options ``recording``:
+``encons.data.recording.OPTIONS``). An epoch is ceil(n_train / batch_size) optimiser steps with ``windows="random"``,
+ceil(n_train × windows per trajectory / batch_size) with ``"all"`` (logged at setup): with a small file and ``"random"``
+that may be one step, so budget such runs with ``trainer.max_steps`` or use ``"all"``.
 """
 
 from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import lightning.pytorch as pl
 import torch
@@ -91,7 +88,7 @@ class WindowSampler(Sampler):
         return iter(zip(order.tolist(), starts[order].tolist()))
 
 
-def _identity(batch: Tensor) -> Tensor:
+def _identity(batch: Any) -> Any:  # Windows.__getitems__ makes the batch (dict[str, Tensor]); DataLoader types it list
     return batch
 
 

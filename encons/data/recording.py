@@ -18,10 +18,10 @@ the first row. Cells are numbers, except the trial column, whose labels may be a
 How it is cut (``load_recording``), for each trial on its own (a file without trials is one trial):
 
 1. A step longer than ``gap`` × the median step (dropped samples) is a gap: it splits the trial
-   into unbroken stretches; dt is the mean of the steps within ``jitter`` of the median. Any other step must lie within dt · (1 ± ``jitter``)
-   (default 1e-3 relative: float32 time stamps of a long recording jitter by ~1e-4..1e-3); its
-   samples are then taken as dt apart. A step beyond that is refused in one line, or with
-   ``resample`` each stretch is linearly interpolated onto the grid t_0 + k dt (inputs held).
+   into unbroken stretches; dt is the mean of the steps within ``jitter`` of the median. Any other step must lie within
+   dt · (1 ± ``jitter``) (default 1e-3 relative: float32 time stamps of a long recording jitter by ~1e-4..1e-3); its
+   samples are then taken as dt apart. A step beyond that is refused in one line, or with ``resample`` each stretch is
+   linearly interpolated onto the grid t_0 + k dt (inputs held).
 2. Coordinates marked in ``angles`` are unwrapped inside each stretch (``numpy.unwrap``: each
    step taken as the one of least magnitude, so |Δq| < π per sample is assumed), so that wrapped
    recordings (angles in [−π, π)) and unwrapped ones give continuous trajectories.
@@ -44,6 +44,7 @@ import logging
 import math
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -149,7 +150,8 @@ def _read(
     missing = [k for k in ("t", "states") if k not in arrays]
     if missing:
         raise DataError(f"recording {str(path)!r} lacks {missing}; allowed: t (T,) and states (T, 2n)")
-    t, states, u = (np.asarray(arrays[k], dtype=np.float64) if k in arrays else None for k in ("t", "states", "u"))
+    t, states = (np.asarray(arrays[k], dtype=np.float64) for k in ("t", "states"))  # both present (checked above)
+    u = np.asarray(arrays["u"], dtype=np.float64) if "u" in arrays else None
     if t.ndim != 1 or len(t) < 3 or states.shape[:1] != t.shape or states.ndim != 2 or states.shape[1] % 2:
         raise DataError(
             f"recording {str(path)!r}: t has shape {t.shape}, states {states.shape}; allowed: "
@@ -196,7 +198,7 @@ def _read_text(
             f"data.recording.columns={columns!r}; allowed: one t column, as many qdot as q columns "
             f"(at least one), at most one trial column"
         )
-    cols = [c for v in as_list.values() for c in v]
+    cols: list[Any] = [c for v in as_list.values() for c in v]  # names or indices, as the config gives them
     by_name = all(isinstance(c, str) for c in cols)
     if not by_name and not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in cols):
         raise ConfigError(
@@ -281,7 +283,8 @@ def _table(path: Path, delimiter: str | None, comment: str | None) -> tuple[list
             f"recording {str(path)!r} is not text ({err.reason} at byte {err.start}); allowed: a "
             f"UTF-8 delimited text file, or an .npz"
         ) from None
-    named, numbered = None, []  # the first comment line's cells; (line number, cells) of rows
+    named: list[str] | None = None  # the first comment line's cells
+    numbered: list[tuple[int, list[str]]] = []  # (line number, cells) of rows
     for number, line in enumerate(lines, 1):
         body, hit, rest = line.partition(comment) if comment else (line, "", "")
         if hit and named is None and not numbered and not body.strip():
@@ -398,7 +401,7 @@ def load_recording(
             f"than data.recording.gap={gap} × the median step, or data.recording.resample=true (interpolate onto dt)"
         )
     mask = recording_angles(opts["angles"], states.shape[1] // 2)
-    pieces = {name: [] for name in SPLITS}  # per split: (states, inputs) of every trajectory
+    pieces: dict[str, list[tuple[np.ndarray, np.ndarray | None]]] = {name: [] for name in SPLITS}  # (states, inputs)
     lines, longest, gaps = [], dict.fromkeys(SPLITS, 0), 0  # longest: samples of a split's longest unbroken piece
     for label, rows, trial_steps in zip(labels, rows_of, steps_of):
         cuts = np.concatenate([[0], np.flatnonzero(trial_steps > gap * median) + 1, [len(rows)]])
@@ -406,7 +409,7 @@ def load_recording(
         edges = [t0 + (1 - test_fraction - val_fraction) * span, t0 + (1 - test_fraction) * span]
         counts = dict.fromkeys(SPLITS, 0)
         for a, b in zip(cuts[:-1], cuts[1:]):
-            times, s, inputs = _stretch(
+            times, s, stretch_u = _stretch(
                 t[rows[a:b]], states[rows[a:b]], None if u is None else u[rows[a:b]], mask, dt, bool(opts["resample"])
             )
             part = np.searchsorted(edges, times, side="right")  # 0 train, 1 val, 2 test
@@ -418,7 +421,7 @@ def load_recording(
                 count = (len(inside) - length) // every + 1 if len(inside) >= length else 0
                 if count:
                     index = inside[0] + every * np.arange(count)[:, None] + np.arange(length)
-                    pieces[name].append((s[index], None if inputs is None else inputs[index]))
+                    pieces[name].append((s[index], None if stretch_u is None else stretch_u[index]))
                 counts[name] += count
         gaps += len(cuts) - 2
         end = t[rows[-1]]

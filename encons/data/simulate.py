@@ -41,7 +41,8 @@ def sample_trajectories(
         count += kept[-1][0].shape[0]
         if count == n:
             states = torch.cat([k[0] for k in kept])
-            return states, (torch.cat([k[1] for k in kept]) if u is not None else None), rejected
+            inputs = [k[1] for k in kept if k[1] is not None]  # all of them where u is not None
+            return states, (torch.cat(inputs) if u is not None else None), rejected
     raise DataError(
         f"system '{system.name}': only {count} of {n} sampled trajectories were valid "
         f"after {max_tries} draws; allowed: wider initial-condition ranges (system.*)"

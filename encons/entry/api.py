@@ -7,8 +7,8 @@
     encons.evaluate(again)               # the same test metrics, to the digit
 
 A facade over ``encons.training.build`` (compose, instantiate), ``encons.config.check`` (validate once) and
-``encons.training.runs`` (train, load, evaluate); the CLI (``encons.entry.cli``) calls the same functions. Lightning and torch are imported on
-first use, not at import.
+``encons.training.runs`` (train, load, evaluate); the CLI (``encons.entry.cli``) calls the same functions. Lightning and
+torch are imported on first use, not at import.
 """
 
 from __future__ import annotations
@@ -34,10 +34,10 @@ __all__ = [
     "build_trainer",
     "train",
     "load",
-    "evaluate",  # noqa: F822
-    "rollout",
+    "evaluate",
+    "rollout",  # noqa: F822 - served by the module __getattr__ below (imported on first use)
     "catalogue",
-]  # rollout: from __getattr__
+]
 
 
 def __getattr__(name: str):  # ``rollout`` re-exported without importing torch at ``import encons.entry.api``
@@ -54,7 +54,9 @@ def train(cfg: DictConfig | str | Sequence[str], summary: bool = True) -> Run | 
     return runs.train(cfg if isinstance(cfg, DictConfig) else compose(cfg), summary)
 
 
-def compose(*overrides: str, output_dir: str | Path | None = None, cache_dir: str | Path | None = None) -> DictConfig:
+def compose(
+    *overrides: str | Sequence[str], output_dir: str | Path | None = None, cache_dir: str | Path | None = None
+) -> DictConfig:
     """The run config the CLI would compose from ``overrides`` (``"model=hnn"``, ``"trainer.max_epochs=5"``;
     a list works too). ``output_dir`` defaults to the CLI's run folder (``outputs/<system>-<model>/<time>``)."""
     flat = [o for item in overrides for o in ([item] if isinstance(item, str) else item)]

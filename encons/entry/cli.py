@@ -1,7 +1,8 @@
 """The one entry room: every command's argv handling, as plain functions.
 
     python -m encons train model=<model> system=<system> [overrides]    (encons-train, python -m encons.train)
-    python -m encons evaluate RUN_DIR|CKPT [ckpt=best|last|PATH] [overrides]   (encons-evaluate, python -m encons.evaluate)
+    python -m encons evaluate RUN_DIR|CKPT [ckpt=best|last|PATH] [overrides]
+                                                                        (encons-evaluate, python -m encons.evaluate)
     python -m encons benchmark [profile=NAME] [overrides]               (encons-benchmark, python -m encons.benchmark)
     python -m encons report DIR                                         (encons-report, python -m encons.report)
     python -m encons sweep STORAGE STUDY [OUT]                          (python -m encons.sweep)
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Callable
 from contextlib import nullcontext
 
 from omegaconf import DictConfig
@@ -211,7 +213,7 @@ def control(argv: list[str] | None = None) -> None:
 
 
 #: ``python -m encons <command>``: each command's function.
-COMMANDS = {
+COMMANDS: dict[str, Callable[..., None]] = {
     "train": train,
     "evaluate": evaluate,
     "benchmark": benchmark,

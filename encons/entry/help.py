@@ -5,6 +5,7 @@ groups, the benchmark's ``profile`` group or the sweeps' sub-groups."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import cast
 
 from encons.infra.paths import config_dir
 
@@ -16,7 +17,8 @@ def groups() -> dict[str, object]:
     their default choice (a list for a group of which a run takes several, e.g. ``evaluators``)."""
     from omegaconf import OmegaConf
 
-    entries = OmegaConf.to_container(OmegaConf.load(Path(config_dir()) / "train.yaml").defaults)
+    defaults = OmegaConf.load(Path(config_dir()) / "train.yaml").defaults
+    entries = cast(list, OmegaConf.to_container(defaults))  # a ListConfig's container: a list
     return {k: v for e in entries if isinstance(e, dict) for k, v in e.items() if k not in NOT_CHOSEN}
 
 

@@ -73,8 +73,8 @@ class Evaluator(ABC):
         return {}
 
     def ensemble_figures(self, module: Learner, members: list[Evaluator], seeds: list[int]) -> dict[str, Figure]:
-        """Figures of a seed ensemble (``encons.training.ensemble``), from its ``members``' evaluators of this name after
-        each member's test (``module``: the first member): where the members' spread shows. Default: none."""
+        """Figures of a seed ensemble (``encons.training.ensemble``), from its ``members``' evaluators of this name
+        after each member's test (``module``: the first member): where the members' spread shows. Default: none."""
         return {}
 
 

@@ -158,7 +158,7 @@ def rollout_figures(
     baseline: Tensor | None = None,
     angles: Tensor | None = None,
     names: list[str] | None = None,
-    time_label: str = None,
+    time_label: str | None = None,
     chart: str | None = None,
 ) -> dict[str, Figure]:
     """Rollout vs truth (every coordinate, positions and velocities) of three test trajectories — the
@@ -325,7 +325,8 @@ def laid_out(fig: Figure) -> Figure:
 
 
 def save_png(fig, path: Path, layout: bool = True) -> Path:
-    """``fig`` as a PNG at ``path`` (atomically, ``encons.infra.io.save_figure``), laid out tight unless ``layout`` is false."""
+    """``fig`` as a PNG at ``path`` (atomically, ``encons.infra.io.save_figure``), laid out tight unless ``layout`` is
+    false."""
     if layout:
         fig.tight_layout()
     return save_figure(fig, path, dpi=110)
@@ -431,7 +432,8 @@ DATA_TIME = "time t [the data's time unit]"
 
 def pixel_mse_figure(t: Tensor, mse: Tensor, title: str, references: dict[str, Tensor]) -> dict[str, Figure]:
     """Pixel MSE (N, T) of decoded predictions against the true frames over time, median and 2.5–97.5 %
-    band over test videos, with the mean and the means of ``references`` (name: (N, ≤ T), from t[0] on) (``pixel_mse``)."""
+    band over test videos, with the mean and the means of ``references`` (name: (N, ≤ T), from t[0] on)
+    (``pixel_mse``)."""
     fig, ax = subplots(figsize=(6.5, 4))
     _band(ax, t, mse.clamp_min(1e-12), PIXEL_MSE)
     ax.plot(t, mse.mean(0), "k--", lw=1, label="mean over test videos")

@@ -51,7 +51,7 @@ class SantosMetrics(Evaluator, Declared):
             )
 
     def compute(self, module: Learner) -> Result:
-        self.drawn = None
+        self.drawn: tuple[Tensor, Tensor, Tensor, Tensor, Tensor] | None = None
         if not module.system.known_physics:
             return Result()
         data = module.trainer.datamodule
@@ -97,9 +97,10 @@ class SantosMetrics(Evaluator, Declared):
             "energy_mse_integration": metrics.energy_mse(energy_pred, energy_true[:, :1]).item(),
             **{f"{k}_integration": v for k, v in model.diagnostics().items()},
         }
-        if isinstance(getattr(model, "mass", None), torch.nn.Module) and model.chart == system.base_chart:
+        mass = getattr(model, "mass", None)
+        if isinstance(mass, torch.nn.Module) and model.chart == system.base_chart:
             q = true[..., :n]
-            learned = model.mass(q.to(module.device, dtype)).double().cpu()
+            learned = mass(q.to(module.device, dtype)).double().cpu()
             out["mass_mse"] = metrics.mass_matrix_mse(learned, system.mass_matrix(q)).item()
         self.drawn = t, pred, true, energy_pred, energy_true
         return out

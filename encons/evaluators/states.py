@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, cast
 
 import torch
 from matplotlib.figure import Figure
@@ -43,7 +43,7 @@ class States(Evaluator):
 
     def update(self, module: Learner, batch: TestBatch) -> None:
         x, pred = batch.x, batch.pred
-        kept = (x, pred)
+        kept: tuple[Tensor, ...] = (x, pred)
         if module.system.known_physics:  # the floor: the true field, same starts and integrator
             kept += (
                 module.evaluation.oracle(
@@ -63,7 +63,9 @@ class States(Evaluator):
         energies = [energy(s) for s in (pred, true)] if energy else None
         true_c, pred_c = module.to_common(true), module.to_common(pred)
         angles = module.compared_angles
-        score = dict(horizon=module.horizon, dt=module.dt, vpt_threshold=module.evaluation.vpt_threshold, angles=angles)
+        score: dict[str, Any] = dict(
+            horizon=module.horizon, dt=module.dt, vpt_threshold=module.evaluation.vpt_threshold, angles=angles
+        )
         scores = metrics.summarise(pred_c, true_c, *(energies or (None, None)), **score)
         scores["windows"] = float(len(true))
         train = module.trainer.datamodule.states["train"].to(true)
@@ -132,7 +134,7 @@ class States(Evaluator):
         """``ensemble_rollout`` and ``ensemble_relative_error`` (``encons.plots.ensemble_figures``) of the members'
         test rollouts (the same windows for every member)."""
         t, _, true_c, *_ = self.drawn
-        preds = torch.stack([m.drawn[1] for m in members]).cpu()
+        preds = torch.stack([cast(States, m).drawn[1] for m in members]).cpu()  # members' evaluators of this name
         names = figures.coordinate_names(
             true_c.shape[-1], module.system.layout if module.system.common_chart == "cartesian" else None
         )

@@ -87,12 +87,12 @@ def split(hint: Any) -> tuple[Any, Range | None]:
         return bare, next((m for m in hint.__metadata__ if isinstance(m, Range)), inner)
     if origin in (typing.Union, types.UnionType):
         parts = [split(h) for h in typing.get_args(hint)]
-        return typing.Union[tuple(b for b, _ in parts)], next((r for _, r in parts if r is not None), None)
+        union: Any = typing.Union  # subscripted below by types computed at run time, which mypy cannot read
+        return union[tuple(b for b, _ in parts)], next((r for _, r in parts if r is not None), None)
     if origin in (list, tuple, Sequence):
         args = [split(a) for a in typing.get_args(hint) if a is not Ellipsis]
-        return (origin[args[0][0]] if origin is not tuple else list[args[0][0]]) if args else hint, (
-            args[0][1] if args else None
-        )
+        generic: Any = origin if origin is not tuple else list  # subscripted by a type computed at run time
+        return generic[args[0][0]] if args else hint, (args[0][1] if args else None)
     return hint, None
 
 
@@ -157,8 +157,8 @@ class Declared:
             check({k: v for k, v in bound.arguments.items() if k != "self"}, hints(cls), cls.config_key, types=False)
             init(self, *args, **kw)
 
-        checked._checked = True
-        cls.__init__ = checked
+        setattr(checked, "_checked", True)  # a mark on the function, read above by a subclass's subclass
+        setattr(cls, "__init__", checked)  # the class's own constructor, replaced by its checked wrapper
 
 
 def _boolean(hint: Any) -> bool:

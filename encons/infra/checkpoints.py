@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -50,7 +50,7 @@ def current_targets(saved: Any) -> Any:
     return saved
 
 
-def stored_config(path: Path) -> dict:
+def stored_config(path: str | Path) -> dict:
     """The run config the checkpoint at ``path`` carries ({} where none), its moved targets renamed."""
     return current_targets(read(path, "ckpt_path").get(CONFIG_KEY) or {})
 
@@ -147,7 +147,8 @@ def resume_from(cfg: DictConfig) -> str | None:
 def difference(cfg: DictConfig, path: Path) -> str | None:
     """None when the checkpoint at ``path`` was trained with ``cfg``'s :data:`RESUME_KEYS`, else the first
     difference as ``key=saved where this run has value``."""
-    mine = OmegaConf.to_container(OmegaConf.masked_copy(cfg, [k for k in RESUME_KEYS if k in cfg]), resolve=True)
+    masked = OmegaConf.masked_copy(cfg, [k for k in RESUME_KEYS if k in cfg])
+    mine = cast("dict[str, Any]", OmegaConf.to_container(masked, resolve=True))  # a DictConfig's container: a dict
     saved = stored_config(path)
     diff = _first_difference({k: saved.get(k) for k in mine}, mine)
     return None if diff is None else f"{diff[0]}={diff[1]!r} where this run has {diff[2]!r}"

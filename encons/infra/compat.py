@@ -6,10 +6,11 @@ Each function names the upstream version it was written against (the pins in pyp
 
 from __future__ import annotations
 
+import functools
 import logging
 import re
 import warnings
-from typing import Any
+from typing import Any, Callable
 
 
 def ode_methods() -> tuple[tuple[str, ...], tuple[str, ...]]:
@@ -92,3 +93,30 @@ def bare_optimizer(optimizer: Any) -> None:
     for name in ("step", "state_dict", "load_state_dict"):
         setattr(optimizer, f"_optimizer_{name}_pre_hooks", {})
         setattr(optimizer, f"_optimizer_{name}_post_hooks", {})
+
+
+def number_epochs_from_one(bar: Any) -> None:
+    """Lightning 2.6's ``RichProgressBar`` ``bar`` numbering epochs from 1, like the log lines (``Epoch 2/2`` in the
+    second of two; no total when the run is budgeted by steps), through its private hook ``_get_train_description``."""
+    bar._get_train_description = functools.partial(_train_description_from_one, bar)
+
+
+def _train_description_from_one(bar: Any, current_epoch: int) -> str:
+    total = bar.trainer.max_epochs
+    text = f"Epoch {current_epoch + 1}" + (f"/{total}" if total is not None and total > 0 else "")
+    return f"{text:{len(bar.validation_description)}}" if len(bar.validation_description) > len(text) else text
+
+
+def csv_experiment(logger: Any, writer: Callable[..., Any]) -> Any:
+    """Lightning 2.6's ``CSVLogger.experiment`` with its writer made by ``writer(log_dir=...)``: the logger's writer
+    (private ``_experiment``), made on first use, after its folder is created through its filesystem (``_fs``)."""
+    if logger._experiment is None:
+        logger._fs.makedirs(logger.root_dir, exist_ok=True)
+        logger._experiment = writer(log_dir=logger.log_dir)
+    return logger._experiment
+
+
+def record_new_metric_keys(writer: Any) -> None:
+    """Lightning 2.6's CSV ``ExperimentWriter`` adds the keys of its pending ``metrics`` to ``metrics_keys``
+    (private ``_record_new_keys``), as its own ``save`` does before writing."""
+    writer._record_new_keys()

@@ -115,7 +115,7 @@ def clean_orphans(folder: str | Path) -> list[Path]:
     return removed
 
 
-def write_bytes(path: str | Path, data: bytes) -> Path:
+def write_bytes(path: str | Path, data: bytes | memoryview) -> Path:
     """Write ``data`` to ``path`` atomically."""
     with atomic_open(path) as f:
         f.write(data)

@@ -5,14 +5,15 @@ from __future__ import annotations
 import csv
 import os
 import time
+from pathlib import Path
 from typing import Any
 
 from lightning.fabric.plugins.io.torch_io import TorchCheckpointIO
-from lightning.fabric.utilities.types import _PATH
 from lightning.pytorch.loggers import CSVLogger as _CSVLogger
 from lightning.pytorch.loggers.csv_logs import ExperimentWriter
 from lightning.pytorch.loggers.logger import rank_zero_experiment
 
+from encons.infra.compat import csv_experiment, record_new_metric_keys
 from encons.infra.io import atomic_open, save_checkpoint, write_yaml
 
 
@@ -26,7 +27,9 @@ class AtomicCheckpointIO(TorchCheckpointIO):
 
     seconds = 0.0
 
-    def save_checkpoint(self, checkpoint: dict[str, Any], path: _PATH, storage_options: Any | None = None) -> None:
+    def save_checkpoint(
+        self, checkpoint: dict[str, Any], path: str | Path, storage_options: Any | None = None
+    ) -> None:  # path: Lightning's _PATH, str | Path
         if storage_options is not None:
             raise TypeError(f"{type(self).__name__}.save_checkpoint takes no storage_options")
         start = time.perf_counter()
@@ -42,10 +45,7 @@ class CSVLogger(_CSVLogger):
     @property
     @rank_zero_experiment
     def experiment(self) -> ExperimentWriter:
-        if self._experiment is None:
-            self._fs.makedirs(self.root_dir, exist_ok=True)
-            self._experiment = _AtomicExperimentWriter(log_dir=self.log_dir)
-        return self._experiment
+        return csv_experiment(self, _AtomicExperimentWriter)
 
 
 class _AtomicExperimentWriter(ExperimentWriter):
@@ -56,8 +56,8 @@ class _AtomicExperimentWriter(ExperimentWriter):
     def save(self) -> None:
         if not self.metrics:
             return
-        self._record_new_keys()
-        rows = []
+        record_new_metric_keys(self)
+        rows: list[dict[str, Any]] = []
         if os.path.isfile(self.metrics_file_path):
             with open(self.metrics_file_path, newline="") as f:
                 rows = list(csv.DictReader(f))

@@ -3,10 +3,10 @@
 Data come as ``s = (q, q̇)`` in the model's chart; ``to_internal`` maps them to the internal
 state a continuous field acts on (e.g. ``(q, p)`` for Hamiltonian models, p = M(q) q̇) and
 ``from_internal`` maps back. (An observation model's ``encode``/``decode`` are another map:
-observations such as frames to states and back, ``encons.models.observation``.) Exogenous inputs ``u`` (controls, per-trajectory parameters; shape (..., m)) travel beside
-the state in one argument, never inside it. ``encons.numerics.integrators.rollout`` is the one way to roll
-any model out: continuous fields through torchdiffeq, discrete models (``DiscreteModel``) by their
-own ``rollout``.
+observations such as frames to states and back, ``encons.models.observation``.) Exogenous inputs ``u`` (controls,
+per-trajectory parameters; shape (..., m)) travel beside the state in one argument, never inside it.
+``encons.numerics.integrators.rollout`` is the one way to roll any model out: continuous fields through torchdiffeq,
+discrete models (``DiscreteModel``) by their own ``rollout``.
 
 What a model supports is declared by class attributes, checked once when a run is built
 (``encons.config.check.check_capabilities``): ``discrete``, ``supports_controls``, ``needs_constraints``,
@@ -53,7 +53,9 @@ class DynamicsModel(nn.Module, Declared):
             )
 
     def __init__(self, system: System | None = None, chart: str | None = None):
-        if not hasattr(system, "check_chart"):  # a subclass's super().__init__() without the system encons passed it
+        if system is None or not hasattr(
+            system, "check_chart"
+        ):  # a subclass's super().__init__() without the system encons passed it
             cls = type(self)
             raise ConfigError(
                 f"model._target_={cls.__module__}.{cls.__qualname__}: its __init__ calls "
@@ -118,7 +120,7 @@ class DiscreteModel(DynamicsModel):
 
     discrete = True
     history = 2
-    objectives = ("rollout", "onestep")
+    objectives: ClassVar[tuple[str, ...]] = ("rollout", "onestep")
 
     def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
         raise TypeError(f"{type(self).__name__} is a discrete model: it has no vector field")

@@ -37,6 +37,7 @@ class CartesianModel(DynamicsModel):
 
     def __init__(self, system: System, hidden: Count = 256, depth: Count = 3, activation: str = "softplus"):
         super().__init__(system)
+        assert system.layout is not None  # needs_constraints: the checker admits only systems with a Cartesian layout
         self.dim = system.layout.dim
         self.constraints = system.constraints
         self.potential_net = Potential(self.n, False, hidden, depth, activation)

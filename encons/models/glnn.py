@@ -78,5 +78,5 @@ class SecondOrder(DynamicsModel):
         self.angular = angular
         self.net = mlp(embedded_width(self.n, angular) + self.n, self.n, hidden, depth, activation)
 
-    def forward(self, t: Tensor, s: Tensor) -> Tensor:
+    def forward(self, t: Tensor, s: Tensor) -> Tensor:  # type: ignore[override]  # no inputs: u omitted (DynamicsModel)
         return torch.cat([split_state(s)[1], self.net(_inputs(s, self.angular))], -1)

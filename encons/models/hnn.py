@@ -25,6 +25,7 @@ class HamiltonianModel(DynamicsModel):
 
     default_chart = "angle"
     family = "canonical"
+    mass: CholeskyMass  # set by every subclass
 
     def hamiltonian(self, z: Tensor) -> Tensor:
         """H(q, p) of internal states (..., 2n)."""
@@ -94,6 +95,7 @@ class HNNStructure(HamiltonianModel, MassPotentialModel):
         if u is None:
             return field
         q = z[..., : self.n]
+        assert self.input_matrix is not None  # inputs reach only a model built for a system with controls
         return field + torch.cat([torch.zeros_like(q), self.input_matrix.force(q, u)], -1)
 
     def hamiltonian(self, z: Tensor) -> Tensor:

@@ -10,6 +10,8 @@ regularisers act on f at g(s), eq. (7).
 
 from __future__ import annotations
 
+from typing import cast
+
 import torch
 from torch import Tensor, nn
 
@@ -35,14 +37,17 @@ class CouplingBlock(nn.Module):
     The coupling network's last layer starts at zero, so a fresh block is the rotation R.
     """
 
+    rotation: Tensor  # a buffer (register_buffer)
+
     def __init__(self, dim: int, hidden: int, depth: int, activation: str, clamp: float):
         super().__init__()
         if dim < 2:
             raise ConfigError(f"model=inn_node on a state of {dim} entry; allowed: systems with >= 2 state entries")
         self.split, self.clamp = dim - dim // 2, float(clamp)
         self.coupling = mlp(self.split, 2 * (dim // 2), hidden, depth, activation)
-        nn.init.zeros_(self.coupling[-1].weight)
-        nn.init.zeros_(self.coupling[-1].bias)
+        last = cast(nn.Linear, self.coupling[-1])  # an mlp ends in a Linear layer
+        nn.init.zeros_(last.weight)
+        nn.init.zeros_(last.bias)
         self.log_scale = nn.Parameter(torch.zeros(dim))
         self.offset = nn.Parameter(torch.zeros(dim))
         self.register_buffer("rotation", random_rotation(dim))
@@ -87,7 +92,7 @@ class InvertibleNet(nn.Module):
 
     def inverse(self, z: Tensor) -> Tensor:
         for block in reversed(self.blocks):
-            z = block.inverse(z)
+            z = cast(CouplingBlock, block).inverse(z)  # the ModuleList holds CouplingBlocks only
         return z
 
 
@@ -122,5 +127,5 @@ class INNNODE(DynamicsModel):
     def from_internal(self, z: Tensor) -> Tensor:
         return self.inn.inverse(z)
 
-    def forward(self, t: Tensor, z: Tensor) -> Tensor:
+    def forward(self, t: Tensor, z: Tensor) -> Tensor:  # type: ignore[override]  # no inputs: u omitted (DynamicsModel)
         return self.net(z)

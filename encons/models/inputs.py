@@ -26,6 +26,8 @@ INPUT_MATRICES = ("known", "learned")
 class InputMatrix(nn.Module):
     """g(q) (..., n, m): the system's constant B (``known``) or an MLP of q (``learned``)."""
 
+    constant: Tensor  # a buffer (register_buffer), for ``known``
+
     def __init__(self, system: System, kind: str, n: int, angles, hidden: int, depth: int, activation: str):
         super().__init__()
         if kind not in INPUT_MATRICES:

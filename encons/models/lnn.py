@@ -7,7 +7,7 @@ angle as (cos q, sin q).
 
 from __future__ import annotations
 
-from typing import Annotated, Callable
+from typing import Annotated, Callable, cast
 
 import torch
 from torch import Tensor
@@ -28,13 +28,14 @@ def lagrangian_derivatives(lagrangian: Callable[[Tensor], Tensor], s: Tensor) ->
     (..., 2n) of a batch-aware scalar L(s), by autodiff (any L).
 
     ∇L comes from one batched grad; the Hessian rows from n + 1 vector products with it,
-    vmapped over the vectors only (reverse over reverse, rather than forward over reverse): (q̇, 0) gives (∇_q ∇_q̇ᵀ L) q̇ and (0, e_i) the rows of H.
+    vmapped over the vectors only (reverse over reverse, rather than forward over reverse): (q̇, 0) gives (∇_q ∇_q̇ᵀ L)
+    q̇ and (0, e_i) the rows of H.
     """
     n = s.shape[-1] // 2
     qd = s[..., n:]
     units = torch.eye(2 * n, dtype=s.dtype, device=s.device)[n:].reshape(n, *[1] * (s.dim() - 1), 2 * n)
     vectors = torch.cat([torch.cat([qd, torch.zeros_like(qd)], -1)[None], units.expand(n, *s.shape)])
-    dl, pullback = vjp(lambda u: batched_grad(lagrangian, u), s)
+    dl, pullback = cast("tuple[Tensor, Callable]", vjp(lambda u: batched_grad(lagrangian, u), s))  # no has_aux
     (rows,) = vmap(pullback)(vectors)
     return dl[..., :n], rows[1:, ..., n:].movedim(0, -2), rows[0, ..., n:]
 
@@ -180,7 +181,9 @@ def euler_lagrange_terms(
     L_M and L̇_M along q̇ from one jvp inside it; Ṁ q̇ = L̇_M L_Mᵀ q̇ + L_M L̇_Mᵀ q̇."""
 
     def lagrangian(qi: Tensor) -> tuple[Tensor, tuple[Tensor, Tensor]]:
-        (factor, potential), (factor_dot, _) = jvp(factor_potential, (qi,), (qd,))
+        # without has_aux, torch.func.jvp returns (output, tangent): both (L, V) pairs here
+        pairs = cast("tuple[tuple[Tensor, Tensor], tuple[Tensor, Tensor]]", jvp(factor_potential, (qi,), (qd,)))
+        (factor, potential), (factor_dot, _) = pairs
         w = (factor.transpose(-1, -2) @ qd.unsqueeze(-1)).squeeze(-1)
         mass_dot_qd = factor_dot @ w.unsqueeze(-1) + factor @ (factor_dot.transpose(-1, -2) @ qd.unsqueeze(-1))
         return (0.5 * w.square().sum(-1) - potential).sum(), (factor, mass_dot_qd.squeeze(-1))
@@ -224,5 +227,9 @@ class LNNStructure(MassPotentialModel):
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         q, qd = split_state(s)
         factor, dl_dq, mass_dot_qd = self.euler_lagrange_terms(q, qd)
-        rhs = dl_dq - mass_dot_qd if u is None else dl_dq - mass_dot_qd + self.input_matrix.force(q, u)
+        if u is None:
+            rhs = dl_dq - mass_dot_qd
+        else:
+            assert self.input_matrix is not None  # inputs reach only a model built for a system with controls
+            rhs = dl_dq - mass_dot_qd + self.input_matrix.force(q, u)
         return torch.cat([qd, torch.cholesky_solve(rhs.unsqueeze(-1), factor).squeeze(-1)], -1)

@@ -10,7 +10,7 @@ constant B (``input_matrix=known``, the paper's control-affine form) or a learne
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, cast
 
 import torch
 from torch import Tensor
@@ -63,13 +63,14 @@ def forced_euler_lagrange(
     q, qd = split_state(s)
 
     def lagrangian(qi: Tensor) -> tuple[Tensor, tuple[Tensor, Tensor]]:
-        m, m_dot = jvp(mass, (qi,), (qd,))  # M and Ṁ = dM/dt along q̇ from one jvp
+        m, m_dot = cast("tuple[Tensor, Tensor]", jvp(mass, (qi,), (qd,)))  # M and Ṁ = dM/dt along q̇ from one jvp
         kinetic = 0.5 * (qd * (m @ qd.unsqueeze(-1)).squeeze(-1)).sum(-1)
         return (kinetic - potential(qi)).sum(), (m, m_dot)
 
     dl_dq, (m, m_dot) = grad(lagrangian, has_aux=True)(q)
     rhs = dl_dq - (m_dot @ qd.unsqueeze(-1)).squeeze(-1)
     if u is not None:
+        assert input_matrix is not None  # inputs reach only a model built for a system with controls
         g = input_matrix(q) if callable(input_matrix) else input_matrix.to(s)
         rhs = rhs + (g @ u.to(s).unsqueeze(-1)).squeeze(-1)
     return torch.cat([qd, torch.linalg.solve_ex(m, rhs)[0]], -1)  # singular (diverged): nan, not an exception

@@ -5,7 +5,7 @@ forms (``MLPTape``: pullback, push and curvature without autograd). The physical
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Callable
+from typing import Callable, cast
 
 import torch
 from torch import Tensor, nn
@@ -31,9 +31,10 @@ def mlp(
     for _ in range(depth):
         layers += [nn.Linear(width, hidden), ACTIVATIONS[activation]()]
         width = hidden
-    layers.append(nn.Linear(width, out_dim))
+    last = nn.Linear(width, out_dim)
     if not out_bias:
-        layers[-1].bias = None
+        last.register_parameter("bias", None)  # what nn.Linear(bias=False) holds
+    layers.append(last)
     return nn.Sequential(*layers)
 
 
@@ -203,10 +204,17 @@ def run(net: nn.Sequential, x: Tensor) -> Tensor:
     """net(x) for an ``mlp``, its first layer through ``narrow_in`` and its last through ``narrow_out``
     (same values to rounding)."""
     first, *hidden, last = net
-    a = narrow_in(x, first.weight.transpose(-1, -2).contiguous(), first.bias)
+    weight, bias = _weight_bias(first)
+    a = narrow_in(x, weight.transpose(-1, -2).contiguous(), bias)
     for layer in hidden:
         a = layer(a)
-    return narrow_out(a, last.weight, last.bias)
+    return narrow_out(a, *_weight_bias(last))
+
+
+def _weight_bias(layer: nn.Module) -> tuple[Tensor, Tensor | None]:
+    """The weight and bias (None: dropped) of one of an ``mlp``'s ``nn.Linear`` layers, typed (``nn.Module``'s
+    attribute access is not)."""
+    return cast(Tensor, layer.weight), cast("Tensor | None", layer.bias)
 
 
 class MLPTape:
@@ -276,7 +284,10 @@ class MLPTape:
 
 
 def _layer_curvature(rows: int, tangents: list[Tensor], weights: list[Tensor]) -> Tensor:
-    return sum((t[..., :rows, :] * w.unsqueeze(-2)) @ t.transpose(-1, -2) for t, w in zip(tangents, weights))
+    # a Tensor, not sum's start 0: an mlp has at least one layer, so there is at least one tangent
+    return cast(
+        Tensor, sum((t[..., :rows, :] * w.unsqueeze(-2)) @ t.transpose(-1, -2) for t, w in zip(tangents, weights))
+    )
 
 
 class LayerCurvature(torch.autograd.Function):
@@ -319,14 +330,14 @@ class LayerCurvature(torch.autograd.Function):
     def jvp(ctx, rows_dot: None, *dots: Tensor | None) -> Tensor:
         saved = ctx.saved_tensors
         half = len(saved) // 2
-        total = 0
+        total: Tensor | int = 0
         for t, w, t_dot, w_dot in zip(saved[:half], saved[half:], dots[:half], dots[half:]):
             if t_dot is not None:
                 total = total + (t_dot[..., : ctx.rows, :] * w.unsqueeze(-2)) @ t.transpose(-1, -2)
                 total = total + (t[..., : ctx.rows, :] * w.unsqueeze(-2)) @ t_dot.transpose(-1, -2)
             if w_dot is not None:
                 total = total + (t[..., : ctx.rows, :] * w_dot.unsqueeze(-2)) @ t.transpose(-1, -2)
-        return total
+        return cast(Tensor, total)  # torch calls jvp only when some input has a tangent: a Tensor
 
 
 def layer_curvature(rows: int, tangents: list[Tensor], weights: list[Tensor]) -> Tensor:

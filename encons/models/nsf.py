@@ -49,5 +49,5 @@ class NSF(DynamicsModel):
         # inv, not linalg.solve: torch 2.13 gets vmap(jacfwd(linalg.solve)) wrong (regularisers)
         return torch.linalg.inv(self.symplectic_matrix(z)) @ grad(self.hamiltonian)(z)
 
-    def forward(self, t: Tensor, z: Tensor) -> Tensor:
+    def forward(self, t: Tensor, z: Tensor) -> Tensor:  # type: ignore[override]  # no inputs: u omitted (DynamicsModel)
         return batched(self._field, z)

@@ -29,6 +29,9 @@ class AngleEmbedding:
     (``jvp``) and reverse (``vjp``) derivatives. A per-coordinate ``angular`` (e.g. the cart-pole's
     (False, True)) keeps the translations first, unchanged, as ``embed_angles`` does."""
 
+    linear: list[int]
+    angles: list[int] | slice
+
     def __init__(self, q: Tensor, angular: Angular):
         self.angular = angular
         if angular is False:
@@ -79,6 +82,9 @@ class CholeskyMass(nn.Module):
     With ``extra`` > 0 the same network has ``extra`` more outputs (``factor``): a trunk shared
     with another head, e.g. V(q) in the structured models (one forward for both).
     """
+
+    diag: Tensor  # buffers (register_buffer)
+    scatter: Tensor
 
     def __init__(self, n: int, angular: Angular, hidden: int, depth: int, activation: str, eps: float, extra: int = 0):
         super().__init__()
@@ -149,6 +155,9 @@ class PointMasses(nn.Module):
     T⁻¹ diag(1/c) T⁻ᵀ in closed form: no loop, no scatter, no matrix inversion per call (T and
     T⁻¹ are constants of the layout). Equals ``point_mass_matrix``.
     """
+
+    frame: Tensor  # buffers (register_buffer)
+    frame_inverse: Tensor
 
     def __init__(self, layout: CartesianLayout):
         super().__init__()

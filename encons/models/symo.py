@@ -23,7 +23,7 @@ not differentiated.
 
 from __future__ import annotations
 
-from typing import Annotated, Callable
+from typing import Annotated, Callable, ClassVar, cast
 
 import torch
 from torch import Tensor
@@ -70,7 +70,8 @@ class SyMo(DiscreteModel):
 
     default_chart = "angle"
     supports_controls = True
-    objectives = ("residual", "rollout")
+    objectives: ClassVar[tuple[str, ...]] = ("residual", "rollout")
+    input_matrix: Tensor  # a buffer (register_buffer): the system's constant B
 
     def __init__(
         self,
@@ -135,7 +136,8 @@ class SyMo(DiscreteModel):
 
     def d1_and_pullback(self, a: Tensor, b: Tensor, h: Tensor) -> tuple[Tensor, Callable]:
         """D₁L_d(a, b) and the vjp of b ↦ D₁L_d(a, b), from which ``jacobian`` builds ∂D₁L_d/∂b."""
-        return vjp(lambda y: self.d1(a, y, h), b)
+        # without has_aux, torch.func.vjp returns (output, pullback)
+        return cast("tuple[Tensor, Callable]", vjp(lambda y: self.d1(a, y, h), b))
 
     def jacobian(self, pullback: Callable, b: Tensor) -> Tensor:
         """∂D₁L_d/∂b (..., n, n) at the point of ``pullback``: rows by one vjp per coordinate, batched by
@@ -160,8 +162,8 @@ class SyMo(DiscreteModel):
         halved step decreases keeps its iterate and stops iterating: every later iteration would repeat
         that step exactly (the samples' computations are independent), so the result is the one ``iters``
         iterations give. When every sample takes its full step, that trial's vjp gives the next Jacobian
-        (no second evaluation at the same point). Returns (root, ∂g/∂x at the root, Newton iterations taken, mask of the samples
-        not converged after ``iters`` iterations).
+        (no second evaluation at the same point). Returns (root, ∂g/∂x at the root, Newton iterations taken, mask of the
+        samples not converged after ``iters`` iterations).
         """
         c, q, x = c.detach(), q.detach(), guess.detach()
 
@@ -222,6 +224,7 @@ class SyMo(DiscreteModel):
         self.newton_solves, self.newton_unconverged = 0, 0
 
     def sync_diagnostics(self, copy: DynamicsModel) -> None:
+        copy = cast(SyMo, copy)  # a copy of this model: a SyMo too
         self.newton_solves, self.newton_unconverged = copy.newton_solves, copy.newton_unconverged
 
     def momentum(self, a: Tensor, b: Tensor, d1: Tensor, h: Tensor) -> Tensor:

@@ -10,14 +10,13 @@ Default: Dormand–Prince 5(4) (torchdiffeq ``dopri5``) at rtol 1e-10, atol 1e-1
 by measurement (docs/metrics.md): the true field then scores geom_rel_err ≤ 3.1e-7 against the
 simulated test trajectories of every non-chaotic system of ``conf/system`` over its test horizon (the
 data's own RK4 error is most of it; Lim & Kasim's double pendulum is chaotic over its 100 s horizon, so
-its floor is that error amplified, 5e-3: benchmarks/reports/evaluation-floor), where RK4 at the data dt (the training integrator) scored up to 1.1e-4
-(gyroscope, Cartesian) — above the published errors it was compared with — and even 16 RK4 steps per
-dt scored 3.7e-5 (Lim & Kasim's pendulum, Cartesian, 462 steps). An adaptive method also adapts to the
-learned field it integrates; the true fields took 2–20 dopri5 steps per data dt (46–121 evaluations).
-Limits: one step size for the whole batch; a rollout that needs more than ``max_steps`` (100) steps
-per data dt, or whose step underflows (e.g. at NaN), is rolled out again by RK4 with 16 steps per dt
-(bounded cost; a warning says so), so a learned field much stiffer than the truth is scored on that
-coarser rollout; the floor of a chaotic system grows with the horizon.
+its floor is that error amplified, 5e-3: benchmarks/reports/evaluation-floor), where RK4 at the data dt (the training
+integrator) scored up to 1.1e-4 (gyroscope, Cartesian) — above the published errors it was compared with — and even 16
+RK4 steps per dt scored 3.7e-5 (Lim & Kasim's pendulum, Cartesian, 462 steps). An adaptive method also adapts to the
+learned field it integrates; the true fields took 2–20 dopri5 steps per data dt (46–121 evaluations). Limits: one step
+size for the whole batch; a rollout that needs more than ``max_steps`` (100) steps per data dt, or whose step underflows
+(e.g. at NaN), is rolled out again by RK4 with 16 steps per dt (bounded cost; a warning says so), so a learned field
+much stiffer than the truth is scored on that coarser rollout; the floor of a chaotic system grows with the horizon.
 """
 
 from __future__ import annotations
@@ -53,9 +52,10 @@ class TrueField(DynamicsModel):
 @dataclass(frozen=True)
 class Evaluation:
     """How test rollouts integrate: a torchdiffeq ``method`` (fixed-step: ``substeps`` per data dt;
-    adaptive: ``rtol``, ``atol``, at most ``max_steps`` per data dt, then ``FALLBACK``), in float64 when ``float64``; ``vpt_threshold`` is the relative error
-    that ends the valid prediction time (``encons.numerics.metrics.valid_prediction_time``); ``source`` names
-    a paper whose test integration a profile reproduces (printed with the metrics)."""
+    adaptive: ``rtol``, ``atol``, at most ``max_steps`` per data dt, then ``FALLBACK``), in float64 when ``float64``;
+    ``vpt_threshold`` is the relative error that ends the valid prediction time
+    (``encons.numerics.metrics.valid_prediction_time``); ``source`` names a paper whose test integration a profile
+    reproduces (printed with the metrics)."""
 
     method: str = "dopri5"
     substeps: Count = 1

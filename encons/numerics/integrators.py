@@ -8,7 +8,7 @@ step, shape (..., T, m), and held constant over each step (zero-order hold).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Callable, cast
 
 import torch
 from torch import Tensor
@@ -21,7 +21,7 @@ from encons.infra.compat import ode_methods
 from encons.infra.errors import ConfigError
 
 if TYPE_CHECKING:
-    from encons.models.base import DynamicsModel
+    from encons.models.base import DiscreteModel, DynamicsModel
 
 METHODS, FIXED_STEP = ode_methods()
 
@@ -86,7 +86,7 @@ def rollout(
         )
     t = t.to(start)
     if model.discrete:
-        return model.rollout(start, t, u)
+        return cast("DiscreteModel", model).rollout(start, t, u)  # a discrete model is a DiscreteModel
     if integrator is None:
         raise ConfigError(
             f"{type(model).__name__} is a continuous model: its rollout needs an integrator; "

@@ -270,11 +270,11 @@ def long_rollout_errors(
     """State and energy MSE against time (Xiao et al. Figs. 3 and 5) of the model's rollouts ``pred`` and
     of the ``baselines`` (``baseline_rollouts``) on the same test windows ``true`` (N, T, 2n).
 
-    States are compared after ``to_common`` (the common chart, whose ``angles`` are compared on the circle); energies (``energy``, None when the
-    physics is unknown) in the data chart; ``families`` (``unit_families``) add one state MSE per unit. Returns
-    scalars — ``state_mse`` (normalised per coordinate, ``mse_curves``; over all times) and ``state_mse_final``
-    (last step), the same for ``energy_mse``, the model's also for ``state_mse_raw`` and each family; a
-    baseline's under ``<baseline name>/`` — and the curves {predictor: {"state_mse", ...: (T,)}}.
+    States are compared after ``to_common`` (the common chart, whose ``angles`` are compared on the circle); energies
+    (``energy``, None when the physics is unknown) in the data chart; ``families`` (``unit_families``) add one state MSE
+    per unit. Returns scalars — ``state_mse`` (normalised per coordinate, ``mse_curves``; over all times) and
+    ``state_mse_final`` (last step), the same for ``energy_mse``, the model's also for ``state_mse_raw`` and each
+    family; a baseline's under ``<baseline name>/`` — and the curves {predictor: {"state_mse", ...: (T,)}}.
     """
     predictions = {"model": pred, **baselines}
     true_c = to_common(true)

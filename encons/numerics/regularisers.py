@@ -21,7 +21,7 @@ from encons.infra.bounds import Declared, NonNegative
 from encons.infra.errors import ConfigError
 from encons.models.base import DynamicsModel
 
-JACOBIANS = {"forward": jacfwd, "reverse": jacrev}
+JACOBIANS: dict[str, Callable[..., Callable[..., Tensor]]] = {"forward": jacfwd, "reverse": jacrev}
 
 
 def field_jacobian(field: Callable[..., Tensor], z: Tensor, mode: str = "reverse", u: Tensor | None = None) -> Tensor:

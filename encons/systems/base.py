@@ -220,7 +220,7 @@ class PointSystem(System):
     @abc.abstractmethod
     def map_chart(self, s: Tensor, src: str, dst: str) -> Tensor: ...
 
-    def vector_field(self, s: Tensor, chart: str) -> Tensor:
+    def vector_field(self, s: Tensor, chart: str) -> Tensor:  # type: ignore[override]  # no inputs: u omitted (System.field)
         self.check_chart(chart)
         q, qd = split_state(s)
         if chart == "cartesian":

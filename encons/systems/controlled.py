@@ -15,6 +15,7 @@ from __future__ import annotations
 import abc
 import math
 from collections.abc import Sequence
+from typing import cast
 
 import torch
 from torch import Tensor
@@ -67,7 +68,7 @@ class ControlledMechanical(Mechanical):
         self.u_max, self.inputs, self.tones = float(u_max), inputs, int(tones)
 
     @property
-    def n(self) -> int:
+    def n(self) -> int:  # type: ignore[override]  # Mechanical's n, here read from the declared angles
         return len(self.angles)
 
     def units(self, chart: str) -> tuple[str, ...]:
@@ -92,7 +93,7 @@ class ControlledMechanical(Mechanical):
     def sample_inputs(self, n: int, t: Tensor, generator: torch.Generator) -> Tensor:
         """Inputs (n, T, m) drawn as ``inputs`` says (class docstring)."""
         if self.inputs == "constant":
-            return super().sample_inputs(n, t, generator)
+            return cast(Tensor, super().sample_inputs(n, t, generator))  # from sample_controls above: a Tensor
         if self.inputs == "steps":
             unit = torch.rand(n, len(t), self.n_controls, generator=generator, dtype=torch.float64)
             return (2 * unit - 1) * self.u_max

@@ -38,7 +38,7 @@ class DampedPendulum(NPendulum):
         self.name = ("pixel_" if frame_size else "") + "damped_pendulum" + ("" if n_links == 1 else str(n_links))
         self.damping = float(damping)
 
-    def vector_field(self, s: Tensor, chart: str) -> Tensor:
+    def vector_field(self, s: Tensor, chart: str) -> Tensor:  # type: ignore[override]  # no inputs: u omitted (System.field)
         _, qd = split_state(s)
         return super().vector_field(s, chart) - self.damping * torch.cat([torch.zeros_like(qd), qd], -1)
 

@@ -72,8 +72,8 @@ class NPendulum(PointSystem):
         return self.coeff.to(q) * torch.cos(q[..., :, None] - q[..., None, :])
 
     def potential(self, q: Tensor) -> Tensor:
-        _, l, mu = self._consts(q)
-        return -self.g * (mu * l * torch.cos(q)).sum(-1)
+        _, length, mu = self._consts(q)
+        return -self.g * (mu * length * torch.cos(q)).sum(-1)
 
     def point_masses(self) -> Tensor:
         """The true (n_points, n_points) Cartesian mass matrix over points."""
@@ -88,11 +88,11 @@ class NPendulum(PointSystem):
         return grad_v
 
     def acceleration(self, q: Tensor, qd: Tensor) -> Tensor:
-        _, l, mu = self._consts(q)
+        _, length, mu = self._consts(q)
         coeff = self.coeff.to(q)
         diff = q[..., :, None] - q[..., None, :]
         coriolis = (coeff * torch.sin(diff) * qd[..., None, :] ** 2).sum(-1)
-        gravity = self.g * mu * l * torch.sin(q)
+        gravity = self.g * mu * length * torch.sin(q)
         return torch.linalg.solve(coeff * torch.cos(diff), -(coriolis + gravity))
 
     def sample_initial(self, n: int, generator: torch.Generator) -> Tensor:
@@ -111,10 +111,10 @@ class NPendulum(PointSystem):
 
     def map_chart(self, s: Tensor, src: str, dst: str) -> Tensor:
         q, qd = split_state(s)
-        l = self.l.to(s)
+        length = self.l.to(s)
         if src == "angle":
-            seg = torch.stack([torch.sin(q), -torch.cos(q)], -1) * l[:, None]
-            vel = torch.stack([torch.cos(q), torch.sin(q)], -1) * (l * qd)[..., None]
+            seg = torch.stack([torch.sin(q), -torch.cos(q)], -1) * length[:, None]
+            vel = torch.stack([torch.cos(q), torch.sin(q)], -1) * (length * qd)[..., None]
             return torch.cat([seg.cumsum(-2).flatten(-2), vel.cumsum(-2).flatten(-2)], -1)
         pts, vel = q.unflatten(-1, (self.n, 2)), qd.unflatten(-1, (self.n, 2))
         seg = torch.cat([pts[..., :1, :], pts[..., 1:, :] - pts[..., :-1, :]], -2)

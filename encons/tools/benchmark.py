@@ -1,6 +1,7 @@
 """Benchmark runner: the runs of a profile (conf/profile/*.yaml), trained one by one, then the report.
 
-    python -m encons.benchmark [profile=smoke|quick|zhong|finzi|lim_kasim|pixels|santos|xiao|control] [seeds=[0,1]] [out=DIR]
+    python -m encons.benchmark [profile=smoke|quick|zhong|finzi|lim_kasim|pixels|santos|xiao|control]
+        [seeds=[0,1]] [out=DIR]
         ['train=["trainer.max_epochs=50"]']   (quoted: Hydra's grammar wants '=' inside a list quoted)
 
 A profile lists its runs as a grid (``systems`` × ``models``), as explicit ``runs`` (a label and
@@ -10,9 +11,10 @@ each is trained for every seed of ``seeds``, the seeds of one cell as one ensemb
 (``encons.training.ensemble``: each member the run of its seed, with its own ``runs/<id>/``), on datasets cached under
 ``paths.cache_dir`` (one per system and data config, shared by every model and seed). A finished
 run leaves ``runs/<id>/result.json``; a rerun skips it, so an interrupted benchmark resumes where it
-stopped. Progress (stdout, the stream a run logs to) prints ``benchmark run k of n (id), elapsed, ETA``. ``models=all`` /
-``systems=all`` take every option of ``conf/model`` / ``conf/system``. The report (``encons.tools.report``) is written
-to ``out`` at the end and can be rebuilt alone with ``python -m encons.report OUT``.
+stopped. Progress (stdout, the stream a run logs to) prints ``benchmark run k of n (id), elapsed, ETA``.
+``models=all`` / ``systems=all`` take every option of ``conf/model`` / ``conf/system``. The report
+(``encons.tools.report``) is written to ``out`` at the end and can be rebuilt alone with
+``python -m encons.report OUT``.
 """
 
 from __future__ import annotations
@@ -21,8 +23,10 @@ import json
 import shutil
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -31,6 +35,9 @@ from encons.infra.errors import ConfigError, EnconsError, Interrupted
 from encons.infra.io import write_json, write_yaml
 from encons.infra.paths import config_dir
 from encons.tools.report import recorded
+
+if TYPE_CHECKING:
+    from encons.training.results import Run
 
 
 @dataclass
@@ -46,7 +53,8 @@ class PlannedRun:
 
     @property
     def cell(self) -> str:
-        """The (system, model, size) cell: the runs of its seeds train as one ensemble (``encons.training.ensemble``)."""
+        """The (system, model, size) cell: the runs of its seeds train as one ensemble
+        (``encons.training.ensemble``)."""
         size = f"-n{self.n_train}" if self.n_train is not None else ""
         return f"{self.system}-{self.label}{size}".replace("/", "_").replace("'", "p")
 
@@ -88,7 +96,7 @@ def expand(cfg: DictConfig) -> list[PlannedRun]:
     by_name = [m for m in (*c["models"], *c["n_train_models"]) if isinstance(m, str)]
     family = {m: family_overrides(m, per_family, searched) for m in dict.fromkeys(by_name)}  # after common: refine it
     # an entry: system, label, overrides before common, n_train, published numbers, overrides after common
-    entries = [
+    entries: list[tuple[Any, ...]] = [
         (s, m, [f"model={m}", *per_model.get(m, [])], None, {}, family[m]) for s in c["systems"] for m in c["models"]
     ]
     entries += [(r["system"], r["label"], list(r["overrides"]), None, r.get("paper", {}), []) for r in c["runs"]]
@@ -152,7 +160,7 @@ def preset_keys(train: list[str]) -> set[str]:
         path = Path(config_dir()) / "debug" / f"{choice}.yaml"
         if group != "debug" or not path.is_file():
             continue
-        preset = OmegaConf.to_container(OmegaConf.load(path))
+        preset = cast("dict[str, Any]", OmegaConf.to_container(OmegaConf.load(path)))  # a YAML mapping: a dict
         stack = [("", {k: v for k, v in preset.items() if k not in ("defaults", "preset_keys")})]
         while stack:
             prefix, node = stack.pop()
@@ -163,7 +171,7 @@ def preset_keys(train: list[str]) -> set[str]:
     return keys
 
 
-def family_overrides(model: str, per_family: dict, searched: list[str] = ()) -> list[str]:
+def family_overrides(model: str, per_family: dict, searched: Sequence[str] = ()) -> list[str]:
     """The overrides ``per_family`` gives ``model``'s family: the ``family`` its class declares
     (``DynamicsModel.family``, e.g. ``constrained`` for CHNN and CLNN). A profile with ``per_family`` refuses a
     model whose family it does not list, so no model falls back to another setting unseen."""
@@ -220,7 +228,8 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
             "",
             time.perf_counter() - started,
         )  # training and the test of this process (a resumed run: from the resume on)
-        steps = trained.module.trainer.global_step
+        # a planned run is one seed's (a cell's seeds train together through ensemble.train): a Run
+        steps = cast("Run", trained).module.trainer.global_step
         if control:
             from encons.tools.control import score_control
 
@@ -415,7 +424,8 @@ def run_profile(cfg: DictConfig) -> Path:
 
 
 def usage() -> str:
-    """``--help``: this module's usage, the profiles found in ``conf/profile`` and the keys of ``conf/benchmark.yaml``."""
+    """``--help``: this module's usage, the profiles found in ``conf/profile`` and the keys of
+    ``conf/benchmark.yaml``."""
     profiles = sorted(p.stem for p in (Path(config_dir()) / "profile").glob("*.yaml"))
     keys = (Path(config_dir()) / "benchmark.yaml").read_text()
     return f"{__doc__}\nprofiles: {', '.join(profiles)}\n\nconf/benchmark.yaml:\n{keys}"

@@ -50,6 +50,7 @@ import copy
 import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from typing import cast
 
 import numpy as np
 import scipy.linalg
@@ -92,7 +93,7 @@ class Settings:
         return (2 * unit - 1) * torch.tensor(self.start_range, dtype=torch.float64)
 
 
-INPUT_UNIT = {ControlledPendulum: "N m", CartPole: "N"}  # u: the pivot's torque; the force on the cart
+INPUT_UNIT: dict[type, str] = {ControlledPendulum: "N m", CartPole: "N"}  # u: the pivot's torque; the force on the cart
 
 
 def printed_rows(metrics: dict[str, float], system) -> list[tuple[str, list[str]]]:
@@ -116,7 +117,7 @@ def printed_rows(metrics: dict[str, float], system) -> list[tuple[str, list[str]
     return rows
 
 
-SETTINGS = {
+SETTINGS: dict[type, Settings] = {
     ControlledPendulum: Settings(
         gain_energy=2.0,
         q_weights=(10.0, 1.0),
@@ -200,7 +201,7 @@ def learned_plant(model: torch.nn.Module, system: System, name: str) -> Plant:
         return Plant(
             model.mass,
             model.potential,
-            b,
+            cast(Tensor, b),  # not callable, and the model takes inputs: its constant B
             lambda s, u: forced_euler_lagrange(model.mass, model.potential, b, s, u),
             tuple(system.angles),
         )
@@ -209,7 +210,10 @@ def learned_plant(model: torch.nn.Module, system: System, name: str) -> Plant:
     upright, known = b(torch.zeros(len(system.angles), dtype=torch.float64)), system.input_matrix()
     c = float((upright * known).sum() / known.square().sum())
     mass, potential = (lambda q: model.mass(q) / c), (lambda q: model.potential(q) / c)
-    g = lambda q: b(q) / c
+
+    def g(q: Tensor) -> Tensor:
+        return b(q) / c
+
     return Plant(
         mass, potential, upright / c, lambda s, u: forced_euler_lagrange(mass, potential, g, s, u), tuple(system.angles)
     )

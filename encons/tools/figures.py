@@ -102,7 +102,7 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
         if not any(key in _curve_keys(row) for row in rows):
             continue
         fig, axes = subplots(1, len(systems), figsize=(4.5 * len(systems) + 2, 4), squeeze=False)
-        styles = {}  # one colour and line style per model, the same in every panel (11+ models)
+        styles: dict[str, int] = {}  # one colour and line style per model, the same in every panel (11+ models)
         for ax, system in zip(axes[0], systems):
             curves: dict[str, list] = {}
             for row in rows:
@@ -221,7 +221,7 @@ def _against_n_train(ax, entries: list[dict], key: str, spread) -> set[int]:
     of the value, so that it stays on a log axis), on log axes; each model's points are shifted by a few
     percent in n_train (``N_TRAIN_OFFSET``), so that equal values do not hide one line under another.
     Returns the sizes drawn."""
-    sizes = set()
+    sizes: set[int] = set()
     models = list(dict.fromkeys(e["model"] for e in entries))
     for k, model in enumerate(models):
         rows = sorted((e for e in entries if e["model"] == model and key in e), key=lambda e: e["n_train"])

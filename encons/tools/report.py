@@ -3,7 +3,8 @@ benchmark's report rebuilt from its finished runs.
 
     python -m encons.report DIR     # DIR: a benchmark's output folder (it holds runs/*/result.json)
     python -m encons.report SWEEP   # SWEEP: a Hydra multirun folder (it holds multirun.yaml)
-    python -m encons.report --docs  # the result tables of README.md and docs/ from benchmarks/reports/ (encons.tools.docs)
+    python -m encons.report --docs  # the result tables of README.md and docs/ from benchmarks/reports/
+                                    # (encons.tools.docs)
 
 Writes ``results.csv`` (one row per run), ``summary.csv`` and ``summary.md`` (every test metric per
 model × system, mean ± std over seeds, beside the paper's published value where the profile gives
@@ -26,10 +27,14 @@ import json
 import math
 from collections import defaultdict
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
 
 from rich.console import Console
 
 from encons.infra.errors import ConfigError
+
+if TYPE_CHECKING:
+    from omegaconf import DictConfig
 from encons.infra.io import atomic_open, write_text
 
 
@@ -158,7 +163,7 @@ def published(out: Path) -> dict[str, dict]:
     path = out / "benchmark.yaml"
     if not path.is_file():
         return {}
-    cfg = OmegaConf.to_container(OmegaConf.load(path))
+    cfg = cast("dict[str, Any]", OmegaConf.to_container(OmegaConf.load(path)))  # a YAML mapping: a dict
     paper = dict(cfg.get("paper") or {})
     for run in cfg.get("runs") or []:
         if run.get("paper"):
@@ -286,7 +291,7 @@ def write_report(out: str | Path) -> list[Path]:
     paper = published(out)
     source = ""
     if (out / "benchmark.yaml").is_file():
-        source = OmegaConf.load(out / "benchmark.yaml").get("paper_source", "")
+        source = cast("DictConfig", OmegaConf.load(out / "benchmark.yaml")).get("paper_source", "")  # a mapping
     write_csv(out / "results.csv", [portable_row(r, out) for r in rows])
     write_csv(
         out / "summary.csv",

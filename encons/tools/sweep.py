@@ -17,12 +17,14 @@ import logging
 import math
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal, cast
 
 import optuna
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import IntervalSweep
 from hydra.core.plugins import Plugins
 from hydra.core.utils import JobReturn, JobStatus
+from hydra.plugins.launcher import Launcher
 from hydra.plugins.sweeper import Sweeper
 from hydra.types import HydraContext, TaskFunction
 from hydra.utils import instantiate
@@ -36,6 +38,9 @@ from encons.infra.compat import job_exception, optuna_search_space
 from encons.infra.errors import ConfigError, SweepError
 from encons.infra.io import save_figure, write_text, write_yaml
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 log = logging.getLogger(__name__)
 TRIAL_KEY = "sweeps.trial"  # the job's config key that receives the trial number
 
@@ -46,6 +51,9 @@ class OptunaSweeper(Sweeper):
     tried first (skipped when the study already holds them). The sampler's seed is mixed with
     the number of trials already stored, so a resumed study does not repeat its first trials;
     give each concurrent worker its own ``sampler.seed``."""
+
+    config: DictConfig  # set by setup, which Hydra calls before sweep
+    launcher: Launcher
 
     def __init__(
         self,
@@ -68,8 +76,9 @@ class OptunaSweeper(Sweeper):
             raise ConfigError(f"hydra.sweeper.max_failure_rate={max_failure_rate!r}; allowed: a number in [0, 1]")
         self.sampler_config, self.direction, self.storage, self.study_name = sampler, direction, storage, study_name
         self.n_trials, self.n_jobs, self.max_failure_rate = n_trials, n_jobs, max_failure_rate
-        self.params = OmegaConf.to_container(params) if params else {}
-        self.enqueue = OmegaConf.to_container(enqueue) if enqueue else []
+        # the containers of a DictConfig and a ListConfig: a dict and a list
+        self.params = cast("dict[str, Any]", OmegaConf.to_container(params)) if params else {}
+        self.enqueue = cast(list, OmegaConf.to_container(enqueue)) if enqueue else []
 
     def setup(self, *, hydra_context: HydraContext, task_function: TaskFunction, config: DictConfig) -> None:
         self.config = config
@@ -127,7 +136,7 @@ class OptunaSweeper(Sweeper):
         report(study, sweep_dir)
 
     def _sampler(self, n_stored: int) -> optuna.samplers.BaseSampler:
-        config = OmegaConf.to_container(self.sampler_config, resolve=True)
+        config = cast("dict[str, Any]", OmegaConf.to_container(self.sampler_config, resolve=True))  # a dict
         if config.get("seed") is not None:
             seed = config["seed"]
             if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed < 2**32:
@@ -153,10 +162,16 @@ class OptunaSweeper(Sweeper):
 
 
 def check_search_space(overrides: list[str]) -> None:
-    """Refuse an ``interval(low, high)`` whose bounds are reversed (Optuna's distribution would raise), naming the key."""
+    """Refuse an ``interval(low, high)`` whose bounds are reversed (Optuna's distribution would raise), naming the
+    key."""
     for override in OverridesParser.create().parse_overrides(overrides):
         value = override.value()
-        if isinstance(value, IntervalSweep) and value.start > value.end:
+        if (
+            isinstance(value, IntervalSweep)
+            and value.start is not None
+            and value.end is not None
+            and value.start > value.end
+        ):
             raise ConfigError(
                 f"{override.get_key_element()}={override.get_value_string()} has low {value.start} > "
                 f"high {value.end}; allowed: interval(low, high) with low <= high"
@@ -198,7 +213,7 @@ def open_study(storage: str | None, study_name: str, direction: str) -> optuna.S
     return optuna.create_study(
         storage=check_storage(storage) if storage else None,
         study_name=study_name,
-        direction=direction,
+        direction=cast("Literal['minimize', 'maximize']", direction),  # Optuna refuses any other
         load_if_exists=True,
     )
 
@@ -307,7 +322,7 @@ def _save_figures(study: optuna.Study, out_dir: Path, plot_importance: bool) -> 
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
         for name, plot in plots.items():
             try:
-                fig = plot(study).figure
+                fig = cast("Figure", plot(study).figure)  # Optuna's matplotlib plots draw on a Figure
             except (RuntimeError, ValueError) as err:  # e.g. importances of values that never vary
                 log.warning("no %s figure: %s", name, err)
                 continue

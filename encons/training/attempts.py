@@ -86,7 +86,9 @@ def _resumes_guarded(plain: DictConfig, guarded: DictConfig) -> bool:
     for ``last``, an earlier run has the guarded config and none the plain one (none at all: False, and
     the plain attempt says why nothing resumes)."""
     if plain.ckpt_path != "last":
-        saved = checkpoints.stored_config(checkpoints.resume_from(plain))
+        path = checkpoints.resume_from(plain)
+        assert path is not None  # the caller's ckpt_path is set, and not last: that path
+        saved = checkpoints.stored_config(path)
         return bool((saved.get("model") or {}).get("guard"))
     for cfg in (plain, guarded):
         try:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, cast
 
 from hydra.errors import InstantiationException
 from omegaconf import DictConfig, OmegaConf, open_dict
@@ -90,7 +90,7 @@ def _resolve_hydra_references(cfg: DictConfig) -> None:
         elif isinstance(node, str) and "${hydra:" in node:
             OmegaConf.update(cfg, key, OmegaConf.select(cfg, key), force_add=True)
 
-    plain = OmegaConf.to_container(cfg, resolve=False)
+    plain = cast("dict[str, Any]", OmegaConf.to_container(cfg, resolve=False))  # a DictConfig's: a dict
     with open_dict(cfg):
         for top in [k for k in plain if k != "hydra"]:
             walk(plain[top], str(top))
@@ -131,7 +131,7 @@ def instantiate_node(cfg: DictConfig | Checked, key: str, request: Request = Req
         check_node(cfg, key)
     cfg, request = _plain(cfg, request)
     node = OmegaConf.select(cfg, key)
-    values = OmegaConf.to_container(node, resolve=True)
+    values = cast("dict[str, Any]", OmegaConf.to_container(node, resolve=True))  # a DictConfig's: a dict
     try:
         return instantiate(node, _execution_whitelist_=list(trusted), **kwargs)  # Hydra refuses the rest
     except EnconsError:
@@ -212,7 +212,8 @@ def build(
 
 
 def check(cfg: DictConfig, request: Request = Request()) -> Checked:
-    """``encons.config.check.validate`` (kept under this name): every check of a composed config before anything is built."""
+    """``encons.config.check.validate`` (kept under this name): every check of a composed config before anything is
+    built."""
     return validate(cfg, request)
 
 
@@ -259,11 +260,11 @@ def _instantiate(checked: Checked, recorded: Mapping[str, float] | None):
     observation = build_observation(checked, system)
     model = build_model(checked, system, observation)
     objective = checked.objective
-    data_cfg = {**OmegaConf.to_container(cfg.data, resolve=True), "objective": objective}
+    data_cfg = {**cast(dict, OmegaConf.to_container(cfg.data, resolve=True)), "objective": objective}  # a dict
     data = TrajectoryDataModule(
         system,
         observation.data_chart(system, model.chart),
-        OmegaConf.to_container(cfg.system, resolve=True),
+        cast(dict, OmegaConf.to_container(cfg.system, resolve=True)),  # a DictConfig's container: a dict
         cache_dir=cfg.paths.cache_dir,
         **data_cfg,
     )
@@ -376,7 +377,9 @@ def build_trainer(cfg: DictConfig | Checked, request: Request = Request()):
     callbacks = [instantiate_node(checked, f"callbacks.{name}") for name in (cfg.get("callbacks") or {})]
     callbacks += [RunConfigInCheckpoints(checked.resolved), TestResults(cfg.paths.output_dir, cfg.get("figures", True))]
     callbacks += [ProgressBar()] if cfg.trainer.get("enable_progress_bar", True) else []  # epochs from 1
-    none = {"limit_val_batches": 0} if cfg.validation.criterion == "none" else {}  # validation.criterion=none
+    none: dict[str, Any] = (
+        {"limit_val_batches": 0} if cfg.validation.criterion == "none" else {}
+    )  # validation.criterion=none
     trainer = instantiate_node(
         checked, "trainer", logger=loggers or False, callbacks=callbacks, plugins=[AtomicCheckpointIO()], **none
     )

@@ -15,7 +15,7 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, cast
 
 import lightning.pytorch as pl
 from lightning.pytorch.callbacks import ModelCheckpoint, RichProgressBar
@@ -24,11 +24,13 @@ from omegaconf import DictConfig, OmegaConf
 from encons.evaluators import figures
 from encons.infra import checkpoints
 from encons.infra.bounds import Count, Positive
+from encons.infra.compat import number_epochs_from_one
 from encons.infra.io import save_npz, write_json
 from encons.infra.progress import duration, to_log_files
 
 if TYPE_CHECKING:
     from encons.training.members import EnsembleModule
+    from encons.training.module import TrainingModule
 
 log = logging.getLogger(__name__)
 
@@ -45,14 +47,15 @@ class RunConfigInCheckpoints(pl.Callback):
         checkpoint[checkpoints.CONFIG_KEY] = self.config
 
     def on_train_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
-        best = next((cb for cb in trainer.checkpoint_callbacks if cb.monitor), None)
+        callbacks = cast("list[ModelCheckpoint]", trainer.checkpoint_callbacks)  # encons' are ModelCheckpoints
+        best = next((cb for cb in callbacks if cb.monitor), None)
         if trainer.ckpt_path is None or best is None:
             return
         state = checkpoints.read(trainer.ckpt_path, "ckpt_path")["callbacks"].get(best.state_key, {})
         old = Path(state.get("best_model_path") or "")
         if state.get("dirpath") == best.dirpath or not old.is_file() or state.get("best_model_score") is None:
             return
-        new = Path(best.dirpath) / old.name
+        new = Path(cast("str | Path", best.dirpath)) / old.name  # set: Lightning resolved it before training
         if trainer.is_global_zero:
             new.parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(old, new)
@@ -75,7 +78,7 @@ class EpochLine(pl.Callback):
 
     def on_train_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         self.started, self.first_epoch = time.perf_counter(), trainer.current_epoch
-        self.shown = None  # when the console last got a line
+        self.shown: float | None = None  # when the console last got a line
 
     def on_train_epoch_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         if not trainer.is_global_zero:
@@ -176,7 +179,8 @@ class CostLine(pl.Callback):
 
 def monitored(trainer: pl.Trainer) -> str:
     """The validation metric the best checkpoint follows (``optimized_metric``), else ``val/traj_rel_err``."""
-    return next((cb.monitor for cb in trainer.checkpoint_callbacks if cb.monitor), None) or "val/traj_rel_err"
+    callbacks = cast("list[ModelCheckpoint]", trainer.checkpoint_callbacks)  # encons' are ModelCheckpoints
+    return next((cb.monitor for cb in callbacks if cb.monitor), None) or "val/traj_rel_err"
 
 
 class StallLine(pl.Callback):
@@ -189,7 +193,9 @@ class StallLine(pl.Callback):
         self.patience, self.rtol = patience, rtol
 
     def on_fit_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
-        self.anchor, self.since, self.count, self.said = None, None, 0, False
+        self.anchor: float | None = None
+        self.since: int | None = None
+        self.count, self.said = 0, False
 
     def on_validation_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         key = monitored(trainer)
@@ -208,7 +214,8 @@ class StallLine(pl.Callback):
             log.warning(
                 "stalled: %s has stayed at %.6g (within %g relative) for %d validations since epoch %d (now epoch "
                 "%d, step %d); the model is not learning. Likely remedies: another optimizer.lr (lower if the loss "
-                "jumped before it froze, higher if it never moved)%s; callbacks.stall.patience=%d sets when this is said",
+                "jumped before it froze, higher if it never moved)%s; callbacks.stall.patience=%d sets when this is "
+                "said",
                 key,
                 value,
                 self.rtol,
@@ -237,10 +244,9 @@ class ProgressBar(RichProgressBar):
     """Lightning's rich progress bar, numbering epochs from 1 (``Epoch 2/2`` in the second of two; no total
     when the run is budgeted by steps)."""
 
-    def _get_train_description(self, current_epoch: int) -> str:
-        total = self.trainer.max_epochs
-        text = f"Epoch {current_epoch + 1}" + (f"/{total}" if total is not None and total > 0 else "")
-        return f"{text:{len(self.validation_description)}}" if len(self.validation_description) > len(text) else text
+    def __init__(self, *args: Any, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        number_epochs_from_one(self)
 
 
 class TestResults(pl.Callback):
@@ -257,6 +263,7 @@ class TestResults(pl.Callback):
     def on_test_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         if not trainer.is_global_zero:
             return
+        module = cast("TrainingModule", module)  # the module a run tests
         drawing = module.evaluators.values() if self.figures else ()
         paths = [
             figures.save_png(fig, self.output_dir / "figures" / f"{stem}.png", layout=False)
@@ -318,10 +325,10 @@ class MemberCheckpoints(pl.Callback):
     def load_state_dict(self, state_dict: dict) -> None:
         self.best = {int(i): (float(value), Path(path)) for i, (value, path) in state_dict["best"].items()}
 
-    def on_validation_end(self, trainer: pl.Trainer, module: EnsembleModule) -> None:
+    def on_validation_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         if not trainer.sanity_checking:
-            self._save(trainer, module)
+            self._save(trainer, cast("EnsembleModule", module))  # an ensemble's callback
 
-    def on_train_epoch_end(self, trainer: pl.Trainer, module: EnsembleModule) -> None:
+    def on_train_epoch_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         if not self.monitor.startswith("val/"):
-            self._save(trainer, module)
+            self._save(trainer, cast("EnsembleModule", module))  # an ensemble's callback

@@ -10,9 +10,9 @@ whose loss turns non-finite is reported diverged and left out from then on; the 
 
 Two paths compute the members' losses (``EnsembleModule.path``):
 
-- ``stacked``: the members' networks as one stacked model (``encons.training.stacked``: ``torch.func.stack_module_state``
-  + ``functional_call`` + ``vmap`` over the member axis, folded into the batch axis), one forward and one
-  backward for all members; for the models and settings ``encons.training.stacked.why_not`` accepts;
+- ``stacked``: the members' networks as one stacked model (``encons.training.stacked``:
+  ``torch.func.stack_module_state`` + ``functional_call`` + ``vmap`` over the member axis, folded into the batch axis),
+  one forward and one backward for all members; for the models and settings ``encons.training.stacked.why_not`` accepts;
 - ``loop``: each member's own ``training_step`` in turn (one backward of their sum) — every model, every
   objective, regulariser, observation and schedule, e.g. ``ReduceLROnPlateau`` on a member's own validation.
 
@@ -30,7 +30,7 @@ import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import lightning.pytorch as pl
 import torch
@@ -102,7 +102,8 @@ def member_config(cfg: DictConfig, seed: int, output_dir: Path) -> DictConfig:
 
 
 def _checkpointers(cfg: DictConfig, targets: Mapping[str, Any]) -> dict[str, DictConfig]:
-    """The callbacks of ``cfg`` that are Lightning ``ModelCheckpoint``s, by class (encons' ``BestCheckpoint`` is one)."""
+    """The callbacks of ``cfg`` that are Lightning ``ModelCheckpoint``s, by class (encons'
+    ``BestCheckpoint`` is one)."""
     from lightning.pytorch.callbacks import ModelCheckpoint
 
     return {
@@ -181,7 +182,8 @@ def train(
     module = _module(cfg, members, seeds, data, stacked)
     monitor = _monitor(cfg, checked.targets)
     if monitor is not None:
-        trainer.callbacks.append(MemberCheckpoints(dirs, [OmegaConf.to_container(c) for c in saved], *monitor))
+        plain = [cast(dict, OmegaConf.to_container(c)) for c in saved]  # a DictConfig's container: a dict
+        trainer.callbacks.append(MemberCheckpoints(dirs, plain, *monitor))
         keeper = trainer.callbacks[-1]
     else:
         keeper = None
@@ -303,7 +305,7 @@ def _test_members(
             runs.append(Run(member, data, saved[i], d, None, {}))
             continue
         tested = keeper.best[i][1] if keeper is not None and i in keeper.best else None
-        if tested is not None:
+        if keeper is not None and tested is not None:  # tested: a path only where there is a keeper
             state = checkpoints.read(tested)
             member.load_state_dict(state["state_dict"])
             results[f"best/{keeper.monitor}"] = keeper.best[i][0]
@@ -323,9 +325,9 @@ def _test_members(
         runs.append(Run(member, data, saved[i], d, tested, results))
     metrics = summarise(per_member)
     run_dir = Path(cfg.paths.output_dir)
-    tested = [module.members[i] for i in range(len(seeds)) if seeds[i] in per_member]
-    if cfg.test and cfg.get("figures", True) and len(tested) > 1:
-        _ensemble_figures(tested, [s for s in seeds if s in per_member], run_dir / "figures")
+    scored = [module.members[i] for i in range(len(seeds)) if seeds[i] in per_member]
+    if cfg.test and cfg.get("figures", True) and len(scored) > 1:
+        _ensemble_figures(scored, [s for s in seeds if s in per_member], run_dir / "figures")
     tests = summarise(
         {s: {k.removeprefix("test/"): v for k, v in r.items() if k.startswith("test/")} for s, r in per_member.items()}
     )

@@ -8,14 +8,16 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import lightning.pytorch as pl
 import torch
+from lightning.pytorch.core.optimizer import LightningOptimizer
 from torch import Tensor
 
 from encons.infra.compat import bare_optimizer
 from encons.infra.errors import DivergenceError
+from encons.models.base import DynamicsModel
 from encons.training import stacked as stacking
 from encons.training.module import TrainingModule, takes_total_steps
 
@@ -35,7 +37,7 @@ class MemberOptimizers(torch.optim.Optimizer):
         self.active = list(range(len(self.optimizers)))
         self.defaults = dict(self.optimizers[0].defaults)
         self.param_groups = [g for opt in self.optimizers for g in opt.param_groups]
-        self.state = {}
+        self.state = {}  # type: ignore[assignment]  # the members' optimisers hold the state: this one's stays empty
         bare_optimizer(self)
 
     def step(self, closure: Callable[[], Any] | None = None) -> Any:
@@ -73,12 +75,13 @@ class EnsembleModule(pl.LightningModule):
 
     def __init__(
         self,
-        members: Sequence[pl.LightningModule],
+        members: Sequence[TrainingModule],
         seeds: Sequence[int],
         clip: tuple[float | None, str | None] = (None, None),
     ):
         super().__init__()
-        self.members = torch.nn.ModuleList(members)
+        # a ModuleList (the members registered as submodules), typed as the sequence of TrainingModules it holds
+        self.members = cast("Sequence[TrainingModule]", torch.nn.ModuleList(members))
         self.seeds = list(seeds)
         self.clip = clip
         self.automatic_optimization = False
@@ -87,7 +90,7 @@ class EnsembleModule(pl.LightningModule):
         self.schedules: list[Schedule | None] = []
         self.rng = [torch.get_rng_state() for _ in members]  # each member's torch RNG, as its own run left it
         for i, member in enumerate(self.members):
-            member.log = self._member_logger(i)
+            setattr(member, "log", self._member_logger(i))  # an instance attribute over LightningModule.log
 
     def _member_logger(self, i: int) -> Callable[..., None]:
         def log_member(name: str, value: Any, prog_bar: bool = False, **kwargs: Any) -> None:
@@ -173,13 +176,13 @@ class EnsembleModule(pl.LightningModule):
         losses = {}
         for i in self.active:
             try:
-                losses[i] = self._swap_rng(i, lambda i=i: self.members[i].training_step(batch, batch_idx))
+                losses[i] = self._swap_rng(i, lambda: self.members[i].training_step(batch, batch_idx))
             except DivergenceError as err:
                 self._diverge(i, err)
         return losses
 
     def training_step(self, batch: dict, batch_idx: int) -> None:
-        opt = self.optimizers()
+        opt = cast(LightningOptimizer, self.optimizers())  # one optimiser: configure_optimizers returns one
         losses = self.member_losses(batch, batch_idx)
         if losses:
             self.log(
@@ -188,16 +191,17 @@ class EnsembleModule(pl.LightningModule):
                 prog_bar=True,
                 batch_size=len(batch["states"]),
             )
-        opt.optimizer.active = list(losses)
+        cast(MemberOptimizers, opt.optimizer).active = list(losses)  # configure_optimizers returns MemberOptimizers
         if not losses:
             return
         opt.zero_grad()
-        self.manual_backward(sum(losses.values()))
+        self.manual_backward(cast(Tensor, sum(losses.values())))  # a Tensor: losses is not empty
         self._clip(list(losses))
         opt.step()
         for i in losses:
-            if self.schedules[i] is not None and self.schedules[i].interval == "step":
-                self.schedules[i].scheduler.step()
+            schedule = self.schedules[i]
+            if schedule is not None and schedule.interval == "step":
+                schedule.scheduler.step()
 
     def _clip(self, members: list[int]) -> None:
         """The trainer's gradient clipping, per member (a norm over one member's parameters only)."""
@@ -227,7 +231,7 @@ class EnsembleModule(pl.LightningModule):
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:
         for i in self.active:
-            self._swap_rng(i, lambda i=i: self.members[i].validation_step(batch, batch_idx))
+            self._swap_rng(i, lambda: self.members[i].validation_step(batch, batch_idx))
 
 
 class StackedEnsemble(EnsembleModule):
@@ -243,7 +247,7 @@ class StackedEnsemble(EnsembleModule):
         )
         self.path = f"stacked ({'ensemble dimension' if model.dimension is not None else 'vmap'})"
         self.stacked = stacking.StackedTraining(
-            model,
+            cast(DynamicsModel, model),  # a StackedModel stands in for one: it forwards what it lacks to a member
             m.system,
             m.dt,
             m.integrator,
@@ -293,7 +297,7 @@ class StackedEnsemble(EnsembleModule):
             shadow.load_state_dict(state)
 
     def training_step(self, batch: dict, batch_idx: int) -> None:
-        opt = self.optimizers()
+        opt = cast(LightningOptimizer, self.optimizers())  # one optimiser: configure_optimizers returns one
         objective, penalty = self.stacked.member_losses(batch)
         losses = objective if penalty is None else objective + penalty
         size = len(batch["states"])

@@ -2,13 +2,13 @@
 
 The objective is one of ``encons.training.objectives`` (rollout, derivative, acceleration, onestep, residual), chosen
 among those the model lists in ``objectives``. An optional regulariser adds a weighted penalty;
-optimiser and scheduler are the ``_partial_`` configs of ``conf/optimizer`` and ``conf/scheduler``. Batches are dicts (see ``encons.data.datamodule``): ``states`` and, where
-present, inputs ``u``, ``rates`` and frames ``obs``.
-The ``observation`` (``encons.models.observation``) maps the batch entry it reads to the states the
-model rolls out, and adds its own loss terms: the identity by default; with an autoencoder the
-rollout objective acts on encoded latent states, the regulariser on the latent field at them, and
-validation compares decoded frames with the true ones. Testing feeds the ``evaluators``
-(``encons.evaluators``), which score; ``encons.training.callbacks.TestResults`` writes what they scored.
+optimiser and scheduler are the ``_partial_`` configs of ``conf/optimizer`` and ``conf/scheduler``. Batches are dicts
+(see ``encons.data.datamodule``): ``states`` and, where present, inputs ``u``, ``rates`` and frames ``obs``. The
+``observation`` (``encons.models.observation``) maps the batch entry it reads to the states the model rolls out, and
+adds its own loss terms: the identity by default; with an autoencoder the rollout objective acts on encoded latent
+states, the regulariser on the latent field at them, and validation compares decoded frames with the true ones. Testing
+feeds the ``evaluators`` (``encons.evaluators``), which score; ``encons.training.callbacks.TestResults`` writes what
+they scored.
 """
 
 from __future__ import annotations
@@ -18,11 +18,12 @@ import logging
 from collections.abc import Mapping
 from functools import partial
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, cast
 
 import lightning.pytorch as pl
 import numpy as np
 import torch
+from lightning.pytorch.callbacks import ModelCheckpoint
 from torch import Tensor
 from torch.optim import Optimizer
 
@@ -109,7 +110,8 @@ class TrainingModule(pl.LightningModule):
         )
 
     def reduce(self, terms: Tensor) -> Tensor:
-        """The batch mean of a loss's terms (leading axis: windows or points); ``encons.training.stacked`` means per member."""
+        """The batch mean of a loss's terms (leading axis: windows or points); ``encons.training.stacked`` means per
+        member."""
         return terms.mean()
 
     def to_common(self, states: Tensor) -> Tensor:
@@ -130,7 +132,8 @@ class TrainingModule(pl.LightningModule):
         if not torch.isfinite(loss):
             raise DivergenceError(
                 f"training diverged: loss is {loss.item()} at epoch {self.current_epoch + 1}, step "
-                f"{self.global_step}; {self._kept_checkpoint()}; allowed: a lower optimizer.lr (or a larger model.mass_eps / model.guard where the model has one)"
+                f"{self.global_step}; {self._kept_checkpoint()}; allowed: a lower optimizer.lr (or a larger "
+                f"model.mass_eps / model.guard where the model has one)"
             )
         return loss
 
@@ -152,6 +155,7 @@ class TrainingModule(pl.LightningModule):
 
     def regularise(self, points: Tensor, u: Tensor | None) -> Tensor:
         """The regulariser on the model at ``points`` (B, 2n) under inputs ``u`` (B, m) or None."""
+        assert self.regulariser is not None  # called only for a run with a regulariser
         return self.regulariser(self.model, points, u)
 
     def _kept_checkpoint(self) -> str:
@@ -160,13 +164,13 @@ class TrainingModule(pl.LightningModule):
         # last_model_path is set only by save_last=True
         paths = [
             path
-            for cb in self.trainer.checkpoint_callbacks
+            for cb in cast("list[ModelCheckpoint]", self.trainer.checkpoint_callbacks)  # encons' are ModelCheckpoints
             for path in (cb.last_model_path, cb.best_model_path if cb.monitor is None else "")
         ]
         kept = [Path(p) for p in paths if p and Path(p).is_file()]
         if not kept:
             return "no checkpoint was written before it (none to resume from)"
-        epoch = checkpoints.read(kept[0]).get("epoch")
+        epoch = cast(int, checkpoints.read(kept[0]).get("epoch"))  # Lightning writes it in every checkpoint
         return f"{kept[0]} holds the last good weights (epoch {epoch + 1}); resume with ckpt_path=last"
 
     def compared(self, x: Tensor, pred: Tensor) -> tuple[Tensor, Tensor]:
@@ -212,10 +216,11 @@ class TrainingModule(pl.LightningModule):
         self.test_metrics, self.test_curves = {}, {}
         for name, evaluator in self.evaluators.items():
             result = evaluator.compute(self)
-            for kind, merged, new in (
+            merges: tuple[tuple[str, dict[str, Any], Mapping[str, Any]], ...] = (
                 ("metric", self.test_metrics, result.metrics),
                 ("curve", self.test_curves, result.curves),
-            ):
+            )
+            for kind, merged, new in merges:
                 if clash := sorted(set(merged) & set(new)):
                     raise ConfigError(
                         f"evaluators.{name} gives the {kind} {clash[0]!r} another evaluator of this "
@@ -239,7 +244,8 @@ class TrainingModule(pl.LightningModule):
 
         A scheduler that takes ``total_steps`` gets Lightning's estimate for ``max_epochs`` and steps per
         optimiser step (a run stopped by ``max_time`` or ``max_steps`` ends before its decay does);
-        ``ReduceLROnPlateau`` steps after each validation (``validation.every``) on ``val/loss``; any other scheduler each epoch.
+        ``ReduceLROnPlateau`` steps after each validation (``validation.every``) on ``val/loss``; any other scheduler
+        each epoch.
         """
         opt = self.optimizer(self.parameters())
         if self.scheduler is None:

@@ -9,7 +9,7 @@ in a stacked ensemble, ``encons.training.stacked``).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Callable, cast
 
 from torch import Tensor
 
@@ -18,6 +18,7 @@ from encons.numerics import metrics
 from encons.numerics.integrators import state_derivative
 
 if TYPE_CHECKING:
+    from encons.models.base import DiscreteModel
     from encons.numerics.learner import Learner
 
 Batch = dict[str, Tensor]
@@ -47,9 +48,8 @@ def rollout(module: Learner, batch: Batch) -> Tensor:
 def residual(module: Learner, batch: Batch) -> Tensor:
     """The squared norm of a discrete model's own residual (e.g. SyMo's discrete Euler–Lagrange equations)."""
     _, states = module.observe(batch)
-    return module.reduce(
-        (module.model.residual(states, module.times(states.shape[1], states), batch.get("u")) ** 2).sum(-1)
-    )
+    model = cast("DiscreteModel", module.model)  # a model listing "residual" defines it, as DiscreteModel declares
+    return module.reduce((model.residual(states, module.times(states.shape[1], states), batch.get("u")) ** 2).sum(-1))
 
 
 @objective("onestep")

@@ -17,6 +17,7 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
+from typing import cast
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -227,7 +228,8 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
         run_dir, ckpt_file = path, checkpoints.find(path, ckpt)
     else:
         raise ConfigError(
-            f"{str(path)!r} is not a training run folder (no checkpoints/) or a .ckpt file; allowed: a run folder that train wrote, or its .ckpt"
+            f"{str(path)!r} is not a training run folder (no checkpoints/) or a .ckpt file; allowed: a run folder "
+            f"that train wrote, or its .ckpt"
         )
     state = checkpoints.read(ckpt_file)
     if checkpoints.CONFIG_KEY in state:
@@ -238,7 +240,7 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
         )
     else:
         raise ConfigError(f"checkpoint {str(ckpt_file)!r} carries no config and has no config.yaml beside it")
-    cfg = OmegaConf.merge(cfg, _key_overrides(cfg, overrides))
+    cfg = cast(DictConfig, OmegaConf.merge(cfg, _key_overrides(cfg, overrides)))  # two DictConfigs merge to one
     cfg.paths.output_dir = str(run_dir / "evaluation")
     cfg.logger, cfg.callbacks = None, None
     checked = validate(cfg)
@@ -267,7 +269,7 @@ def _ensemble(path: Path, overrides: Iterable[str], ckpt: str) -> Ensemble | Non
             f"{str(path)!r} is a seed ensemble whose member folder {missing[0]!r} is gone; allowed: "
             f"an ensemble folder with its members, or one member's folder"
         )
-    members = [load(f, overrides, ckpt) for f in folders]
+    members = cast("list[Run]", [load(f, overrides, ckpt) for f in folders])  # a member's folder holds one run
     return Ensemble(members, seeds, {}, {}, path)
 
 
@@ -310,11 +312,13 @@ def evaluate(run: Run | Ensemble | str | Path, overrides: Iterable[str] = (), ck
     from encons.training.summary import print_summary
 
     if isinstance(run, (str, Path)) or list(overrides):
-        run = load(
-            run.run_dir if isinstance(run, Ensemble) else run.checkpoint if isinstance(run, Run) else run,
-            overrides,
-            ckpt,
-        )
+        source = run.run_dir if isinstance(run, Ensemble) else run.checkpoint if isinstance(run, Run) else run
+        if source is None:  # found by mypy: load(None) raised a TypeError here
+            raise ConfigError(
+                f"overrides {list(overrides)} rebuild the run from its checkpoint, and this run kept none (its "
+                f"weights are in memory only); allowed: evaluate it without overrides, or a run that keeps checkpoints"
+            )
+        run = load(source, overrides, ckpt)
     if isinstance(run, Ensemble):
         return _evaluate_ensemble(run)
     config = run.config.copy()

@@ -31,7 +31,7 @@ import inspect
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, cast
 
 import torch
 from torch import Tensor, nn
@@ -65,7 +65,7 @@ def dimension_model(models: Sequence[DynamicsModel]) -> nn.Module | None:
         setattr(
             stacked.get_submodule(parent) if parent else stacked,
             leaf,
-            EnsembleLinear([m.get_submodule(name) for m in models]),
+            EnsembleLinear([cast(nn.Linear, m.get_submodule(name)) for m in models]),  # names of nn.Linear layers
         )
     return stacked
 
@@ -198,7 +198,7 @@ class StackedModel(nn.Module):
         u = None if u is None else u.repeat(self.k, 1)
         z = self.to_internal(s)
         t = torch.zeros((), dtype=s.dtype, device=s.device)
-        _, pullback = vjp(lambda z: self(t, z) if u is None else self(t, z, u), z)
+        _, pullback = cast("tuple[Tensor, Callable]", vjp(lambda z: self(t, z) if u is None else self(t, z, u), z))
         basis = torch.eye(z.shape[-1], dtype=z.dtype, device=z.device).unsqueeze(1).expand(-1, *z.shape)
         jac = vmap(pullback)(basis)[0].movedim(0, 1)  # (B, d out, d in)
         return regulariser.weight * regulariser.violation(jac).reshape(self.k, -1).mean(1)
@@ -210,9 +210,10 @@ class StackedModel(nn.Module):
             for name, layer in self.dimension.named_modules():
                 if isinstance(layer, EnsembleLinear):
                     for k, model in enumerate(models):
-                        model.get_submodule(name).weight.copy_(layer.weight[k])
+                        linear = cast(nn.Linear, model.get_submodule(name))  # the layer EnsembleLinear stacks
+                        linear.weight.copy_(layer.weight[k])
                         if layer.bias is not None:
-                            model.get_submodule(name).bias.copy_(layer.bias[k])
+                            cast(Tensor, linear.bias).copy_(layer.bias[k])
             return
         params, buffers = self.member_weights()
         for k, model in enumerate(models):
@@ -233,6 +234,8 @@ def dimension_penalty(model: DynamicsModel, regulariser: Any) -> bool:
 class StackedTraining(TrainingModule):
     """The training objective of all members at once: a ``TrainingModule`` on a ``StackedModel`` whose
     ``reduce`` means each member's rows, so ``loss`` returns the K members' losses."""
+
+    model: StackedModel  # type: ignore[assignment]  # stands in for the DynamicsModel: forwards what it lacks to one
 
     def reduce(self, terms: Tensor) -> Tensor:
         return terms.reshape(self.model.k, -1).mean(1)
@@ -274,7 +277,10 @@ def why_not(cfg: Any, members: Sequence[TrainingModule]) -> str | None:
         return "compile=true compiles one model's field"
     opt = member.optimizer.func if hasattr(member.optimizer, "func") else member.optimizer
     if getattr(opt, "__name__", "") not in ELEMENTWISE:
-        return f"optimizer {getattr(opt, '__name__', opt)} may mix elements across members; allowed stacked: {', '.join(ELEMENTWISE)}"
+        return (
+            f"optimizer {getattr(opt, '__name__', opt)} may mix elements across members; allowed stacked: "
+            f"{', '.join(ELEMENTWISE)}"
+        )
     return None
 
 

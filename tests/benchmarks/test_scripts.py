@@ -1,5 +1,7 @@
-"""Every script left in benchmarks/ (speed benches and the evaluation's floor: grids are encons.tools.benchmark profiles) runs at a
-smoke size, so none can rot: each runs as ``__main__`` without an exception and prints its table. Timings are not asserted."""
+"""Every script left in benchmarks/ (speed benches and the evaluation's floor: grids are encons.tools.benchmark
+profiles) runs at a smoke size, so none can rot: each runs as ``__main__`` without an exception and prints its table.
+Timings are not
+asserted."""
 
 from __future__ import annotations
 

@@ -377,8 +377,8 @@ def test_a_missing_study_names_the_stored_ones(tmp_path):
         (
             "encons.train",
             ["trainer.max_epoch=3"],
-            "encons: error: trainer.max_epoch is not a key of the config, did you mean trainer.max_epochs; allowed: the "
-            "keys `--cfg job` prints, or +trainer.max_epoch=VALUE to add one",
+            "encons: error: trainer.max_epoch is not a key of the config, did you mean trainer.max_epochs; allowed: "
+            "the keys `--cfg job` prints, or +trainer.max_epoch=VALUE to add one",
         ),
         (
             "encons.train",

@@ -75,7 +75,8 @@ def test_recording_errors_are_one_line(tmp_path):
         load_recording(path, 4, 5, {"test_fractoin": 0.3})
     with pytest.raises(
         DataError,
-        match=r"test part holds no unbroken stretch of 31 samples \(its longest holds 12; .*\); allowed: .*data.test_steps",
+        match=r"test part holds no unbroken stretch of 31 samples \(its longest holds 12; .*\); allowed: "
+        r".*data.test_steps",
     ):
         load_recording(path, 4, 30, {})
     np.savez(tmp_path / "odd.npz", t=np.array([0.0, 0.1, 0.2, 0.32, 0.42]), states=np.zeros((5, 2)))

@@ -113,3 +113,24 @@ def test_quiet_upstream_drops_the_dataloader_workers_advice_of_many_core_machine
         compat.quiet_upstream()
         data_connector._worker_check(trainer, DataLoader(range(4)), "train_dataloader")
     assert not seen
+
+
+def test_the_progress_bar_numbers_epochs_from_one():
+    import pickle
+
+    from encons.training.callbacks import ProgressBar
+
+    bar = ProgressBar()
+    bar._trainer = SimpleNamespace(max_epochs=3)  # what Lightning's trainer property reads
+    assert bar._get_train_description(0).strip() == "Epoch 1/3"  # Lightning 2.6 says "Epoch 0/2"
+    assert type(pickle.loads(pickle.dumps(bar))) is ProgressBar  # a spawned process gets it too
+
+
+def test_the_csv_logger_writes_through_its_atomic_writer(tmp_path):
+    from encons.infra.lightning_io import CSVLogger
+
+    logger = CSVLogger(str(tmp_path), name="run", version=0)
+    logger.log_metrics({"val/loss": 1.5}, step=0)
+    logger.save()
+    assert type(logger.experiment).__name__ == "_AtomicExperimentWriter"
+    assert (tmp_path / "run" / "version_0" / "metrics.csv").read_text().splitlines()[0] == "step,val/loss"

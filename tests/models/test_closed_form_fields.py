@@ -54,9 +54,10 @@ def test_layer_curvature_is_its_plain_expression_to_every_order():
     tangents = [torch.randn(5, 4, 7, dtype=torch.float64, requires_grad=True) for _ in range(2)]
     weights = [torch.randn(5, 7, dtype=torch.float64, requires_grad=True) for _ in range(2)]
     f = lambda t1, t2, w1, w2: layer_curvature(3, [t1, t2], [w1, w2])  # noqa: E731
-    plain = lambda t1, t2, w1, w2: sum(
-        torch.einsum("...ic,...c,...jc->...ij", t[..., :3, :], w, t)  # noqa: E731
-        for t, w in ((t1, w1), (t2, w2))
+    plain = (  # noqa: E731
+        lambda t1, t2, w1, w2: sum(
+            torch.einsum("...ic,...c,...jc->...ij", t[..., :3, :], w, t) for t, w in ((t1, w1), (t2, w2))
+        )
     )
     args = (*tangents, *weights)
     assert f(*args).shape == (5, 3, 4) and gap(f(*args), plain(*args)) < 1e-14

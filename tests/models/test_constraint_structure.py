@@ -1,6 +1,6 @@
 """Constraints declared as structure (``DistanceConstraints``): Φ as written by hand, closed-form
-DΦ, D_xΦ̇ equal to autodiff, and CHNN/CLNN fields (closed-form masses and inverse) equal to the general path (autodiff Jacobians,
-assembled and inverted mass matrix)."""
+DΦ, D_xΦ̇ equal to autodiff, and CHNN/CLNN fields (closed-form masses and inverse) equal to the general path (autodiff
+Jacobians, assembled and inverted mass matrix)."""
 
 from __future__ import annotations
 

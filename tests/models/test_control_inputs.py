@@ -159,7 +159,7 @@ def test_a_debug_sized_cartpole_lnode_with_per_step_inputs_and_learned_g_cuts_b_
     )
     data, module = build(cfg)
     before = linear_b_error(module.model, module.system)
-    optimizer, loader, step = module.optimizer(module.parameters()), data.train_dataloader(), 0
+    optimizer, loader = module.optimizer(module.parameters()), data.train_dataloader()
     for epoch in range(60):
         loader.sampler.set_epoch(epoch)
         for batch in loader:

@@ -1,8 +1,9 @@
 """Every tensor a model, system, metric or integrator creates follows its inputs' device and dtype:
 one training step (loss and backward) of every catalogue model on three simulated systems (one per
-code path: a rigid body in both charts, controls, pixels) where it can serve them, on the ``meta`` device (devices, dtypes and shapes only: a tensor created on the
-CPU beside meta ones fails the step) and, where present, on every simulated system on CUDA (``gpu``
-mark), its loss compared with the CPU's float64 loss, and a whole tiny run (one model, an ensemble) there.
+code path: a rigid body in both charts, controls, pixels) where it can serve them, on the ``meta`` device (devices,
+dtypes and shapes only: a tensor created on the CPU beside meta ones fails the step) and, where present, on every
+simulated system on CUDA (``gpu`` mark), its loss compared with the CPU's float64 loss, and a whole tiny run (one model,
+an ensemble) there.
 
 Meta tensors hold no values, so on meta three value reads are stood in for: torchdiffeq's
 fixed-grid loop (it reads the times' values to build its grid) is replaced by the same method's own

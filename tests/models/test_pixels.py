@@ -103,7 +103,7 @@ def test_autoencoder_loss_terms_are_the_documented_ones():
     system = NPendulum(1, g=1.0, frame_size=8)
     torch.manual_seed(0)
     x = torch.rand(3, 5, 8, 8)
-    only = lambda **w: Autoencoder(
+    only = lambda **w: Autoencoder(  # noqa: E731
         system,
         latent=4,
         **{

@@ -195,9 +195,9 @@ def test_newton_step_matches_the_closed_form_del_root_of_the_pendulum():
     dv = lambda q: -mgl2 * math.sin(q)  # noqa: E731 - V'(q)
     for i in range(len(s0)):
         q0, q1, f = start[i, 0, 0].item(), start[i, 1, 0].item(), u[i, 0].item()
-        del_eq = lambda q2: (
+        del_eq = lambda q2: (  # noqa: E731
             inertia * (q1 - q0) / h
-            - 0.5 * h * dv(0.5 * (q0 + q1))  # noqa: E731 - D₂L_d(q0, q1)
+            - 0.5 * h * dv(0.5 * (q0 + q1))  # D₂L_d(q0, q1)
             - inertia * (q2 - q1) / h
             - 0.5 * h * dv(0.5 * (q1 + q2))  # D₁L_d(q1, q2)
             + 0.5 * h * (f + f)

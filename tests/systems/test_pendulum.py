@@ -85,7 +85,7 @@ def test_mass_matrix_is_the_lagrangian_hessian():
     s = system.sample_initial(5, torch.Generator().manual_seed(1))
 
     def lagrangian(state):
-        q, qd = state[:3], state[3:]
+        q = state[:3]
         cart = system.to_chart(state, "angle", "cartesian")
         kinetic = 0.5 * (system.m * (cart[6:].reshape(3, 2) ** 2).sum(-1)).sum()
         return kinetic - system.potential(q)

@@ -59,7 +59,7 @@ def test_cartpole_lqr_from_the_linearised_true_model_matches_the_closed_form_ric
     """A, B by jacrev of the true field equal the closed-form linearisation at upright, and K equals the
     discrete LQR gain of that closed form (ZOH by scipy.signal, scipy's DARE) to 1e-6."""
     system, h = CartPole(), 0.05
-    mc, mp, l, g = system.mc, system.mp, system.l, system.g
+    mc, mp, l, g = system.mc, system.mp, system.l, system.g  # noqa: E741 - l: the pole's length, as the paper writes it
     mass = np.array([[mc + mp, mp * l], [mp * l, 4 / 3 * mp * l**2]])  # M(0)
     gravity = np.array([[0.0, 0.0], [0.0, mp * g * l]])  # −∂²V/∂q² at θ = 0 (V = m_p g l cos θ)
     a = np.block([[np.zeros((2, 2)), np.eye(2)], [np.linalg.solve(mass, gravity), np.zeros((2, 2))]])
@@ -114,7 +114,8 @@ FAST = ["debug=fast", "figures=false", "logger=none", "trainer.enable_progress_b
     "model,system", [("lnode", "pendulum_control"), ("symo", "cartpole"), ("hnn_structure", "cartpole")]
 )
 def test_control_command_scores_a_tiny_trained_run(model, system, tmp_path, capsys):
-    """Train a debug-size model, then ``python -m encons.control RUN`` (``encons.entry.cli.control``): metrics, figures."""
+    """Train a debug-size model, then ``python -m encons.control RUN`` (``encons.entry.cli.control``): metrics,
+    figures."""
     from encons.entry import api
 
     api.train(

@@ -8,8 +8,8 @@ import math
 import pytest
 
 #: Measured: no start learns the debug-size gyroscope in 40 steps. Best val after 1 -> 20 epochs (lr 1e-3): this start
-#: 0.3675 -> 0.3675 (also at lr 3e-3, and over 60 epochs), jointly convex 0.3875 -> 0.3875, the old damping λ = 1 0.54 ->
-#: 0.357; predicting q̈ = 0 (constant velocity) scores 0.323 on these windows, so none has learned q̈ there yet.
+#: 0.3675 -> 0.3675 (also at lr 3e-3, and over 60 epochs), jointly convex 0.3875 -> 0.3875, the old damping λ = 1
+#: 0.54 -> 0.357; predicting q̈ = 0 (constant velocity) scores 0.323 on these windows, so none has learned q̈ there yet.
 GYROSCOPE = pytest.mark.xfail(
     strict=True,
     reason="no LNN start learns the debug-size gyroscope within 40 steps: best val "

@@ -1,6 +1,6 @@
-"""``experiment=paper``'s solve (``encons.training.attempts``): the plain inverse Hessian of Cranmer et al. / Xiao et al.
-(``model.guard=0``) unless that training diverges, then again from scratch at the model's guard; the run
-says which. And the presets of ``experiment=paper`` and ``debug=fast`` composed together."""
+"""``experiment=paper``'s solve (``encons.training.attempts``): the plain inverse Hessian of Cranmer et al. / Xiao et
+al. (``model.guard=0``) unless that training diverges, then again from scratch at the model's guard; the run says which.
+And the presets of ``experiment=paper`` and ``debug=fast`` composed together."""
 
 from __future__ import annotations
 
