@@ -382,6 +382,7 @@ def score_control(
     true-model oracle on the true system; returns ``control/...`` and ``oracle/...`` metrics and writes
     them (``control_metrics.json``) and the figures to ``<run>/control``."""
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     from encons.evaluators import figures
@@ -430,7 +431,7 @@ def score_control(
     for column in ("metric", "from the learned model", "from the true model (oracle)"):
         table.add_column(column, justify="left" if column == "metric" else "right", no_wrap=column == "metric")
     for label, cells in printed_rows(outcome.metrics, system):
-        table.add_row(label, *cells)
+        table.add_row(escape(label), *cells)  # "[N m]" is a unit, not rich markup
     console = Console()
     console.print(table)
     console.print(
