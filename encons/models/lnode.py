@@ -28,6 +28,7 @@ class LNode(DynamicsModel):
 
     default_chart = "angle"
     supports_controls = True
+    family = "mass_matrix"  # learns M(q) and V(q), as the structured models do
 
     def __init__(
         self,

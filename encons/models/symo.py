@@ -71,6 +71,7 @@ class SyMo(DiscreteModel):
     default_chart = "angle"
     supports_controls = True
     objectives = ("residual", "rollout")
+    family = "discrete_lagrangian"  # M(q) and V(q) inside a discrete Lagrangian (eqs. (12)–(13))
     headline = ("newton_unconverged",)  # Newton root-finds that did not converge (``diagnostics``)
 
     def __init__(
