@@ -43,8 +43,9 @@ def errors(model, system) -> dict[str, float]:
 
 def swing_up(model, system, h: float, starts: int = 40) -> dict[str, float]:
     """The swing-up controller built from ``model`` on the true system: ``encons.tools.control.score`` of its closed
-    loop from ``starts`` seeded (0) starts of the system's ``Settings``, as ``encons.tools.control.compare`` runs it."""
-    settings = control.SETTINGS[type(system)]
+    loop from ``starts`` seeded (0) starts of the system's declared ``controller``, as ``encons.tools.control.compare``
+    runs it."""
+    settings = control.controller_settings(system)
     plant = control.learned_plant(model, system, "model")
     states, inputs = control.closed_loop(
         system, control.SwingUp(plant, system, h), settings.starts(starts, 0), h, round(settings.duration / h)

@@ -27,6 +27,8 @@ class Acceleration(Evaluator):
     its states; q̈ is the second half of the state in the model's chart; a discrete model (no field) scores
     nothing; the points are the test states, clean (no noise)."""
 
+    headline = ("accel_mse",)  # the benchmark summary's headline column (encons.tools.report)
+
     def check(self, module: Learner) -> None:
         if not module.observation.identity or not module.system.known_physics:
             why = "its states are not the data's" if not module.observation.identity else "it has no true field"

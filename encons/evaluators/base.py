@@ -14,7 +14,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 import torch
@@ -51,7 +51,13 @@ class TestBatch:
 
 class Evaluator(ABC):
     """One way to score a trained model at test time: one class and one ``conf/evaluators/<name>.yaml``
-    (``# @package evaluators.<name>``, ``_target_`` and the constructor's arguments)."""
+    (``# @package evaluators.<name>``, ``_target_`` and the constructor's arguments).
+
+    ``headline`` declares which of its metrics (as ``compute`` names them) a benchmark summary's headline
+    table shows: a benchmark run records them in its result row, and the report gathers them from there
+    (``encons.tools.report.headline``)."""
+
+    headline: ClassVar[tuple[str, ...]] = ()
 
     def check(self, module: Learner) -> None:
         """Refuse, with one ``ConfigError`` line, a run this evaluator cannot score (called when the

@@ -31,6 +31,17 @@ class Pixels(Evaluator):
     the last ``stack`` − 1, which begin no encoder input).
     Runs through an observation model only; no oracle (the frames have no true latent field)."""
 
+    headline = (  # the benchmark summary's headline columns (encons.tools.report)
+        "diverged",
+        "traj_rel_err",
+        "pixel_mse",
+        "pixel_mse_final",
+        "pixel_mse_final_median",
+        "baseline_constant/pixel_mse",
+        "autoencoder/pixel_mse",
+        "autoencoder/pixel_mse_final",
+    )
+
     def check(self, module: Learner) -> None:
         if module.observation.identity:
             raise ConfigError(

@@ -38,6 +38,15 @@ class SantosMetrics(Evaluator, Declared):
     come from ``seed`` (not the data seed), simulated as the data are. Figure: ``integration``.
     """
 
+    headline = (  # the benchmark summary's headline columns (encons.tools.report)
+        "mse_train",
+        "mse_test",
+        "mse_integration",
+        "energy_mse_integration",
+        "mass_mse",
+        "newton_unconverged_integration",
+    )
+
     config_key = "evaluators.santos"
 
     def __init__(self, n_trajectories: Count = 16, steps: Annotated[int, Range(ge=2)] = 500, seed: Seed = 1):

@@ -30,6 +30,21 @@ class States(Evaluator):
     physics, ``oracle/<metric>``: the true field rolled out by the same evaluation from the same starts in
     the model's chart and scored by the same metrics. Runs whose observations are the states only."""
 
+    headline = (  # the benchmark summary's headline columns (encons.tools.report)
+        "diverged",
+        "traj_rel_err",
+        "geom_rel_err",
+        "vpt",
+        "energy_abs_err",
+        "energy_rmse_median",
+        "state_mse",
+        "state_mse_final",
+        "energy_mse",
+        "energy_mse_final",
+        "baseline_constant/state_mse_final",
+        "baseline_linear_ode/state_mse_final",
+    )
+
     def check(self, module: Learner) -> None:
         if not module.observation.identity:
             raise ConfigError(

@@ -10,13 +10,15 @@ discrete models (``DiscreteModel``) by their own ``rollout``.
 
 What a model supports is declared by class attributes, checked once when a run is built
 (``encons.config.check.check_capabilities``): ``discrete``, ``supports_controls``, ``needs_constraints``,
-``history`` and ``objectives``.
+``history`` and ``objectives``; ``family`` names the structure it learns (a benchmark profile's ``per_family``)
+and ``headline`` the ``diagnostics`` a benchmark summary shows. What a controller can be built from is
+declared by ``energy_structure`` (the learned M(q), V(q) and input matrix, ``encons.tools.control``).
 """
 
 from __future__ import annotations
 
 from contextlib import contextmanager
-from typing import Callable, ClassVar, Iterator
+from typing import Callable, ClassVar, Iterator, NamedTuple
 
 import torch
 from torch import Tensor, nn
@@ -24,6 +26,15 @@ from torch import Tensor, nn
 from encons.infra.bounds import Declared
 from encons.infra.errors import ConfigError
 from encons.systems.base import System
+
+
+class EnergyStructure(NamedTuple):
+    """What an energy-based controller needs of a model (``encons.tools.control``): the learned M(q) (..., n, n),
+    V(q) (...) and the input matrix, a constant B (n, m) or a callable g(q) (..., n, m) (``encons.models.inputs``)."""
+
+    mass: Callable[[Tensor], Tensor]
+    potential: Callable[[Tensor], Tensor]
+    input_matrix: Tensor | Callable[[Tensor], Tensor] | None  # None: the system has no inputs
 
 
 class DynamicsModel(nn.Module, Declared):
@@ -43,6 +54,7 @@ class DynamicsModel(nn.Module, Declared):
     history: ClassVar[int] = 1  # data states a rollout starts from
     objectives: ClassVar[tuple[str, ...]] = ("rollout", "derivative", "onestep")  # supported; the first is the default
     family: ClassVar[str | None] = None  # the structure it learns; a benchmark profile's per_family keys name it
+    headline: ClassVar[tuple[str, ...]] = ()  # of its diagnostics(): shown in a benchmark summary's headline table
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
@@ -86,6 +98,11 @@ class DynamicsModel(nn.Module, Declared):
         compute what depends on its parameters alone once here instead of per field evaluation
         (CHNN/CLNN: the inverse mass matrix). Default: nothing."""
         yield
+
+    def energy_structure(self) -> EnergyStructure | None:
+        """The learned M(q), V(q) and input matrix an energy-based controller is built from
+        (``encons.tools.control``), or None: a model without them (the default) gets no controller."""
+        return None
 
     def diagnostics(self) -> dict[str, float]:
         """Counters of the model's own solvers over the rollouts since ``reset_diagnostics`` (e.g. SyMo's

@@ -18,7 +18,7 @@ from torch.func import grad, jvp
 
 from encons.infra.bounds import Count
 from encons.models import inputs
-from encons.models.base import DynamicsModel, angle_mask
+from encons.models.base import DynamicsModel, EnergyStructure, angle_mask
 from encons.models.parts import CholeskyMass, Potential
 from encons.systems.base import System, split_state
 
@@ -28,6 +28,7 @@ class LNode(DynamicsModel):
 
     default_chart = "angle"
     supports_controls = True
+    family = "mass_matrix"  # learns M(q) and V(q), as the structured models do
 
     def __init__(
         self,
@@ -48,6 +49,10 @@ class LNode(DynamicsModel):
 
     def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
         return forced_euler_lagrange(self.mass, self.potential, self.input_matrix, s, u)
+
+    def energy_structure(self) -> EnergyStructure:
+        """Its M(q), V(q) and input matrix: the energy-based controller's structure (``encons.tools.control``)."""
+        return EnergyStructure(self.mass, self.potential, self.input_matrix)
 
 
 def forced_euler_lagrange(

@@ -6,7 +6,7 @@ from torch import Tensor
 
 from encons.infra.bounds import Count
 from encons.models import inputs
-from encons.models.base import DynamicsModel, angle_mask
+from encons.models.base import DynamicsModel, EnergyStructure, angle_mask
 from encons.models.parts import CholeskyMass, Potential
 from encons.systems.base import System
 
@@ -54,3 +54,7 @@ class MassPotentialModel(DynamicsModel):
     def potential(self, q: Tensor) -> Tensor:
         """V(q)."""
         return self.factor_potential(q)[1]
+
+    def energy_structure(self) -> EnergyStructure:
+        """Its M(q), V(q) and input matrix: the energy-based controller's structure (``encons.tools.control``)."""
+        return EnergyStructure(self.mass, self.potential, self.input_matrix)

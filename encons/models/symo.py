@@ -31,7 +31,7 @@ from torch.func import grad, vjp, vmap
 
 from encons.infra.bounds import Count, Positive, Range
 from encons.infra.errors import ConfigError
-from encons.models.base import DiscreteModel, DynamicsModel, angle_mask
+from encons.models.base import DiscreteModel, DynamicsModel, EnergyStructure, angle_mask
 from encons.models.parts import CholeskyMass, Potential
 from encons.systems.base import System
 
@@ -71,6 +71,8 @@ class SyMo(DiscreteModel):
     default_chart = "angle"
     supports_controls = True
     objectives: ClassVar[tuple[str, ...]] = ("residual", "rollout")
+    family = "discrete_lagrangian"  # M(q) and V(q) inside a discrete Lagrangian (eqs. (12)–(13))
+    headline = ("newton_unconverged",)  # Newton root-finds that did not converge (``diagnostics``)
     input_matrix: Tensor  # a buffer (register_buffer): the system's constant B
 
     def __init__(
@@ -103,6 +105,11 @@ class SyMo(DiscreteModel):
         self.backtracks = backtracks
         self.newton_iterations: list[int] = []  # iterations of each step of the last rollout
         self.reset_diagnostics()
+
+    def energy_structure(self) -> EnergyStructure:
+        """Its M(q), V(q) (those of its discrete Lagrangian) and input matrix: the energy-based controller's
+        structure (``encons.tools.control``)."""
+        return EnergyStructure(self.mass, self.potential, self.input_matrix)
 
     # -- the discrete mechanics -------------------------------------------------------------------
     def discrete_lagrangian(self, a: Tensor, b: Tensor, h: Tensor) -> Tensor:

@@ -8,6 +8,10 @@ constant input matrix B (``input_matrix``):
 
 Each system gives M(q), V(q) and b(q, q̇) in closed form. ``angles`` marks which coordinates are
 angles (embedded on S¹ by the models); the others are translations.
+
+A system that a swing-up controller can be built for (``encons.tools.control``) declares how on its class:
+``controller``, a :class:`ControllerSettings` (gains, LQR weights, switching level, success tolerance,
+horizon, scored starts and the energy-pumping law), and ``input_unit``, the unit of u in the printed table.
 """
 
 from __future__ import annotations
@@ -15,7 +19,8 @@ from __future__ import annotations
 import abc
 import math
 from collections.abc import Sequence
-from typing import cast
+from dataclasses import dataclass
+from typing import ClassVar, cast
 
 import torch
 from torch import Tensor
@@ -25,6 +30,40 @@ from encons.infra.errors import ConfigError
 from encons.systems.mechanical import Mechanical
 
 INPUTS = ("constant", "steps", "multisine")
+PUMPING = ("pivot", "cart")  # the energy-pumping laws of encons.tools.control.SwingUp
+
+
+@dataclass(frozen=True)
+class ControllerSettings:
+    """Gains, LQR weights, switching level, success tolerance and horizon of one system's swing-up controller
+    (``encons.tools.control``), declared by the system class as ``controller``.
+
+    ``tolerance`` holds the bound of each state entry (q then q̇) within which the state counts as upright.
+    ``pumping`` names the energy-pumping law far from upright: ``pivot`` (one actuated angle: the torque
+    u = u_max sat(k_E (E* − E)) sgn(q̇)) or ``cart`` (the cart-pole's: the cart's acceleration from the pole's
+    energy, with ``cart_gains`` k_x, k_v keeping the cart near the origin).
+    """
+
+    gain_energy: float
+    q_weights: tuple[float, ...]
+    r_weight: float
+    switch: float
+    tolerance: tuple[float, ...]
+    duration: float
+    hold: float
+    cart_gains: tuple[float, float] = (0.0, 0.0)  # k_x, k_v of the cart-pole's pumping
+    start_range: tuple[float, ...] = ()  # half-widths of the uniform scored starts around upright at rest
+    pumping: str = "pivot"
+
+    def __post_init__(self) -> None:
+        if self.pumping not in PUMPING:
+            raise ConfigError(f"controller.pumping={self.pumping}; allowed: {', '.join(PUMPING)}")
+
+    def starts(self, n: int, seed: int) -> Tensor:
+        """``n`` scored starts (n, 2n_q), uniform in ±``start_range`` from ``seed`` (Santos et al. §7's
+        initial states: the system's default ``init_range``, whatever the training data drew)."""
+        unit = torch.rand(n, len(self.start_range), generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
+        return (2 * unit - 1) * torch.tensor(self.start_range, dtype=torch.float64)
 
 
 class ControlledMechanical(Mechanical):
@@ -43,6 +82,8 @@ class ControlledMechanical(Mechanical):
 
     n_controls = 1
     angles: tuple[bool, ...]
+    controller: ClassVar[ControllerSettings | None] = None  # None: no swing-up controller for this system
+    input_unit: ClassVar[str] = "u"  # the unit of the input u (encons.tools.control's table)
 
     def __init__(
         self,
@@ -113,6 +154,17 @@ class ControlledPendulum(ControlledMechanical):
     """
 
     angles = (True,)
+    input_unit = "N m"  # the pivot's torque
+    controller = ControllerSettings(
+        gain_energy=2.0,
+        q_weights=(10.0, 1.0),
+        r_weight=1.0,
+        switch=20.0,
+        tolerance=(0.1, 0.5),
+        duration=10.0,
+        hold=2.0,
+        start_range=(math.pi, 2 * math.pi),
+    )
 
     def __init__(
         self,
@@ -151,6 +203,19 @@ class CartPole(ControlledMechanical):
     """
 
     angles = (False, True)
+    input_unit = "N"  # the force on the cart
+    controller = ControllerSettings(
+        gain_energy=300.0,
+        q_weights=(1.0, 10.0, 1.0, 1.0),
+        r_weight=1.0,
+        switch=300.0,
+        tolerance=(1.0, 0.1, math.inf, 0.5),
+        duration=10.0,
+        hold=2.0,
+        cart_gains=(1.0, 2.0),
+        start_range=(0.5, 3.14, 0.05, 3.0),
+        pumping="cart",
+    )
 
     def __init__(
         self,

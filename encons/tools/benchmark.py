@@ -229,7 +229,9 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
             time.perf_counter() - started,
         )  # training and the test of this process (a resumed run: from the resume on)
         # a planned run is one seed's (a cell's seeds train together through ensemble.train): a Run
-        steps = cast("Run", trained).module.trainer.global_step
+        one = cast("Run", trained)
+        steps = one.module.trainer.global_step
+        shown = declared_headline(one.module, control)
         if control:
             from encons.tools.control import score_control
 
@@ -241,7 +243,7 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
             err.status,
         ) from None
     except EnconsError as err:
-        results, error, wall, steps = {}, str(err), time.perf_counter() - started, None
+        results, error, wall, steps, shown = {}, str(err), time.perf_counter() - started, None, []
     row = {
         "system": run.system,
         "model": run.label,
@@ -254,6 +256,7 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
         "overrides": " ".join(run.overrides),
         "optimiser": optimiser(cfg, steps),
         **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))},
+        "headline": shown,
     }
     write_json(done, row, indent=1)  # atomic: a run killed before it is rerun
     return row
@@ -302,6 +305,7 @@ def run_ensemble(members: list[PlannedRun], out: Path, cache_dir: str | None, co
 
                 results.update({f"test/{k}": v for k, v in score_control(member).items()})
         steps = trained.members[i].module.trainer.global_step if trained is not None and not why else None
+        shown = declared_headline(trained.members[i].module, control) if trained is not None and not why else []
         row = {
             "system": m.system,
             "model": m.label,
@@ -315,10 +319,23 @@ def run_ensemble(members: list[PlannedRun], out: Path, cache_dir: str | None, co
             "overrides": " ".join(m.overrides),
             "optimiser": optimiser(cfg, steps),
             **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))},
+            "headline": shown,
         }
         write_json(finished(m, out), row, indent=1)
         rows.append(row)
     return rows
+
+
+def declared_headline(module, control: bool = False) -> list[str]:
+    """The metrics a run's summary headline shows, as its result row records them (``encons.tools.report.headline``):
+    ``wall_time_s``, what its evaluators and its model declare (``Evaluator.headline``, ``DynamicsModel.headline``)
+    and, with ``control``, the control tool's (``encons.tools.control.HEADLINE``)."""
+    names = [*(k for e in module.evaluators.values() for k in e.headline), *module.model.headline]
+    if control:
+        from encons.tools.control import HEADLINE
+
+        names += HEADLINE
+    return ["wall_time_s", *dict.fromkeys(f"test/{k}" for k in names)]
 
 
 def optimiser(cfg: DictConfig, steps: int | None = None) -> str:

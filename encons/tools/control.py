@@ -30,7 +30,7 @@ outside (memoryless). SyMo and E2E-SyMo learn M(q) and V(q) inside their discret
 (``forced_euler_lagrange``), whose midpoint discretisation the DEL is. A learned field need not vanish
 exactly at s* (a learned ∇V(0) ≠ 0): the LQR then holds a small offset, which the tolerance absorbs.
 
-Scoring: ``starts`` initial states uniform in the ``Settings``' ``start_range`` (the default training
+Scoring: ``starts`` initial states uniform in the controller settings' ``start_range`` (the default training
 distribution of Santos et al. §7, also when the data were drawn elsewhere: ``system.init_center``) with
 ``seed``; the true system integrated in float64 by torchdiffeq RK4 with ``substeps`` steps per control
 period, u held, every start at once. A start succeeds when, from a time t_up ≤ duration − hold on,
@@ -40,8 +40,13 @@ learned model's prediction error is the RMS one-step error ‖ŝ_{k+1} − s_{k+
 the model's own step (its training integrator, or its Newton step) from the closed-loop states and
 inputs of its own controller; ``a_rel_err`` and ``b_rel_err`` are ‖A − A_true‖_F / ‖A_true‖_F and
 the same for B, of the linearisation at upright the LQR is built from. Limits: |u| ≤ u_max is
-enforced by saturation; gains are fixed per system (``SETTINGS``), tuned on the true model, not per
-learned model.
+enforced by saturation; gains are fixed per system, tuned on the true model, not per learned model.
+
+What a controller is built from is declared, not listed here: a controlled system class declares its
+``controller`` (``encons.systems.controlled.ControllerSettings``: gains, weights, tolerance, horizon, starts,
+pumping law) and ``input_unit``; a model declares its ``energy_structure()`` (``encons.models.base``: the
+learned M(q), V(q) and input matrix; None for a model without them). A new system or model of either kind is
+scored here without editing this module.
 """
 
 from __future__ import annotations
@@ -61,45 +66,45 @@ from torchdiffeq import odeint
 
 from encons.infra.errors import ConfigError
 from encons.infra.io import write_json
+from encons.models.base import DynamicsModel
 from encons.systems.base import System, split_state
-from encons.systems.controlled import CartPole, ControlledMechanical, ControlledPendulum
+from encons.systems.controlled import ControlledMechanical, ControllerSettings
 
-CONTROL_MODELS = (
-    "lnode, symo, e2e_symo, hnn_structure, lnn_structure"  # the models with an energy (M, V) that take inputs
+#: Examples of the models whose ``energy_structure()`` gives M(q), V(q) and that take inputs (the refusal names them)
+CONTROL_MODELS = "lnode, symo, e2e_symo, hnn_structure, lnn_structure"
+
+Settings = ControllerSettings  # the name this module gave them before systems declared them
+
+#: The metrics of ``score_control`` (``test/``-prefixed in a benchmark row) a benchmark summary's headline shows
+HEADLINE = (
+    "control/success_rate",
+    "oracle/success_rate",
+    "control/time_to_upright_s",
+    "oracle/time_to_upright_s",
+    "control/effort",
+    "oracle/effort",
+    "control/pred_rmse",
+    "control/b_rel_err",
 )
 
 
-@dataclass(frozen=True)
-class Settings:
-    """Gains, LQR weights, switching level, success tolerance and horizon of one system's controller.
-
-    ``tolerance`` holds the bound of each state entry (q then q̇) within which the state counts as upright.
-    """
-
-    gain_energy: float
-    q_weights: tuple[float, ...]
-    r_weight: float
-    switch: float
-    tolerance: tuple[float, ...]
-    duration: float
-    hold: float
-    cart_gains: tuple[float, float] = (0.0, 0.0)  # k_x, k_v of the cart-pole's pumping
-    start_range: tuple[float, ...] = ()  # half-widths of the uniform scored starts around upright at rest
-
-    def starts(self, n: int, seed: int) -> Tensor:
-        """``n`` scored starts (n, 2n_q), uniform in ±``start_range`` from ``seed`` (Santos et al. §7's
-        initial states: the system's default ``init_range``, whatever the training data drew)."""
-        unit = torch.rand(n, len(self.start_range), generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
-        return (2 * unit - 1) * torch.tensor(self.start_range, dtype=torch.float64)
-
-
-INPUT_UNIT: dict[type, str] = {ControlledPendulum: "N m", CartPole: "N"}  # u: the pivot's torque; the force on the cart
+def controller_settings(system: System) -> ControllerSettings:
+    """The controller settings ``system``'s class declares (``ControlledMechanical.controller``); refuses a
+    system without any, in one line."""
+    declared = getattr(system, "controller", None)
+    if not isinstance(system, ControlledMechanical) or declared is None:
+        raise ConfigError(
+            f"system={system.name} has no controller here (no control inputs, or its class declares no "
+            f"controller settings, ControlledMechanical.controller); allowed: a run on a system that declares "
+            f"them, e.g. pendulum_control or cartpole"
+        )
+    return declared
 
 
 def printed_rows(metrics: dict[str, float], system) -> list[tuple[str, list[str]]]:
     """The rows of ``encons.tools.control``'s table: each metric with its unit, ``success_rate`` in percent of the
     starts (``control_metrics.json`` keeps the fraction), ``effort`` in the input's unit squared times s."""
-    u = INPUT_UNIT[type(system)]
+    u = system.input_unit
     units = {
         "success_rate": "% of starts",
         "time_to_upright_s": "s",
@@ -115,31 +120,6 @@ def printed_rows(metrics: dict[str, float], system) -> list[tuple[str, list[str]
         cells = [metrics.get(f"{side}/{key}") for side in ("control", "oracle")]
         rows.append((f"{key} [{unit}]", ["" if v is None else f"{v * scale:.4g}" for v in cells]))
     return rows
-
-
-SETTINGS: dict[type, Settings] = {
-    ControlledPendulum: Settings(
-        gain_energy=2.0,
-        q_weights=(10.0, 1.0),
-        r_weight=1.0,
-        switch=20.0,
-        tolerance=(0.1, 0.5),
-        duration=10.0,
-        hold=2.0,
-        start_range=(math.pi, 2 * math.pi),
-    ),
-    CartPole: Settings(
-        gain_energy=300.0,
-        q_weights=(1.0, 10.0, 1.0, 1.0),
-        r_weight=1.0,
-        switch=300.0,
-        tolerance=(1.0, 0.1, math.inf, 0.5),
-        duration=10.0,
-        hold=2.0,
-        cart_gains=(1.0, 2.0),
-        start_range=(0.5, 3.14, 0.05, 3.0),
-    ),
-}
 
 
 @dataclass
@@ -175,47 +155,51 @@ def true_plant(system: ControlledMechanical) -> Plant:
     )
 
 
-def learned_plant(model: torch.nn.Module, system: System, name: str) -> Plant:
+def learned_plant(model: DynamicsModel, system: System, name: str) -> Plant:
     """The plant of a trained model: its learned M(q), V(q), input matrix (the system's B, or its learned
     g(q) at upright) and the forced Euler–Lagrange field of them (eq. (4); L-NODE's own field; for
     HNN-/LNN-structure the same dynamics as their (q, p) or (q, q̇) field with the force g(q) u);
     refuses a model or system that cannot give them, in one line."""
-    from encons.models.lnode import LNode, forced_euler_lagrange
-    from encons.models.structured import MassPotentialModel
-    from encons.models.symo import SyMo
+    from encons.models.lnode import forced_euler_lagrange
 
-    if not isinstance(system, ControlledMechanical) or type(system) not in SETTINGS:
-        raise ConfigError(
-            f"system={system.name} has no controller here (no control inputs, or no swing-up "
-            f"controller for it); allowed: a run on pendulum_control or cartpole"
-        )
-    if not (isinstance(model, (LNode, SyMo, MassPotentialModel)) and model.supports_controls):
-        missing = "energy (learned M(q) and V(q))" + ("" if model.supports_controls else " and takes no inputs")
+    controller_settings(system)
+    angles = tuple(cast(ControlledMechanical, system).angles)  # controller_settings refused any other system
+    if model.energy_structure() is None or not model.supports_controls:
+        missing = "energy (learned M(q) and V(q))" if model.energy_structure() is None else "energy"
+        missing += "" if model.supports_controls else " and takes no inputs"
         raise ConfigError(
             f"model._target_={name} gives no {missing}, which the energy-based controller "
-            f"needs; allowed: a run of {CONTROL_MODELS}"
+            f"needs; allowed: a run of {CONTROL_MODELS} or another model whose energy_structure() gives "
+            f"M(q), V(q) and that takes inputs (supports_controls)"
         )
     model = copy.deepcopy(model).double().eval().requires_grad_(False)
-    b = model.input_matrix
+    structure = model.energy_structure()
+    assert structure is not None  # checked above, on the same (deep-copied) model's class
+    mass, potential, b = structure.mass, structure.potential, structure.input_matrix
     if not callable(b):
         return Plant(
-            model.mass,
-            model.potential,
-            cast(Tensor, b),  # not callable, and the model takes inputs: its constant B
-            lambda s, u: forced_euler_lagrange(model.mass, model.potential, b, s, u),
-            tuple(system.angles),
+            mass,
+            potential,
+            cast(Tensor, b),  # not callable, and the model takes inputs (supports_controls): its constant B
+            lambda s, u: forced_euler_lagrange(mass, potential, b, s, u),
+            angles,
         )
+    learned_g = b  # callable: a learned g(q) (the closure below keeps the narrowed type)
     # a learned g(q): (M, V, g) and (M, V, g)/c move alike, so the energy's scale is free; c = ⟨g(0), B⟩/⟨B, B⟩
     # puts it in the system's units where the physics gives B (the energy pumping's gain assumes them)
-    upright, known = b(torch.zeros(len(system.angles), dtype=torch.float64)), system.input_matrix()
+    upright, known = learned_g(torch.zeros(len(angles), dtype=torch.float64)), system.input_matrix()
     c = float((upright * known).sum() / known.square().sum())
-    mass, potential = (lambda q: model.mass(q) / c), (lambda q: model.potential(q) / c)
+    scaled_mass, scaled_potential = (lambda q: mass(q) / c), (lambda q: potential(q) / c)
 
     def g(q: Tensor) -> Tensor:
-        return b(q) / c
+        return learned_g(q) / c
 
     return Plant(
-        mass, potential, upright / c, lambda s, u: forced_euler_lagrange(mass, potential, g, s, u), tuple(system.angles)
+        scaled_mass,
+        scaled_potential,
+        upright / c,
+        lambda s, u: forced_euler_lagrange(scaled_mass, scaled_potential, g, s, u),
+        angles,
     )
 
 
@@ -245,14 +229,14 @@ class SwingUp:
     inputs (N, m) with |u| ≤ u_max."""
 
     def __init__(self, plant: Plant, system: ControlledMechanical, h: float):
-        self.plant, self.u_max, self.settings = plant, system.u_max, SETTINGS[type(system)]
+        self.plant, self.u_max, self.settings = plant, system.u_max, controller_settings(system)
         a, b = linearise(plant, system.n_controls)
         self.linear = a, b  # at upright
         weights = torch.diag(torch.tensor(self.settings.q_weights, dtype=torch.float64))
         self.gain, self.cost = lqr(
             a, b, weights, torch.eye(system.n_controls, dtype=torch.float64) * self.settings.r_weight, h
         )
-        self.is_cart = isinstance(system, CartPole)
+        self.is_cart = self.settings.pumping == "cart"  # the law the system's controller declares
         self.target = plant.energy(torch.zeros(1, 2 * system.n, dtype=torch.float64))  # learned E at rest upright
 
     def pump(self, s: Tensor) -> Tensor:
@@ -312,10 +296,10 @@ def closed_loop(
 
 
 def score(
-    plant: Plant, states: Tensor, inputs: Tensor, settings: Settings, h: float
+    plant: Plant, states: Tensor, inputs: Tensor, settings: ControllerSettings, h: float
 ) -> tuple[dict[str, float], Tensor]:
     """Success rate, mean time to upright (successful starts; nan if none), mean effort ∫ u² dt and the
-    largest |u| of one closed-loop set (``Settings`` tolerance and hold), and each start's time to
+    largest |u| of one closed-loop set (the settings' tolerance and hold), and each start's time to
     upright (N,) (inf where it failed)."""
     tol = torch.tensor(settings.tolerance, dtype=torch.float64)
     inside = (plant.error(states).abs() <= tol).all(-1)  # (N, K + 1)
@@ -369,23 +353,23 @@ class Outcome:
 def compare(run, starts: int = 100, seed: int = 0, duration: float | None = None) -> Outcome:
     """The controller built from ``run``'s model and the one built from the true system (the oracle),
     both scored on the true system from the same ``starts`` seeded initial states over ``duration``
-    seconds (default: the system's ``Settings``)."""
+    seconds (default: the ``duration`` of the controller settings the system's class declares)."""
     if starts < 1:
         raise ConfigError(f"starts={starts}; allowed: >= 1")
     system, h = run.module.system, float(run.module.dt)
     plant = learned_plant(run.model, system, run.config.model._target_)
-    settings = SETTINGS[type(system)]
-    duration = settings.duration if duration is None else duration
-    if not duration >= settings.hold + h:
-        raise ConfigError(f"duration={duration}; allowed: >= {settings.hold + h} (the hold time plus one step)")
+    declared = controller_settings(system)
+    duration = declared.duration if duration is None else duration
+    if not duration >= declared.hold + h:
+        raise ConfigError(f"duration={duration}; allowed: >= {declared.hold + h} (the hold time plus one step)")
     steps = round(duration / h)
-    init = settings.starts(starts, seed)
+    init = declared.starts(starts, seed)
     oracle_plant = true_plant(system)
     controllers = SwingUp(plant, system, h), SwingUp(oracle_plant, system, h)
     learned = closed_loop(system, controllers[0], init, h, steps)
     oracle = closed_loop(system, controllers[1], init, h, steps)
-    learned_metrics, learned_up = score(oracle_plant, *learned, settings, h)
-    oracle_metrics, oracle_up = score(oracle_plant, *oracle, settings, h)
+    learned_metrics, learned_up = score(oracle_plant, *learned, declared, h)
+    oracle_metrics, oracle_up = score(oracle_plant, *oracle, declared, h)
     metrics = {f"control/{k}": v for k, v in learned_metrics.items()}
     metrics["control/pred_rmse"] = prediction_error(run, oracle_plant, *learned, h)
     for name, part, truth in zip(("a_rel_err", "b_rel_err"), controllers[0].linear, controllers[1].linear):
@@ -394,9 +378,9 @@ def compare(run, starts: int = 100, seed: int = 0, duration: float | None = None
     return Outcome(torch.arange(steps + 1) * h, learned, oracle, (learned_up, oracle_up), metrics)
 
 
-def settings_record(settings: Settings) -> dict:
-    """``settings`` as plain JSON values (an unbounded tolerance as null)."""
-    return {**asdict(settings), "tolerance": [None if math.isinf(v) else v for v in settings.tolerance]}
+def settings_record(declared: ControllerSettings) -> dict:
+    """``declared`` as plain JSON values (an unbounded tolerance as null)."""
+    return {**asdict(declared), "tolerance": [None if math.isinf(v) else v for v in declared.tolerance]}
 
 
 def score_control(
@@ -406,6 +390,7 @@ def score_control(
     true-model oracle on the true system; returns ``control/...`` and ``oracle/...`` metrics and writes
     them (``control_metrics.json``) and the figures to ``<run>/control``."""
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     from encons.evaluators import figures
@@ -424,7 +409,7 @@ def score_control(
             "seed": seed,
             "duration_s": float(outcome.t[-1]),
             "control_period_s": float(run.module.dt),
-            "settings": settings_record(SETTINGS[type(system)]),
+            "settings": settings_record(controller_settings(system)),
         },
     )
     oracle = true_plant(system)
@@ -454,7 +439,7 @@ def score_control(
     for column in ("metric", "from the learned model", "from the true model (oracle)"):
         table.add_column(column, justify="left" if column == "metric" else "right", no_wrap=column == "metric")
     for label, cells in printed_rows(outcome.metrics, system):
-        table.add_row(label, *cells)
+        table.add_row(escape(label), *cells)  # "[N m]" is a unit, not rich markup
     console = Console()
     console.print(table)
     console.print(

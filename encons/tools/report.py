@@ -26,6 +26,7 @@ import csv
 import json
 import math
 from collections import defaultdict
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
@@ -179,7 +180,11 @@ def write_csv(path: Path, rows: list[dict]) -> None:
         writer.writerows(rows)
 
 
-HEADLINE = (
+#: Where the headline metrics of encons' own evaluators, models and control tool stand in a summary's headline
+#: table (the order of every report written so far). Which metrics a run shows is declared by what scored it
+#: (``Evaluator.headline``, ``DynamicsModel.headline``, ``encons.tools.control.HEADLINE``) and recorded in its
+#: result row; a declared metric not placed here follows these, in the order declared (``headline``).
+ORDER = (
     "wall_time_s",
     "test/diverged",
     "test/traj_rel_err",
@@ -218,6 +223,14 @@ HEADLINE = (
 )
 
 
+def headline(rows: list[dict]) -> list[str]:
+    """The headline metrics of a summary of ``rows``: those each row records (``headline``: what its run's
+    evaluators, model and tools declare, ``encons.tools.benchmark.declared_headline``; a row written before
+    runs recorded them: ``ORDER``), those placed in ``ORDER`` at their place, the others after in first-seen order."""
+    declared = dict.fromkeys(k for row in rows for k in row.get("headline", ORDER))
+    return [m for m in ORDER if m in declared] + [m for m in declared if m not in ORDER]
+
+
 def mean_sd(mean: float, sd: float, runs: int) -> str:
     """A cell "mean ± sd", or the mean alone where it is one run's value (no spread to give) or the spread is
     below float64 rounding of the mean (identical runs: 8.5e-18 beside 0.1 is no spread)."""
@@ -226,17 +239,19 @@ def mean_sd(mean: float, sd: float, runs: int) -> str:
     return f"{mean:.3g} ± {sd:.2g}"
 
 
-def markdown(summary: list[dict], paper: dict[str, dict], source: str = "", headline: bool = False) -> str:
+def markdown(
+    summary: list[dict], paper: dict[str, dict], source: str = "", headline: Sequence[str] | bool = False
+) -> str:
     """A Markdown table: model × system rows, metrics as mean ± std, paper values beside (a published value
-    named as a metric right after that metric's column, the others at the end); every metric, or with
-    ``headline`` the ``HEADLINE`` ones the runs have."""
+    named as a metric right after that metric's column, the others at the end); every metric, or the
+    ``headline`` ones the runs have (``True``: those of ``ORDER``), in its order."""
     metrics = list(
         dict.fromkeys(
             k for e in summary for k in e if (k.startswith("test/") or k == "wall_time_s") and not k.endswith("_sd")
         )
     )
     if headline:
-        metrics = [m for m in HEADLINE if m in metrics]
+        metrics = [m for m in (ORDER if headline is True else headline) if m in metrics]
     paper_keys = list(dict.fromkeys(m for values in paper.values() for m in values))
     columns: list[tuple[str | None, str | None]] = []  # (metric, None) or (None, published key)
     for m in metrics:
@@ -292,7 +307,8 @@ def write_report(out: str | Path) -> list[Path]:
     source = ""
     if (out / "benchmark.yaml").is_file():
         source = cast("DictConfig", OmegaConf.load(out / "benchmark.yaml")).get("paper_source", "")  # a mapping
-    write_csv(out / "results.csv", [portable_row(r, out) for r in rows])
+    shown = headline(rows)
+    write_csv(out / "results.csv", [{k: v for k, v in portable_row(r, out).items() if k != "headline"} for r in rows])
     write_csv(
         out / "summary.csv",
         [{**e, **{f"paper {m}": v for m, v in paper.get(f"{e['system']}/{e['model']}", {}).items()}} for e in summary],
@@ -300,7 +316,7 @@ def write_report(out: str | Path) -> list[Path]:
     write_text(
         out / "summary.md",
         f"# {out.name}\n\n"
-        + markdown(summary, paper, source, headline=True)
+        + markdown(summary, paper, source, headline=shown)
         + "\n## Every metric\n\n"
         + markdown(summary, paper, source),
     )
@@ -316,7 +332,7 @@ def write_report(out: str | Path) -> list[Path]:
         files += figures.data_efficiency_figure(efficiency, out)
         files += figures.santos_figures(efficiency, out)
         files += figures.control_n_train_figure(efficiency, out)
-    Console(width=200).print(markdown(summary, paper, source, headline=True))
+    Console(width=200).print(markdown(summary, paper, source, headline=shown))
     return files
 
 
@@ -375,7 +391,7 @@ def sweep_markdown(keys: list[str], rows: list[dict]) -> str:
     first, second = (
         sorted({r[k] for r in rows}, key=lambda v: (isinstance(_number(v), str), _number(v))) for k in keys
     )
-    for metric in [m for m in HEADLINE if m in metrics and "baseline" not in m]:  # baselines: the same in every cell
+    for metric in [m for m in ORDER if m in metrics and "baseline" not in m]:  # baselines: the same in every cell
         text += f"\n{metric.removeprefix('test/')}: {keys[0]} (rows) × {keys[1]} (columns)\n\n"
         text += (
             "| " + " | ".join([f"{keys[0]} \\ {keys[1]}", *second]) + " |\n" + "|" + "---|" * (len(second) + 1) + "\n"

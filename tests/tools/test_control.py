@@ -32,9 +32,9 @@ def test_forced_euler_lagrange_of_the_true_mass_and_potential_is_the_true_field(
 
 def true_swing_up(system, h: float, starts: int):
     """The controller built from the true model on ``system``, run on it from ``starts`` seeded (0) starts
-    over its ``Settings`` duration at control period ``h``: plant, settings, closed-loop states and inputs,
+    over its declared ``controller`` duration at control period ``h``: plant, settings, closed-loop states and inputs,
     metrics and each start's time to upright (``control.score``)."""
-    settings = control.SETTINGS[type(system)]
+    settings = system.controller
     plant = control.true_plant(system)
     init = system.sample_initial(starts, torch.Generator().manual_seed(0))
     states, inputs = control.closed_loop(
@@ -68,8 +68,8 @@ def test_cartpole_lqr_from_the_linearised_true_model_matches_the_closed_form_ric
     np.testing.assert_allclose(lin_a.numpy(), a, atol=1e-12)
     np.testing.assert_allclose(lin_b.numpy(), b, atol=1e-12)
 
-    weights = np.diag(control.SETTINGS[CartPole].q_weights)
-    r = np.eye(1) * control.SETTINGS[CartPole].r_weight
+    weights = np.diag(CartPole.controller.q_weights)
+    r = np.eye(1) * CartPole.controller.r_weight
     ad, bd, *_ = scipy.signal.cont2discrete((a, b, np.eye(4), np.zeros((4, 1))), h, method="zoh")
     p = scipy.linalg.solve_discrete_are(ad, bd, weights, r)
     reference = np.linalg.solve(r + bd.T @ p @ bd, bd.T @ p @ ad)
@@ -100,8 +100,8 @@ def test_a_run_on_a_system_without_inputs_is_refused_in_one_line():
     system = NPendulum(1)
     with pytest.raises(
         ConfigError,
-        match=r"^system=pendulum1 has no controller here .*; allowed: a run on "
-        r"pendulum_control or cartpole$",
+        match=r"^system=pendulum1 has no controller here .*; allowed: a run on a system that declares "
+        r"them, e.g. pendulum_control or cartpole$",
     ):
         control.learned_plant(HNNStructure(system), system, "encons.models.hnn.HNNStructure")
 
