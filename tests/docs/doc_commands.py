@@ -54,6 +54,7 @@ DOC_ONLY = {
     "make install": "builds a fresh .venv (minutes, network or a local torch wheel); CI runs it in .ci/run",
     "source .venv/bin/activate": "shell set-up, no effect to test",
     "make test-fast": "the test suite itself",
+    "make lint": "CI runs it (.ci/run) before the tests",
     "python -m encons.train model=hnn_angle system=pendulum2": "full-size training (minutes); the same command at debug size is the README's first run",
     "python -m encons.train model=chnn system=gyroscope": "full-size training (minutes); chnn on the gyroscope at debug size runs in tests/training/test_train_e2e.py",
     "python -m encons.train system=from_file system.path=/data/mine.npz model=node": "a placeholder path; from_file training runs in tests/data/test_datamodule.py",
