@@ -48,12 +48,14 @@ def builds(cfg) -> str | None:
     """None when the run's model can serve its system, else the one-line reason."""
     from hydra.utils import execution_whitelist
 
+    from encons.config.check import validate
     from encons.config.trust import trusted_targets
     from encons.training.build import build_model, build_system
 
     try:
         with execution_whitelist(trusted_targets()):
-            build_model(cfg, build_system(cfg))
+            checked = validate(cfg)
+            build_model(checked, build_system(checked))
     except ConfigError as err:
         return str(err)
     return None
