@@ -10,6 +10,7 @@ import torch
 
 from encons.evaluators.figures import (
     ENERGY_ERR,
+    ENERGY_MSE,
     PIXEL_MSE,
     REL_ERR,
     STATE_MSE,
@@ -95,7 +96,7 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
         ("rel_err", REL_ERR, "rel_err_vs_time.png"),
         ("energy_err", ENERGY_ERR, "energy_err_vs_time.png"),
         ("state_mse_model", STATE_MSE, "state_mse_vs_time.png"),
-        ("energy_mse_model", "energy_mse_vs_time.png"),
+        ("energy_mse_model", ENERGY_MSE, "energy_mse_vs_time.png"),
         ("pixel_mse", PIXEL_MSE, "pixel_mse_vs_time.png"),
     ):
         if not any(key in _curve_keys(row) for row in rows):
