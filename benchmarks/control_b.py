@@ -51,7 +51,7 @@ def main() -> None:
                 output_dir=Path(tmp) / "run",
                 cache_dir=Path(tmp) / "cache",
             )
-            from encons.training.build import build
+            from encons.entry.api import build
 
             _, module = build(cfg)
             init_model, system = copy.deepcopy(module.model), module.system

@@ -23,8 +23,8 @@ from pathlib import Path
 import torch
 
 from encons.entry import api
+from encons.entry.api import build
 from encons.tools import control
-from encons.training.build import build
 
 
 def errors(model, system) -> dict[str, float]:

@@ -31,9 +31,9 @@ from pathlib import Path
 import torch
 
 from encons.entry import api
+from encons.entry.api import build
 from encons.infra import threads
 from encons.training import ensemble, stacked
-from encons.training.build import build
 
 SMALL_DATA = ["data.n_val=2", "data.n_test=2", "logger=none"]
 #: The papers' cells (conf/profile), one family each where it is used: the profile's protocol for that model.

@@ -15,6 +15,7 @@ import time
 
 import torch
 
+from encons.config.check import validate
 from encons.data.simulate import sample_trajectories
 from encons.entry import api
 from encons.infra import threads
@@ -39,7 +40,7 @@ def main(argv: list[str] | None = None) -> None:
     threads.apply(args.threads)
     for name in args.systems.split(","):
         cfg = api.compose(f"system={name}", output_dir=".")
-        system = build_system(cfg)
+        system = build_system(validate(cfg))
         steps = (cfg.data.test_steps or cfg.data.n_steps) if args.long else cfg.data.n_steps
         t = torch.arange(steps + 1, dtype=torch.float64) * cfg.data.dt
         true, u, _ = sample_trajectories(system, args.n, t, torch.Generator().manual_seed(123), cfg.data.substeps)

@@ -40,6 +40,7 @@ from typing import Callable
 import torch
 from torch import Tensor
 
+from encons.config.check import validate
 from encons.data.simulate import sample_trajectories, simulate
 from encons.entry.api import catalogue, compose
 from encons.infra import threads
@@ -294,7 +295,7 @@ def main() -> None:
     total = len(args.systems) * len(args.models)
     for i_system, system_name in enumerate(args.systems):
         cfg = compose_cfg(system_name, "node", args.hidden, args.depth)
-        system, dt = build_system(cfg), float(cfg.data.dt)
+        system, dt = build_system(validate(cfg)), float(cfg.data.dt)
         wall, cpu = time_generation(system, dt)
         add(system=system_name, model="dataset generation (1000 × 100 steps)", wall_ms=wall, cpu_ms=cpu)
         print(f"{system_name}: dataset generation {wall:.0f} ms", flush=True)
@@ -325,7 +326,7 @@ def main() -> None:
         for i_model, model_name in enumerate(args.models):
             progress = f"[{i_system * len(args.models) + i_model + 1}/{total}] {system_name}: {model_name}"
             try:
-                model = build_model(compose_cfg(system_name, model_name, args.hidden, args.depth), system)
+                model = build_model(validate(compose_cfg(system_name, model_name, args.hidden, args.depth)), system)
             except ConfigError as err:
                 print(f"{progress}: skipped ({err})", flush=True)
                 continue

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 import encons
-from encons.config.check import Request
+from encons.config.check import Request, validate
 from encons.infra.errors import ConfigError
 from encons.training.build import build_model, build_system, compose
 
@@ -165,8 +165,9 @@ def test_checking_one_config_after_composing_another_gives_its_own_error(tmp_pat
     node = compose(["model=node", "system=pendulum_control", "integrator=euler"], tmp_path / "b")
     plain = compose(["model=symo", "system=pendulum_control"], tmp_path / "c")
     with pytest.raises(ConfigError, match=r"^integrator=euler does not apply to model=symo: a discrete model"):
-        build_model(symo, build_system(symo), request=Request.of(symo))
-    build_model(plain, build_system(plain), request=Request.of(plain))  # no integrator override: fine
+        validate(symo, Request.of(symo))
+    checked = validate(plain, Request.of(plain))  # no integrator override: fine
+    build_model(checked, build_system(checked))
     assert node.name == "pendulum_control-node" and symo.name == "pendulum_control-symo"
 
 

@@ -10,6 +10,7 @@ applied when it is composed, :func:`apply_presets`) nor creates folders (the run
 from __future__ import annotations
 
 import inspect
+import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -116,9 +117,14 @@ def validate(cfg: DictConfig, request: Request | None = None) -> Checked:
     )  # "???" before what refers to it
     if missing:
         raise ConfigError(f"{missing[0]} has no value; allowed: give it one ({missing[0]}=...)")
+    if cfg.get("seeds") is not None:
+        check_seeds(cfg.seeds)
+        check_ensemble(cfg, request)
     resolved = run_config(cfg)
     trusted = trust.trusted_targets()
-    targets = trust.check_targets(cast(dict, OmegaConf.to_container(resolved)), trusted)  # a DictConfig's: a dict
+    targets = trust.check_targets(
+        cast(dict, OmegaConf.to_container(resolved)), trusted, _preset_lookups(cfg)
+    )  # a DictConfig's container: a dict
     check_node(cfg, "")
     check_node(cfg, "data", TrajectoryDataModule)
     keys = [k for k in NODES if cfg.get(k)]
@@ -138,7 +144,57 @@ def validate(cfg: DictConfig, request: Request | None = None) -> Checked:
     if isinstance(observation, DictConfig) and "_target_" in observation:
         check_observation(targets[observation._target_], objective)
     check_model(cfg, model, objective, request)
+    if cfg.get("seeds") is not None and cfg.get("plain_solve") and has_guard(model):
+        raise ConfigError(
+            "plain_solve=true retrains a run from scratch when the plain inverse diverges, which "
+            "one member of an ensemble cannot do alone; allowed: plain_solve=false with seeds"
+        )
     return Checked(_frozen(cfg), resolved, request, trusted, targets, model, objective)
+
+
+def check_seeds(seeds: Any) -> list[int]:
+    """The ``seeds`` list (a seed ensemble's, a benchmark's), refused in one line unless it is a non-empty
+    list of distinct integer seeds."""
+    values = list(seeds) if isinstance(seeds, (list, tuple)) or OmegaConf.is_list(seeds) else None
+    if (
+        not values
+        or not all(isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**32 for s in values)
+        or len(set(values)) != len(values)
+    ):
+        raise ConfigError(
+            f"seeds={seeds}; allowed: a non-empty list of distinct integer seeds in 0..2**32-1, e.g. seeds=[0,1,2]"
+        )
+    return values
+
+
+def check_ensemble(cfg: DictConfig, request: Request) -> None:
+    """Refuse, in one line each, what a seed ensemble (``seeds``, ``encons.training.ensemble``) cannot be:
+    data that differ per seed, DDP, an explicit ``seed`` beside ``seeds`` (and, once the model is known,
+    the plain-inverse retry: :func:`validate`)."""
+    if "seed" in request.overridden():
+        raise ConfigError(
+            f"seed={cfg.seed} beside seeds={list(cfg.seeds)}: the members' seeds are the list; "
+            f"allowed: one of seed=K or seeds=[...]"
+        )
+    devices, strategy = cfg.trainer.get("devices", 1), str(cfg.trainer.get("strategy", "auto"))
+    if (isinstance(devices, int) and devices > 1) or devices in ("auto", -1) or "ddp" in strategy:
+        raise ConfigError(
+            f"trainer.devices={devices} trainer.strategy={strategy} with seeds: an ensemble trains "
+            f"its members in one process on one device; allowed: trainer.devices=1 (no DDP) with seeds"
+        )
+    if "${seed" in str(OmegaConf.to_yaml(OmegaConf.masked_copy(cfg, ["data"]), resolve=False)):
+        raise ConfigError(
+            "data.seed follows seed, so each member would train on other data; allowed: a fixed "
+            "data.seed with seeds (the members share their batches)"
+        )
+
+
+def has_guard(cls: type) -> bool:
+    """Whether model class ``cls`` solves for q̈ by ``guarded_solve``: its constructor takes ``guard: Guard``
+    (the plain-inverse retry of ``plain_solve``, ``encons.training.attempts``)."""
+    from encons.models.lnn import Guard
+
+    return bounds.hints(cls).get("guard") == Guard
 
 
 def check_ckpt_path(cfg: DictConfig, request: Request) -> None:
@@ -212,6 +268,8 @@ def check_node(cfg: DictConfig, key: str, target: Any = None, targets: Mapping[s
     else:
         values = {k: node.get(k) for k in declared if k in node}
     bounds.check({k: v for k, v in values.items() if not k.startswith("_")}, declared, key)
+    if key and target is not None:
+        bounds.check_rules(target, {k: v for k, v in values.items() if not k.startswith("_")}, key)
 
 
 def apply_presets(cfg: DictConfig, request: Request) -> None:
@@ -236,6 +294,23 @@ def apply_presets(cfg: DictConfig, request: Request) -> None:
         if name not in params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
             with open_dict(node):
                 del node[name]
+    _hand_over(cfg, {str(OmegaConf.select(cfg, f"{k}._target_")): t for k, t in located.items() if t is not None})
+
+
+#: What :func:`apply_presets` looked up, by the config object it ran on (its id, while that object lives):
+#: :func:`validate` of the same config starts from it, so that a composed run looks each target up once
+#: from compose to build. Only a target string's object is kept: a key changed since names another string.
+_PRESET_LOOKUPS: dict[int, tuple[weakref.ref, dict[str, Any]]] = {}
+
+
+def _hand_over(cfg: DictConfig, located: dict[str, Any]) -> None:
+    key = id(cfg)
+    _PRESET_LOOKUPS[key] = (weakref.ref(cfg, lambda _: _PRESET_LOOKUPS.pop(key, None)), located)
+
+
+def _preset_lookups(cfg: DictConfig) -> dict[str, Any]:
+    ref, located = _PRESET_LOOKUPS.get(id(cfg), (None, {}))
+    return dict(located) if ref is not None and ref() is cfg else {}
 
 
 def objective_of(cfg: DictConfig) -> str:

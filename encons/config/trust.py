@@ -90,15 +90,18 @@ def targets(node: Any, key: str = "") -> Iterator[tuple[str, str]]:
             yield from targets(v, f"{key}[{i}]")
 
 
-def check_targets(cfg: Mapping, trusted: tuple[str, ...] | None = None) -> dict[str, Any]:
+def check_targets(
+    cfg: Mapping, trusted: tuple[str, ...] | None = None, located: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
     """Refuse every ``_target_`` of a plain config that is untrusted, an alias or not importable,
     naming its key; every string is checked before any import. Returns each target string's object,
-    each looked up once."""
+    each looked up once: ``located`` holds the objects of strings looked up before (by :func:`locate`;
+    they are still checked against ``trusted``)."""
     trusted = trusted_targets() if trusted is None else trusted
     found = list(targets(cfg))
     for key, target in found:
         _refuse_untrusted(target, key, trusted)
-    located: dict[str, Any] = {}
+    located = {t: obj for t, obj in (located or {}).items() if obj is not None and any(t == f for _, f in found)}
     for key, target in found:
         if target in located:
             continue

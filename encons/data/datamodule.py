@@ -23,6 +23,7 @@ that may be one step, so budget such runs with ``trainer.max_steps`` or use ``"a
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -92,10 +93,39 @@ def _identity(batch: Any) -> Any:  # Windows.__getitems__ makes the batch (dict[
     return batch
 
 
+def _known_windows(values: Mapping[str, Any], key: str) -> None:
+    if values["windows"] not in WINDOWS:
+        raise ConfigError(f"{key}.windows={values['windows']!r}; allowed: {', '.join(WINDOWS)}")
+
+
+def _test_steps_cover_n_steps(values: Mapping[str, Any], key: str) -> None:
+    test_steps, n_steps = values["test_steps"], values["n_steps"]
+    if test_steps is not None and test_steps < n_steps:
+        raise ConfigError(
+            f"{key}.test_steps={test_steps} is shorter than {key}.n_steps={n_steps}; allowed: "
+            f"null (= n_steps) or an integer >= {n_steps}"
+        )
+
+
+def _chunk_len_fits(values: Mapping[str, Any], key: str) -> None:
+    n_steps = values["n_steps"]
+    chunk_len = n_steps + 1 if values["chunk_len"] is None else values["chunk_len"]  # null: a whole trajectory
+    if not 2 <= chunk_len <= n_steps + 1:
+        raise ConfigError(f"{key}.chunk_len={chunk_len}; allowed: [2, n_steps + 1 = {n_steps + 1}]")
+
+
+def _recording_options(values: Mapping[str, Any], key: str) -> None:
+    """A recording's options (``encons.data.recording.checked_options``), before any data: one line, e.g.
+    resample=maybe."""
+    if values["path"] is not None:
+        checked_options(dict(values["recording"] or {}), values["test_steps"] or values["n_steps"])
+
+
 class TrajectoryDataModule(pl.LightningDataModule, Declared):
     """Trajectories of ``system`` served in ``chart``; simulated and cached, or read from ``path``."""
 
     config_key = "data"
+    rules = (_known_windows, _test_steps_cover_n_steps, _chunk_len_fits, _recording_options)
 
     def __init__(
         self,
@@ -120,17 +150,8 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
         recording: dict | None = None,
         windows: str = "random",
     ):
-        super().__init__()
-        if windows not in WINDOWS:
-            raise ConfigError(f"data.windows={windows!r}; allowed: {', '.join(WINDOWS)}")
-        if test_steps is not None and test_steps < n_steps:
-            raise ConfigError(
-                f"data.test_steps={test_steps} is shorter than data.n_steps={n_steps}; allowed: "
-                f"null (= n_steps) or an integer >= {n_steps}"
-            )
+        super().__init__()  # the values were checked against the ranges and ``rules`` (encons.infra.bounds.Declared)
         chunk_len = n_steps + 1 if chunk_len is None else chunk_len  # null: a window is a whole trajectory
-        if not 2 <= chunk_len <= n_steps + 1:
-            raise ConfigError(f"data.chunk_len={chunk_len}; allowed: [2, n_steps + 1 = {n_steps + 1}]")
         system.check_chart(chart)
         self.system, self.chart, self.path = system, chart, path
         self.sizes = {"train": n_train, "val": n_val, "test": n_test}
@@ -140,8 +161,6 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
         self.val_batch_size = val_batch_size  # None: every validation window in one batch
         self.windows = windows
         self.objective, self.recording = objective, dict(recording or {})
-        if path is not None:
-            checked_options(self.recording, self.test_steps)  # before any training: one line, e.g. resample=maybe
         gen_config = dict(
             system=system_config or {"name": system.name},
             sizes=self.sizes,
@@ -198,7 +217,7 @@ class TrajectoryDataModule(pl.LightningDataModule, Declared):
         try:
             if self.path is not None and is_recording(source):
                 t, splits, chart, inputs = load_recording(
-                    source, self.n_steps, self.test_steps, self.recording, self.system.n_controls
+                    source, self.n_steps, self.test_steps, self.recording, self.system.n_controls, checked=True
                 )
             else:
                 t, splits, chart = store.load(source)

@@ -356,13 +356,19 @@ def checked_options(options: dict | None, test_steps: int = 1) -> dict:
 
 
 def load_recording(
-    path: str | Path, n_steps: int, test_steps: int, options: dict | None = None, n_controls: int = 0
+    path: str | Path,
+    n_steps: int,
+    test_steps: int,
+    options: dict | None = None,
+    n_controls: int = 0,
+    checked: bool = False,
 ) -> tuple[Tensor, dict[str, Tensor], str | None, dict[str, Tensor]]:
-    """Cut a recording as the module docstring says, with ``options`` (keys and defaults: ``OPTIONS``);
+    """Cut a recording as the module docstring says, with ``options`` (keys and defaults: ``OPTIONS``;
+    checked by :func:`checked_options` unless ``checked``: the data module's rules did it);
     returns the times of a training trajectory (n_steps + 1,), the splits {train, val, test}
     (N, L, 2n), the chart and the inputs per split (N, L, m) (empty when ``n_controls`` is 0)."""
     path = Path(path)
-    opts = checked_options(options, test_steps)
+    opts = {**OPTIONS, **(options or {})} if checked else checked_options(options, test_steps)
     test_fraction, val_fraction, gap, jitter = (opts[k] for k in ("test_fraction", "val_fraction", "gap", "jitter"))
     stride = opts["test_stride"] if opts["test_stride"] is not None else test_steps
     t, states, chart, u, trial = _read(path, opts["columns"], opts["delimiter"], opts["comment"])

@@ -13,17 +13,23 @@ torch are imported on first use, not at import.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from omegaconf import DictConfig
 
-from encons.config.check import validate
+from encons.config.check import Checked, Request, validate
+from encons.training import build as _builders
 from encons.training import runs
-from encons.training.build import build, build_trainer, catalogue
+from encons.training.build import catalogue
 from encons.training.build import compose as _compose
 from encons.training.results import Ensemble, Run
 from encons.training.runs import evaluate, load
+
+if TYPE_CHECKING:
+    from encons.data.datamodule import TrajectoryDataModule
+    from encons.training.module import TrainingModule
 
 __all__ = [
     "Run",
@@ -46,6 +52,21 @@ def __getattr__(name: str):  # ``rollout`` re-exported without importing torch a
 
         return rollout
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def build(
+    cfg: DictConfig | Checked, request: Request | None = None, recorded: Mapping[str, float] | None = None
+) -> tuple[TrajectoryDataModule, TrainingModule]:
+    """The data module and LightningModule of a config (``encons.training.build.build``), without training: a
+    ``Checked`` one as it is, a plain one validated first (``validate``, with ``request``: default the one its
+    ``hydra`` node carries)."""
+    return _builders.build(cfg if isinstance(cfg, Checked) else validate(cfg, request), recorded)
+
+
+def build_trainer(cfg: DictConfig | Checked, request: Request | None = None) -> tuple[Any, list]:
+    """The Lightning Trainer and loggers of a config (``encons.training.build.build_trainer``): a ``Checked``
+    one as it is, a plain one validated first."""
+    return _builders.build_trainer(cfg if isinstance(cfg, Checked) else validate(cfg, request))
 
 
 def train(cfg: DictConfig | str | Sequence[str], summary: bool = True) -> Run | Ensemble:

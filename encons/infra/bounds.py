@@ -141,9 +141,14 @@ def check(values: Mapping[str, Any], declared: Mapping[str, Any], key: str, type
 
 class Declared:
     """Base of a class built from config node ``config_key``: its constructor's arguments are checked
-    against its annotations' ranges (:func:`check`, types left to the config) however it is constructed."""
+    against its annotations' ranges (:func:`check`, types left to the config) and its ``rules``
+    (:func:`check_rules`) however it is constructed."""
 
     config_key: ClassVar[str]
+    #: Checks between the values of the node that a range cannot say (``chunk_len <= n_steps + 1``): each
+    #: ``rule(values, key)`` raises one ``ConfigError`` line; ``values`` hold the constructor's defaults
+    #: for what the node leaves out. Run where the node is checked (``encons.config.check``) and on construction.
+    rules: ClassVar[tuple[Callable[[Mapping[str, Any], str], None], ...]] = ()
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -155,10 +160,24 @@ class Declared:
         def checked(self, *args: Any, **kw: Any) -> None:
             bound = inspect.signature(init).bind(self, *args, **kw)
             check({k: v for k, v in bound.arguments.items() if k != "self"}, hints(cls), cls.config_key, types=False)
+            check_rules(cls, {k: v for k, v in bound.arguments.items() if k != "self"}, cls.config_key)
             init(self, *args, **kw)
 
         setattr(checked, "_checked", True)  # a mark on the function, read above by a subclass's subclass
         setattr(cls, "__init__", checked)  # the class's own constructor, replaced by its checked wrapper
+
+
+def check_rules(target: Any, values: Mapping[str, Any], key: str) -> None:
+    """Run the ``rules`` a :class:`Declared` ``target`` declares on the values of its node ``key`` (the
+    constructor's defaults filled in for keys the node leaves out); nothing for any other target."""
+    rules = getattr(target, "rules", ()) if inspect.isclass(target) and issubclass(target, Declared) else ()
+    if not rules:
+        return
+    params = inspect.signature(target.__init__).parameters.values()
+    full = {p.name: p.default for p in params if p.default is not inspect.Parameter.empty}
+    full.update(values)
+    for rule in rules:
+        rule(full, key)
 
 
 def _boolean(hint: Any) -> bool:

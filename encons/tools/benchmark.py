@@ -190,14 +190,11 @@ def family_overrides(model: str, per_family: dict, searched: Sequence[str] = ())
 
 
 def check_keys(c: dict) -> None:
-    """Refuse seeds, threads and an output folder that cannot work, naming the key and what is allowed."""
-    seeds = c["seeds"]
-    if (
-        not isinstance(seeds, list)
-        or not seeds
-        or not all(isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**32 for s in seeds)
-    ):
-        raise ConfigError(f"seeds={seeds}; allowed: a non-empty list of integer seeds in 0..2**32-1, e.g. seeds=[0,1]")
+    """Refuse seeds (the check of a seed ensemble's: a cell's seeds train as one), threads and an output folder
+    that cannot work, naming the key and what is allowed."""
+    from encons.config.check import check_seeds
+
+    check_seeds(c["seeds"])
     threads.choose(c.get("threads"))  # the thread policy refuses what it does not take, in its own words
     blocking = next((p for p in (Path(c["out"]), *Path(c["out"]).parents) if p.exists() and not p.is_dir()), None)
     if blocking is not None:

@@ -23,7 +23,8 @@ from typing import TYPE_CHECKING
 from omegaconf import DictConfig
 
 from encons.config import trust
-from encons.infra import bounds, checkpoints
+from encons.config.check import has_guard
+from encons.infra import checkpoints
 from encons.infra.bounds import declare
 from encons.infra.errors import ConfigError
 
@@ -55,21 +56,16 @@ class Attempt:
         )
 
 
-def has_guard(cls: type) -> bool:
-    """Whether model class ``cls`` solves for q̈ by ``guarded_solve``: its constructor takes ``guard: Guard``."""
-    from encons.models.lnn import Guard
-
-    return bounds.hints(cls).get("guard") == Guard
-
-
 @declare("", plain_solve=bool)
 def plan(cfg: DictConfig, request: Request, model: type | None = None) -> list[Attempt]:
     """The attempts of a checked config (its model target trusted; ``model``: its class, if looked up
     already), in order: the plain inverse, then the guarded solve from scratch (no ``ckpt_path``); or one:
     a model without a guard, no ``plain_solve``, ``model.guard=0``, or a resume (``ckpt_path``) of a
     checkpoint trained with the guarded solve."""
+    if not cfg.get("plain_solve"):
+        return [Attempt(cfg, request)]
     model = trust.locate(cfg.model._target_, "model") if model is None else model
-    if not cfg.get("plain_solve") or not has_guard(model):
+    if not has_guard(model):
         return [Attempt(cfg, request)]
     if cfg.model.guard == 0:
         return [Attempt(cfg, request, plain=True)]

@@ -2,11 +2,11 @@
 
 :func:`compose` is the one composition of ``conf/train.yaml`` and ``conf/benchmark.yaml`` (presets
 applied there); ``encons.config.check.validate`` checks a composed config once and returns its
-``Checked`` value; :func:`build` instantiates one, without checking again, system → observation →
-model → data → LightningModule; :func:`build_trainer` the Trainer with its loggers and callbacks.
-Both take a plain config too and validate it first. What the user asked for (group choices,
-command-line overrides) travels in an ``encons.config.check.Request``, never read from Hydra's
-process-global state here.
+``Checked`` value; :func:`build` instantiates one, without checking or looking a target up again, system →
+observation → model → data → LightningModule; :func:`build_trainer` the Trainer with its loggers and
+callbacks. Every builder takes the ``Checked`` value only (``encons.build`` of the API validates a plain
+config first). What the user asked for (group choices, command-line overrides) travels in the
+``encons.config.check.Request`` it carries, never read from Hydra's process-global state here.
 """
 
 from __future__ import annotations
@@ -19,12 +19,10 @@ from typing import TYPE_CHECKING, Annotated, Any, cast
 from hydra.errors import InstantiationException
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from encons.config import trust
 from encons.config.check import (
     Checked,
     Request,
     apply_presets,
-    check_node,
     run_config,  # noqa: F401 - where scripts have imported it from
     validate,
 )
@@ -110,27 +108,29 @@ def catalogue(group: str) -> list[str]:
     return sorted(p.stem for p in folder.glob("*.yaml") if not p.name.startswith("_"))
 
 
-def _plain(cfg: DictConfig | Checked, request: Request) -> tuple[DictConfig, Request]:
-    """The config and request of a checked value (its own request), or of a plain config and ``request``."""
-    return (cfg.cfg, cfg.request) if isinstance(cfg, Checked) else (cfg, request)
+def _checked(value: Any, builder: str) -> Checked:
+    """``value`` if it passed ``encons.config.check.validate``; a plain config is a caller's mistake."""
+    if not isinstance(value, Checked):
+        raise TypeError(
+            f"{builder} takes a Checked config (encons.config.check.validate(cfg)), not {type(value).__name__}; "
+            f"encons.build and encons.build_trainer validate a plain one first"
+        )
+    return value
 
 
-def instantiate_node(cfg: DictConfig | Checked, key: str, request: Request = Request(), **kwargs: Any) -> Any:
-    """``instantiate(cfg[key])``, its values type-checked against the target's constructor unless ``cfg``
-    is ``Checked`` (``encons.config.check.validate`` did it), and any error the constructor raises turned into
-    one ``ConfigError`` line naming the node (the keys the message names, else those the request
-    overrides, else all).
+def instantiate_node(checked: Checked, key: str, **kwargs: Any) -> Any:
+    """``instantiate(cfg[key])`` of a checked config (``encons.config.check.validate`` checked its values), any
+    error the constructor raises turned into one ``ConfigError`` line naming the node (the keys the message
+    names, else those the request overrides, else all).
 
     Hydra 1.4 re-raises the target's own exception (adding a ``full_key`` note) rather than an
     ``InstantiationException``, so both are caught here, at the one place configs become objects.
     """
     from hydra.utils import instantiate
 
-    trusted = cfg.trusted if isinstance(cfg, Checked) else trust.trusted_targets()
-    if not isinstance(cfg, Checked):
-        check_node(cfg, key)
-    cfg, request = _plain(cfg, request)
-    node = OmegaConf.select(cfg, key)
+    checked = _checked(checked, "instantiate_node")
+    trusted, request = checked.trusted, checked.request
+    node = OmegaConf.select(checked.cfg, key)
     values = cast("dict[str, Any]", OmegaConf.to_container(node, resolve=True))  # a DictConfig's: a dict
     try:
         return instantiate(node, _execution_whitelist_=list(trusted), **kwargs)  # Hydra refuses the rest
@@ -154,56 +154,49 @@ def instantiate_node(cfg: DictConfig | Checked, key: str, request: Request = Req
         ) from None
 
 
-def build_system(cfg: DictConfig | Checked, request: Request = Request()) -> System:
+def build_system(checked: Checked) -> System:
     """The system of ``cfg.system``."""
-    return instantiate_node(cfg, "system", request)
+    return instantiate_node(_checked(checked, "build_system"), "system")
 
 
-def build_observation(cfg: DictConfig | Checked, system: System, request: Request = Request()) -> Observation:
+def build_observation(checked: Checked, system: System) -> Observation:
     """The observation model of ``cfg.observation``: the identity for ``observation=none``, whose node has
     no ``_target_`` (keys a pixel system sets for its autoencoder, e.g. ``latent``, then do not apply)."""
     from encons.models.observation import Observation
 
-    node = _plain(cfg, request)[0].get("observation")
+    node = _checked(checked, "build_observation").cfg.get("observation")
     if not node or "_target_" not in node:
         return Observation()
-    return instantiate_node(cfg, "observation", request, system=system)
+    return instantiate_node(checked, "observation", system=system)
 
 
-def build_model(
-    cfg: DictConfig | Checked, system: System, observation: Observation | None = None, request: Request = Request()
-) -> DynamicsModel:
+def build_model(checked: Checked, system: System, observation: Observation | None = None) -> DynamicsModel:
     """Instantiate ``cfg.model`` for ``system`` seen through ``observation`` (default: built from
-    ``cfg.observation``) after checking that the (latent) system offers what it needs (all of the
-    model's capabilities for a plain config; for a ``Checked`` one, what only the system can say)."""
-    from encons.config.check import check_capabilities, check_fit, check_observation, objective_of
+    ``cfg.observation``) after checking what only the built system can say: that it offers what the
+    model needs (``encons.config.check.check_fit``; the model's other capabilities were checked by
+    ``validate``)."""
+    from encons.config.check import check_fit
 
-    observation = observation if observation is not None else build_observation(cfg, system, request)
+    checked = _checked(checked, "build_model")
+    observation = observation if observation is not None else build_observation(checked, system)
     system = observation.latent_system(system)
-    if isinstance(cfg, Checked):
-        check_fit(cfg.cfg, cfg.model, system, cfg.request)
-    else:
-        check_observation(type(observation), objective_of(cfg))
-        check_capabilities(cfg, trust.locate(cfg.model._target_, "model"), system, request)
-    model = instantiate_node(cfg, "model", request, system=system)
-    if _plain(cfg, request)[0].get("compile"):
+    check_fit(checked.cfg, checked.model, system, checked.request)
+    model = instantiate_node(checked, "model", system=system)
+    if checked.cfg.get("compile"):
         model.compile()  # torch.compile of the module's call, i.e. the field, in place (nn.Module.compile)
     return model
 
 
 @declare("", seed=Seed, horizon=Count, compile=bool, test=bool)  # ``test``: read by encons.training.runs.train
-def build(
-    cfg: DictConfig | Checked, request: Request | None = None, recorded: Mapping[str, float] | None = None
-) -> tuple[TrajectoryDataModule, TrainingModule]:
-    """System → data → model → LightningModule from a checked config (``encons.config.check.validate``; a plain
-    one is validated first, with ``request``, default the one its ``hydra`` node carries), seeded by
-    ``cfg.seed``, its folders made. ``recorded``: facts of the run the test reports beside its scores
-    (``encons.training.attempts.record``), passed down by the run."""
+def build(checked: Checked, recorded: Mapping[str, float] | None = None) -> tuple[TrajectoryDataModule, TrainingModule]:
+    """System → data → model → LightningModule from a checked config (``encons.config.check.validate``),
+    seeded by ``cfg.seed``, its folders made. ``recorded``: facts of the run the test reports beside its
+    scores (``encons.training.attempts.record``), passed down by the run."""
     import lightning.pytorch as pl
 
     from encons.infra import threads
 
-    checked = cfg if isinstance(cfg, Checked) else validate(cfg, request)
+    checked = _checked(checked, "build")
     make_folders(checked.cfg)
     _route_lightning_logs()
     threads.apply(checked.cfg.get("threads"))  # before the data are simulated
@@ -302,42 +295,46 @@ def _instantiate(checked: Checked, recorded: Mapping[str, float] | None):
     return data, module
 
 
-def build_evaluation(cfg: DictConfig | Checked, request: Request = Request()):
+def build_evaluation(checked: Checked):
     """The run's ``evaluation`` node as an ``encons.numerics.evaluation.Evaluation`` (how test rollouts are
     integrated); a config saved before the node existed gets the default."""
     from encons.numerics.evaluation import Evaluation
 
-    return instantiate_node(cfg, "evaluation", request) if _plain(cfg, request)[0].get("evaluation") else Evaluation()
+    return (
+        instantiate_node(checked, "evaluation")
+        if _checked(checked, "build_evaluation").cfg.get("evaluation")
+        else Evaluation()
+    )
 
 
-def build_evaluators(cfg: DictConfig | Checked, identity: bool = True, request: Request = Request()) -> dict:
+def build_evaluators(checked: Checked, identity: bool = True) -> dict:
     """The run's evaluators (``encons.evaluators``), name → object, from the ``evaluators`` node that
     ``conf/evaluators`` composes (``evaluators=[states,santos]``); a config saved before the node existed
     gets the one its test ran then (``states``, or ``pixels`` through an observation model: ``identity``
     false)."""
     from encons.evaluators import Pixels, States
 
-    plain = _plain(cfg, request)[0]
-    if "evaluators" not in plain:
+    cfg = _checked(checked, "build_evaluators").cfg
+    if "evaluators" not in cfg:
         return {"states": States()} if identity else {"pixels": Pixels()}
-    return {name: instantiate_node(cfg, f"evaluators.{name}", request) for name in plain.evaluators or {}}
+    return {name: instantiate_node(checked, f"evaluators.{name}") for name in cfg.evaluators or {}}
 
 
 @declare("optimizer", lr=Positive, weight_decay=NonNegative)
 @declare("scheduler", patience=Annotated[int, Range(ge=0)], factor=Fraction, pct_start=Fraction)
-def build_optimizer(cfg: DictConfig | Checked, model: DynamicsModel, request: Request = Request()):
+def build_optimizer(checked: Checked, model: DynamicsModel):
     """The ``optimizer`` and ``scheduler`` partials (``conf/optimizer``, ``conf/scheduler``; the scheduler
     None when unset), each built once here on ``model``'s parameters so that a value its constructor
     refuses is one line now, not a traceback once training starts."""
     from encons.training.module import takes_total_steps
 
-    optimizer = instantiate_node(cfg, "optimizer", request)
-    instantiate_node(cfg, "optimizer", request, _partial_=False, params=model.parameters())
-    if not _plain(cfg, request)[0].get("scheduler"):
+    optimizer = instantiate_node(checked, "optimizer")
+    instantiate_node(checked, "optimizer", _partial_=False, params=model.parameters())
+    if not _checked(checked, "build_optimizer").cfg.get("scheduler"):
         return optimizer, None
-    scheduler = instantiate_node(cfg, "scheduler", request)
+    scheduler = instantiate_node(checked, "scheduler")
     probe = {"total_steps": 100} if takes_total_steps(scheduler) else {}
-    instantiate_node(cfg, "scheduler", request, _partial_=False, optimizer=optimizer(model.parameters()), **probe)
+    instantiate_node(checked, "scheduler", _partial_=False, optimizer=optimizer(model.parameters()), **probe)
     return optimizer, scheduler
 
 
@@ -358,16 +355,16 @@ def _route_lightning_logs() -> None:
     max_epochs=Annotated[int, Range(ge=1, says="an integer >= 1")] | None,
     gradient_clip_val=NonNegative | None,
 )
-def build_trainer(cfg: DictConfig | Checked, request: Request = Request()):
-    """The Lightning Trainer of ``cfg.trainer`` with the configured loggers and callbacks (a plain config is
-    validated first, and the folders made); every checkpoint it writes carries the resolved run config
+def build_trainer(checked: Checked):
+    """The Lightning Trainer of ``cfg.trainer`` with the configured loggers and callbacks of a checked config
+    (``encons.config.check.validate``), its folders made; every checkpoint it writes carries the resolved run config
     (``encons.infra.checkpoints``) and is written atomically (``encons.infra.lightning_io``); a test's results go to
     ``cfg.paths.output_dir`` (``encons.training.callbacks.TestResults``; its figures unless ``figures=false``)."""
     from encons.infra.compat import drop_wandb_anonymous
     from encons.infra.lightning_io import AtomicCheckpointIO
     from encons.training.callbacks import ProgressBar, RunConfigInCheckpoints, TestResults
 
-    checked = cfg if isinstance(cfg, Checked) else validate(cfg, request)
+    checked = _checked(checked, "build_trainer")
     cfg = checked.cfg
     make_folders(cfg)
     _route_lightning_logs()  # before the Trainer prints its device lines

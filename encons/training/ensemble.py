@@ -38,7 +38,6 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from encons.infra import checkpoints
 from encons.infra.errors import ConfigError
-from encons.training import attempts
 from encons.training import stacked as stacking
 from encons.training.callbacks import MemberCheckpoints
 from encons.training.members import ENSEMBLE_KEY, EnsembleModule, StackedEnsemble
@@ -48,41 +47,6 @@ if TYPE_CHECKING:
     from encons.config.check import Checked, Request
 
 log = logging.getLogger(__name__)
-
-
-def check_seeds(seeds: Any) -> list[int]:
-    """The ``seeds`` list, refused in one line unless it is a non-empty list of distinct integer seeds."""
-    values = list(seeds) if isinstance(seeds, (list, tuple)) or OmegaConf.is_list(seeds) else None
-    if (
-        not values
-        or not all(isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**32 for s in values)
-        or len(set(values)) != len(values)
-    ):
-        raise ConfigError(
-            f"seeds={seeds}; allowed: a non-empty list of distinct integer seeds in 0..2**32-1, e.g. seeds=[0,1,2]"
-        )
-    return values
-
-
-def refuse(cfg: DictConfig, request: Request) -> None:
-    """Refuse, in one line each, what an ensemble cannot be: data that differ per seed, DDP, an explicit ``seed``
-    beside ``seeds``. (``train`` refuses the plain-inverse retry once the config is checked: it needs the model.)"""
-    if "seed" in request.overridden():
-        raise ConfigError(
-            f"seed={cfg.seed} beside seeds={list(cfg.seeds)}: the members' seeds are the list; "
-            f"allowed: one of seed=K or seeds=[...]"
-        )
-    devices, strategy = cfg.trainer.get("devices", 1), str(cfg.trainer.get("strategy", "auto"))
-    if (isinstance(devices, int) and devices > 1) or devices in ("auto", -1) or "ddp" in strategy:
-        raise ConfigError(
-            f"trainer.devices={devices} trainer.strategy={strategy} with seeds: an ensemble trains "
-            f"its members in one process on one device; allowed: trainer.devices=1 (no DDP) with seeds"
-        )
-    if "${seed" in str(OmegaConf.to_yaml(OmegaConf.masked_copy(cfg, ["data"]), resolve=False)):
-        raise ConfigError(
-            "data.seed follows seed, so each member would train on other data; allowed: a fixed "
-            "data.seed with seeds (the members share their batches)"
-        )
 
 
 def member_config(cfg: DictConfig, seed: int, output_dir: Path) -> DictConfig:
@@ -140,14 +104,10 @@ def train(
     from encons.training.fitting import fit
 
     started = time.perf_counter()
-    seeds = check_seeds(cfg.seeds)
-    refuse(cfg, request)
-    checked = validate(cfg, request)  # the one validation pass: the members differ from it in seed and folders only
-    if cfg.get("plain_solve") and attempts.has_guard(checked.model):
-        raise ConfigError(
-            "plain_solve=true retrains a run from scratch when the plain inverse diverges, which "
-            "one member of an ensemble cannot do alone; allowed: plain_solve=false with seeds"
-        )
+    # the one validation pass (the seeds and what an ensemble cannot be: encons.config.check.check_ensemble);
+    # the members differ from it in seed and folders only
+    checked = validate(cfg, request)
+    seeds = list(cfg.seeds)
     run_dir = Path(cfg.paths.output_dir)
     dirs = [member_dir(s) if member_dir else run_dir / f"seed{s}" for s in seeds]
     configs = [member_config(cfg, s, d) for s, d in zip(seeds, dirs)]
@@ -322,7 +282,7 @@ def _test_members(
         results["wall_time_s"] = time.perf_counter() - started
         results["threads"] = float(torch.get_num_threads())
         per_member[seeds[i]] = results
-        runs.append(Run(member, data, saved[i], d, tested, results))
+        runs.append(Run(member, data, saved[i], d, tested, results, checked=checked.derived(c)))
     metrics = summarise(per_member)
     run_dir = Path(cfg.paths.output_dir)
     scored = [module.members[i] for i in range(len(seeds)) if seeds[i] in per_member]

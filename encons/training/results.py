@@ -27,7 +27,7 @@ class Run:
     run_dir: Path
     checkpoint: Path | None = None  # None: the in-memory weights (no checkpoint was kept)
     metrics: dict[str, float] = field(default_factory=dict)
-    checked: Checked | None = field(default=None, repr=False)  # its validated config, where load made it
+    checked: Checked | None = field(default=None, repr=False)  # its validated config (train, load)
 
     @property
     def model(self):

@@ -194,7 +194,7 @@ def _attempt(attempt: attempts.Attempt, checked: Checked, summary: bool, started
             )
         )
         print_summary(module.run_title(), results, run_dir, note=note, console=summary)
-    return Run(module, data, config, run_dir, tested, results)
+    return Run(module, data, config, run_dir, tested, results, checked=checked)
 
 
 def _which(ckpt: Path | None, results: dict[str, float]) -> str:
@@ -326,7 +326,7 @@ def evaluate(run: Run | Ensemble | str | Path, overrides: Iterable[str] = (), ck
     out = _new_evaluation_folder(run.run_dir)
     config.paths.output_dir = str(out)
     with log_file(out / "evaluate.log"):
-        trainer, _ = build_trainer(run.checked.derived(config) if run.checked is not None else config)
+        trainer, _ = build_trainer(run.checked.derived(config) if run.checked is not None else validate(config))
         trainer.test(run.module, datamodule=run.data, verbose=False, weights_only=True)
     run.metrics = {f"test/{k}": v for k, v in run.module.test_metrics.items()}
     note = (

@@ -4,17 +4,18 @@ change the config."""
 
 from __future__ import annotations
 
+import sys
 from collections import Counter
+from dataclasses import dataclass, field
 
 import pytest
 from omegaconf import OmegaConf
 from omegaconf.errors import ReadonlyConfigError
 
 import encons
-from encons import build
 from encons.config import check as config
 from encons.config import trust
-from encons.training import runs
+from encons.training import build
 
 
 @pytest.fixture
@@ -31,6 +32,52 @@ def lookups(monkeypatch) -> Counter:
     return counted
 
 
+@dataclass
+class Counted:
+    """The ``validate`` calls and ``locate`` lookups (by target) made since the last :meth:`clear`."""
+
+    validations: list = field(default_factory=list)
+    lookups: Counter = field(default_factory=Counter)
+
+    def clear(self) -> None:
+        self.validations.clear()
+        self.lookups.clear()
+
+    def once(self, validations: int = 1) -> None:
+        """``validations`` validations, and no ``_target_`` looked up twice."""
+        assert len(self.validations) == validations, self.validations
+        assert self.lookups and max(self.lookups.values()) == 1, self.lookups
+
+
+@pytest.fixture
+def counted(monkeypatch) -> Counted:
+    """``encons.config.check.validate`` and ``encons.config.trust.locate`` counted under every name an encons
+    module holds them by (``from encons.config.check import validate`` included)."""
+    import encons.tools.benchmark  # noqa: F401 - the paths below, imported before their names are replaced
+    import encons.tools.sweep  # noqa: F401
+    from encons.entry import cli  # noqa: F401
+    from encons.training import ensemble, runs  # noqa: F401
+
+    seen = Counted()
+    real_validate, real_locate = config.validate, trust.locate
+
+    def validate(*args, **kwargs):
+        seen.validations.append(args[0])
+        return real_validate(*args, **kwargs)
+
+    def locate(target, *args, **kwargs):
+        seen.lookups[target] += 1
+        return real_locate(target, *args, **kwargs)
+
+    for module in [m for name, m in sys.modules.items() if name.startswith("encons") and m is not None]:
+        for name, value in list(vars(module).items()):
+            if value is real_validate:
+                monkeypatch.setattr(module, name, validate)
+            elif value is real_locate:
+                monkeypatch.setattr(module, name, locate)
+    return seen
+
+
 def fast(tmp_path, *overrides):
     return encons.compose(
         "model=hnn",
@@ -44,37 +91,69 @@ def fast(tmp_path, *overrides):
 
 
 @pytest.mark.parametrize("extra", [[], ["seeds=[0,1]"]])  # a run; a seed ensemble (its members derive from it)
-def test_a_run_validates_once_and_looks_each_target_up_once(tmp_path, monkeypatch, lookups, extra):
-    """Composing looks the model up once (its presets); the run, every target once more at most."""
-    cfg = fast(tmp_path, *extra)
-    assert lookups == Counter({"encons.models.hnn.HNN": 1})
-    lookups.clear()
-    calls = []
-    real = config.validate
-
-    def validate(*args, **kwargs):
-        calls.append(args)
-        return real(*args, **kwargs)
-
-    for module in (config, build, runs):
-        monkeypatch.setattr(module, "validate", validate)
-    run = encons.train(cfg, summary=False)
-    assert len(calls) == 1
-    assert "encons.models.hnn.HNN" in lookups and max(lookups.values()) == 1, lookups
+def test_a_run_validates_once_and_looks_each_target_up_once(tmp_path, counted, extra):
+    """From compose to the test: one validation; composing looks the model up (its presets), the run
+    every other target, each once."""
+    run = encons.train(fast(tmp_path, *extra), summary=False)
+    counted.once()
+    assert "encons.models.hnn.HNN" in counted.lookups and "lightning.pytorch.Trainer" in counted.lookups
     assert run.metrics["test/traj_rel_err"] > 0
 
 
 @pytest.mark.parametrize("extra", [[], ["seeds=[0,1]"]])
-def test_evaluate_validates_once(tmp_path, monkeypatch, extra):
-    """``encons.evaluate RUN`` (a run's folder; an ensemble's: once per member, each a run of its own)."""
+def test_evaluate_validates_once(tmp_path, counted, extra):
+    """``encons.evaluate RUN`` (a run's folder; an ensemble's: once per member, each a run of its own),
+    each target looked up once per validation; a run in memory carries its checked config: none."""
     trained = encons.train(fast(tmp_path, *extra), summary=False)
-    calls = []
-    real = config.validate
-    monkeypatch.setattr(runs, "validate", lambda *a, **k: calls.append(a) or real(*a, **k))
-    monkeypatch.setattr(config, "validate", lambda *a, **k: calls.append(a) or real(*a, **k))
+    counted.clear()
     metrics = encons.evaluate(trained.run_dir)
-    assert len(calls) == (1 if not extra else 2)
     assert metrics["test/traj_rel_err"] == pytest.approx(trained.metrics["test/traj_rel_err"], rel=1e-12)
+    if extra:
+        assert len(counted.validations) == 2 and set(counted.lookups.values()) == {2}
+        return
+    counted.once()
+    counted.clear()
+    encons.evaluate(trained)
+    assert counted.validations == [] and counted.lookups == Counter()
+
+
+@pytest.mark.parametrize("seeds", [[0], [0, 1]])  # a cell of one run (run_one); of a seed ensemble (run_ensemble)
+def test_a_benchmark_cell_validates_once_and_looks_each_target_up_once(tmp_path, counted, seeds):
+    from encons.tools import benchmark
+    from encons.training.build import compose
+
+    profile = compose(
+        ["profile=smoke", "models=[hnn]", "n_train=[]", f"seeds={seeds}", f"out={tmp_path / 'out'}"],
+        config_name="benchmark",
+    )
+    planned = benchmark.expand(profile)
+    assert len(planned) == len(seeds)
+    counted.clear()
+    rows = (
+        [benchmark.run_one(planned[0], tmp_path / "out", str(tmp_path / "cache"))]
+        if len(seeds) == 1
+        else benchmark.run_ensemble(planned, tmp_path / "out", str(tmp_path / "cache"))
+    )
+    assert [r["error"] for r in rows] == [""] * len(seeds)
+    counted.once()
+
+
+def test_a_sweep_trial_validates_once_and_looks_each_target_up_once(tmp_path, counted, cli, monkeypatch):
+    monkeypatch.setenv("ENCONS_ROOT", str(tmp_path))
+    args = ["model=node", "system=pendulum1", "debug=fast", "test=false", "sweeps=chnn_tuning"]
+    proc = cli("-m", *args, "hydra.sweeper.n_trials=1", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    counted.once()
+    assert "encons.models.node.NODE" in counted.lookups and "optuna.pruners.MedianPruner" in counted.lookups
+
+
+def test_a_builder_takes_a_checked_config_only(tmp_path):
+    from encons.training.build import build_system
+
+    cfg = fast(tmp_path)
+    with pytest.raises(TypeError, match=r"^build_system takes a Checked config"):
+        build_system(cfg)
+    assert type(build_system(config.validate(cfg))).__name__ == "NPendulum"
 
 
 def test_a_second_build_of_a_checked_value_looks_nothing_up(tmp_path, lookups):

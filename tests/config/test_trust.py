@@ -11,10 +11,11 @@ import torch
 from omegaconf import OmegaConf
 
 from encons.entry import api
+from encons.entry.api import build
 from encons.infra import checkpoints
 from encons.infra.errors import ConfigError
 from encons.tools import benchmark
-from encons.training.build import build, compose, run_config
+from encons.training.build import compose, run_config
 
 
 class WritesMarker:

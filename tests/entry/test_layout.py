@@ -36,7 +36,7 @@ def test_the_api_names_are_functions_whatever_was_imported():
     import encons.training.build  # noqa: F401
 
     assert encons.train is encons.entry.api.train and encons.evaluate is encons.entry.api.evaluate
-    assert encons.build is encons.training.build.build and callable(encons.build)
+    assert encons.build is encons.entry.api.build and callable(encons.build)
 
 
 def test_current_targets_renames_the_moved_modules_only():

@@ -144,7 +144,7 @@ def test_a_debug_sized_cartpole_lnode_with_per_step_inputs_and_learned_g_cuts_b_
     third of its initial value or less (measured 1.02 → 0.26; 0.04 after 120 epochs, the decrease is not
     monotone at this lr; benchmarks/reports/control-b: with the known B it stays near 0.7 at 300 steps)."""
     from encons.entry import api
-    from encons.training.build import build
+    from encons.entry.api import build
 
     cfg = api.compose(
         "debug=fast",

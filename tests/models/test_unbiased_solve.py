@@ -9,6 +9,7 @@ import pytest
 import torch
 from hydra.utils import execution_whitelist
 
+from encons.config.check import validate
 from encons.config.trust import trusted_targets
 from encons.entry import api
 from encons.models.glnn import GLNN
@@ -41,8 +42,9 @@ def physical_states(system, n=256):
 def test_true_lagrangian_gives_the_true_acceleration_at_default_settings(model_name, name):
     cfg = api.compose(f"model={model_name}", f"system={name}", output_dir=".")
     with execution_whitelist(trusted_targets()):
-        system = build_system(cfg)
-        model = build_model(cfg, system).double()
+        checked = validate(cfg)
+        system = build_system(checked)
+        model = build_model(checked, system).double()
     model.lagrangian_derivatives = partial(lagrangian_derivatives, true_lagrangian(system))
     force = getattr(system, "force", lambda s: torch.zeros_like(split_state(s)[0]))
     s = physical_states(system)
@@ -118,7 +120,7 @@ def test_fresh_networks_take_their_first_steps_without_nan(tmp_path, model_name,
     four AdamW steps. From Cranmer et al.'s signed start 11 of the 27 on pendulum1/2 and the gyroscope reached NaN;
     from a jointly convex start (no separation of q and q̇, no velocity scale) 3 of these 45: lnn on mass_spring
     and glnn on Lim & Kasim's pendulum (seed 0), lnn_angle on the gyroscope (seed 2)."""
-    from encons.training.build import build
+    from encons.entry.api import build
 
     cfg = api.compose(
         "debug=fast",
@@ -147,8 +149,9 @@ def test_a_fresh_lagrangian_starts_as_kinetic_minus_potential(model_name):
     a potential −L(q, 0) that pushes states away)."""
     cfg = api.compose(f"model={model_name}", "system=pendulum2", "model.hidden=16", "model.depth=2", output_dir=".")
     with execution_whitelist(trusted_targets()):
-        system = build_system(cfg)
-        model = build_model(cfg, system).double()
+        checked = validate(cfg)
+        system = build_system(checked)
+        model = build_model(checked, system).double()
     s = physical_states(system)
     _, hessian, mixed = lagrangian_derivatives(model.lagrangian, s)
     assert torch.linalg.eigvalsh(hessian).min() > 0 and mixed.eq(0).all()
@@ -167,7 +170,7 @@ def test_the_start_keeps_large_velocities_out_of_softplus_tails():
 
     cfg = api.compose("model=lnn", "system=gyroscope", output_dir=".")
     with execution_whitelist(trusted_targets()):
-        gyroscope = build_system(cfg)
+        gyroscope = build_system(validate(cfg))
     speed = typical_speed(gyroscope, "angle")
     # φ̇ ~ U(−4.5, 4.5): RMS 4.5/√3; θ̇ ~ U(−0.3, 0.3): 0.3/√3; ψ̇ = ±1.5·(7 + N(0, 1)): 1.5·√50
     assert speed.tolist() == pytest.approx([4.5 / 3**0.5, 0.3 / 3**0.5, 1.5 * 50**0.5], rel=0.03)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+from encons.config.check import validate
 from encons.data.simulate import sample_trajectories
 from encons.entry import api
 from encons.numerics import metrics
@@ -29,7 +30,7 @@ def simulated_test_set(name: str, n: int = 8, steps: int | None = STEPS):
     """``n`` test trajectories of ``name`` simulated as its data config does, over its test horizon (at most
     ``steps`` steps)."""
     cfg = api.compose(f"system={name}", output_dir=".")
-    system = build_system(cfg)
+    system = build_system(validate(cfg))
     horizon = cfg.data.test_steps or cfg.data.n_steps
     t = torch.arange(min(horizon, steps or horizon) + 1, dtype=torch.float64) * cfg.data.dt
     true, u, _ = sample_trajectories(system, n, t, torch.Generator().manual_seed(5), cfg.data.substeps)

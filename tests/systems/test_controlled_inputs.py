@@ -8,9 +8,9 @@ import pytest
 import torch
 
 from encons.entry import api
+from encons.entry.api import build
 from encons.infra.errors import ConfigError
 from encons.systems.controlled import CartPole, ControlledPendulum
-from encons.training.build import build
 
 FAST = ["debug=fast", "logger=none", "trainer.enable_progress_bar=false", "~evaluators/santos", "model=lnode"]
 

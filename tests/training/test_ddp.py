@@ -56,7 +56,8 @@ STEPS = 2  # DDP reports a parameter that got no gradient at the forward after t
 
 
 def _module(model: str, system: str, root):
-    from encons.training.build import build, compose
+    from encons.entry.api import build
+    from encons.training.build import compose
 
     cfg = compose(
         [f"model={model}", f"system={system}", "debug=fast", "logger=none", "data.batch_size=8"],

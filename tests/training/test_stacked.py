@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from encons.entry import api
+from encons.entry.api import build
 from encons.training import ensemble, stacked
-from encons.training.build import build
 
 #: one model of every family the papers use, at its usual system, and the stacked way it takes
 FAMILIES = [

@@ -52,16 +52,16 @@ def declared_incompatibility(cfg) -> str | None:
     from hydra.utils import execution_whitelist
 
     from encons.config import trust
-    from encons.config.check import Request, check_capabilities, check_observation, objective_of
+    from encons.config.check import check_capabilities, check_observation, validate
     from encons.training.build import build_observation, build_system
 
     with execution_whitelist(trust.trusted_targets()):
-        system = build_system(cfg)
-        observation = build_observation(cfg, system)
-        cls = trust.locate(cfg.model._target_, "model")
         try:
-            check_observation(type(observation), objective_of(cfg))
-            check_capabilities(cfg, cls, observation.latent_system(system), Request.of(cfg))
+            checked = validate(cfg)  # the classes' declarations (capabilities, objectives); no model is built
+            system = build_system(checked)
+            observation = build_observation(checked, system)
+            check_observation(type(observation), checked.objective)
+            check_capabilities(checked.cfg, checked.model, observation.latent_system(system), checked.request)
         except ConfigError as err:
             return str(err)
     return None

@@ -3,7 +3,8 @@ device). The two-process check is tests/training/test_ddp.py."""
 
 
 def test_train_loss_is_logged_with_sync_dist(tmp_path, monkeypatch):
-    from encons.training.build import build, compose
+    from encons.entry.api import build
+    from encons.training.build import compose
 
     cfg = compose(
         ["model=node", "system=pendulum1", "debug=fast", "logger=none"],

@@ -24,7 +24,7 @@ class Seen(pl.Callback):
 
 
 def fit(tmp_path, *overrides: str):
-    from encons.training.build import build, build_trainer
+    from encons.entry.api import build, build_trainer
 
     cfg = api.compose(
         "debug=fast",
