@@ -69,13 +69,24 @@ class _DeviceLinesOffConsole(logging.Filter):
         )
 
 
+#: torch 2.13's DDP reducer warning (c10d/reducer.cpp) for a gradient of shape (1, n) or (n, 1)
+GRAD_STRIDES_OF_A_ROW_OR_COLUMN = (
+    r"(?s)Grad strides do not match bucket view strides.*grad\.sizes\(\) = \[(1, \d+|\d+, 1)\], strides"
+)
+
+
 def quiet_upstream() -> None:
     """Silence upstream messages a user cannot act on: Lightning 2.6's tips and its deprecation
     warning about torch 2.13's pytree ``LeafSpec``, the notice of a resume into a new folder, and its advice
     to add DataLoader workers on machines of more than 2 cores (encons' windows are slices of tensors in
     memory: workers would only copy them between processes; no key sets them); its device lines on the
-    console (Hydra's, or one a script set up), kept in the log files."""
+    console (Hydra's, or one a script set up), kept in the log files. And torch 2.13 DDP's "Grad strides do not
+    match bucket view strides" where the tensor is a row or a column ((1, n) or (n, 1): the last layer of a network
+    with one output, e.g. SyMo's M(q) of one coordinate): mm's backward gives such a weight's gradient strides
+    that differ from the parameter's only on the size-1 axis, the same memory order, so nothing is slower; a
+    mismatch on any other shape still warns."""
     warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\)")
+    warnings.filterwarnings("ignore", message=GRAD_STRIDES_OF_A_ROW_OR_COLUMN)
     warnings.filterwarnings("ignore", message="The dirpath has changed from")
     warnings.filterwarnings("ignore", message=r"The '\w+' does not have many workers")
     for name in ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.rank_zero"):

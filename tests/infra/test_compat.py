@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from types import SimpleNamespace
 
 import pytest
@@ -134,3 +135,27 @@ def test_the_csv_logger_writes_through_its_atomic_writer(tmp_path):
     logger.save()
     assert type(logger.experiment).__name__ == "_AtomicExperimentWriter"
     assert (tmp_path / "run" / "version_0" / "metrics.csv").read_text().splitlines()[0] == "step,val/loss"
+
+
+DDP_STRIDES = (
+    "Grad strides do not match bucket view strides. This may indicate grad was not created according to the "
+    "gradient layout contract, or that the param's strides changed since DDP was constructed.  This is not an "
+    "error, but may impair performance.\ngrad.sizes() = {sizes}, strides() = {grad}\n"
+    "bucket_view.sizes() = {sizes}, strides() = {bucket} (Triggered internally at reducer.cpp:335.)"
+)
+
+
+@pytest.mark.parametrize(
+    "sizes, grad, bucket, shown",
+    [
+        ("[1, 16]", "[1, 1]", "[16, 1]", False),  # SyMo's M(q) of one coordinate (issue 51): the same memory order
+        ("[16, 1]", "[1, 16]", "[1, 1]", False),
+        ("[4, 16]", "[1, 4]", "[16, 1]", True),  # a transposed matrix: a real layout difference still warns
+    ],
+)
+def test_quiet_upstream_drops_ddps_stride_warning_only_for_a_row_or_a_column(sizes, grad, bucket, shown):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        compat.quiet_upstream()
+        warnings.warn(DDP_STRIDES.format(sizes=sizes, grad=grad, bucket=bucket), UserWarning)
+    assert bool(caught) is shown
