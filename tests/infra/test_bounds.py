@@ -104,7 +104,11 @@ def test_every_bound_declared_by_a_reader_and_the_data_and_evaluation_nodes_is_e
         ["debug=fast", "scheduler=plateau", "optimized_metric=train/loss"], tmp_path / "run", tmp_path / "cache"
     )
     counts = {key: _check_every_bound(cfg, key, declared) for key, declared in bounds.DECLARED.items()}
-    counts["data"] = _check_every_bound(cfg, "data", bounds.hints(TrajectoryDataModule))
+    # the data's cross-key rules (TrajectoryDataModule.rules: chunk_len <= n_steps + 1, ...) hold at every inside
+    # value of one key when the others sit at their least demanding: a window of 2 states
+    data = cfg.copy()
+    data.data.chunk_len = 2
+    counts["data"] = _check_every_bound(data, "data", bounds.hints(TrajectoryDataModule))
     counts["evaluation"] = _check_every_bound(cfg, "evaluation", _declared(cfg, "evaluation"))
     assert set(counts) >= {"", "optimizer", "scheduler", "trainer", "data", "evaluation"}
     assert all(counts.values()), counts
