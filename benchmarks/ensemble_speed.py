@@ -162,7 +162,14 @@ def split(step, steps: int) -> dict[str, float]:
 
 
 def measure(
-    name: str, cell: list[str], ks: list[int], steps: int, repeats: int, cache: str, splits: list[dict] | None = None
+    name: str,
+    cell: list[str],
+    ks: list[int],
+    steps: int,
+    repeats: int,
+    cache: str,
+    splits: list[dict] | None = None,
+    path: bool | None = None,
 ) -> list[dict]:
     rows = []
     pool, batch = members(cell, max(ks), cache)
@@ -173,7 +180,7 @@ def measure(
             mods,
             list(range(k)),
             _Data(batch),
-            None,
+            path,  # None: the path a run takes (stacked where it measures faster); True: stacked wherever it can
         )
         if isinstance(module, ensemble.StackedEnsemble):
             opt = stacked.optimizer(mods[0].optimizer, list(module.stacked.parameters()))
@@ -284,6 +291,12 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument(
+        "--path",
+        choices=["auto", "stacked"],
+        default="auto",
+        help="auto: the path a run takes (timed on the first batch); stacked: the stacked path wherever it computes",
+    )
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument(
         "--layers", action="store_true", help="also time the network alone: vmap vs an ensemble dimension"
@@ -306,6 +319,7 @@ def main() -> None:
             args.repeats,
             cache,
             splits,
+            None if args.path == "auto" else True,
         )
     ]
     tables = [(header, rows)]

@@ -15,7 +15,20 @@ BENCHMARKS = Path(__file__).parents[2] / "benchmarks"
 SMOKE = {
     "jacobian_speed.py": ["--dims", "2", "--batch", "8", "--hidden", "8", "--repeats", "1"],
     "symo_speed.py": ["--steps", "1", "--batch", "4"],
-    "ensemble_speed.py": ["--cells", "lim_kasim", "--members", "1", "2", "--steps", "1", "--repeats", "1"],
+    # the stacked path forced: the path a run would take is timed, and at smoke size either may win
+    "ensemble_speed.py": [
+        "--cells",
+        "lim_kasim",
+        "--members",
+        "1",
+        "2",
+        "--steps",
+        "1",
+        "--repeats",
+        "1",
+        "--path",
+        "stacked",
+    ],
     "evaluation_floor.py": ["pendulum1", "2"],
     "pixel_speed.py": ["--steps", "1", "--videos", "2", "--frames", "10"],
     "time_to_accuracy.py": ["--runs", "node/pendulum2", "--max-epochs", "1", "debug=fast"],
