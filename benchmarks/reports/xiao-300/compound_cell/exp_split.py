@@ -21,10 +21,11 @@ points); the loss ``encons.numerics.metrics.acceleration_mse`` of ``encons.numer
 state_derivative(model, x)`` against the exact ds/dt, in float32 (the model's dtype, as in a run).
 
 Scores, every EVERY epochs on a float64 copy of the model: accel_mse on all training points, on all held-out
-points, and on the held-out points at t < 0.5 s and t ≥ 0.5 s; one-step: one RK4 step of h = 0.02 by the model
-(torchdiffeq ``odeint``, method rk4 on the grid [0, h]) from each held-out point that has a successor in its
-trajectory, mean over points of ‖x̃ − x‖² (summed over the 4 state entries). Writes OUT.json (the settings,
-the curve, the last scores, wall times) and prints a line per score.
+points, and on the held-out points at t < 0.5 s and t ≥ 0.5 s, with the t < 0.5 s points' share of the
+held-out squared error; one-step: one RK4 step of h = 0.02 by the model (torchdiffeq ``odeint``, method rk4
+on the grid [0, h]) from each held-out point that has a successor in its trajectory, mean over points of
+‖x̃ − x‖² (summed over the 4 state entries). Writes OUT.json (the settings, the curve, the last scores, wall
+times) and prints a line per score.
 """
 
 from __future__ import annotations
@@ -82,6 +83,7 @@ def scores(model, system, x, rates, times, nxt, has_next, train, held, dt) -> di
         early, late = held[times[held] < EARLY - 1e-9], held[times[held] >= EARLY - 1e-9]
         error["held_early"] = acceleration_mse(pred[early], rates[early]).item()
         error["held_late"] = acceleration_mse(pred[late], rates[late]).item()
+        error["held_early_share"] = error["held_early"] * len(early) / (error["held"] * len(held))
         start = held[has_next[held]]
         step = odeint(model64, x[start], torch.tensor([0.0, dt], dtype=torch.float64), method="rk4")[-1]
         error["one_step"] = ((step - nxt[start]) ** 2).sum(-1).mean().item()
