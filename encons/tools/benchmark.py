@@ -34,7 +34,7 @@ from encons.infra import threads
 from encons.infra.errors import ConfigError, EnconsError, Interrupted
 from encons.infra.io import write_json, write_yaml
 from encons.infra.paths import config_dir
-from encons.tools.report import recorded
+from encons.tools.report import recorded, recorded_override
 
 if TYPE_CHECKING:
     from encons.training.results import Run
@@ -73,9 +73,14 @@ def plain(cfg: DictConfig) -> dict:
 
 
 def recorded_config(config: dict, out: Path) -> dict:
-    """``benchmark.yaml``'s content: the config with its folders (``out``, ``cache_dir``) as a report records
-    them (``encons.tools.report.recorded``), never the machine's absolute path."""
-    return {**config, **{k: recorded(config[k], out) for k in ("out", "cache_dir") if config.get(k)}}
+    """``benchmark.yaml``'s content: the config with its folders (``out``, ``cache_dir``) and the absolute paths its
+    ``common`` and ``train`` overrides give (``train=["data.path=/scratch/offset.npz"]``: every run's data file) as a
+    report records them (``encons.tools.report.recorded``, ``recorded_override``), never the machine's absolute path."""
+    return {
+        **config,
+        **{k: recorded(config[k], out) for k in ("out", "cache_dir") if config.get(k)},
+        **{k: [recorded_override(o, out) for o in config[k]] for k in ("common", "train") if config.get(k)},
+    }
 
 
 def expand(cfg: DictConfig) -> list[PlannedRun]:
@@ -250,7 +255,7 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
         "run_dir": recorded(run_dir, out),
         "error": error,
         "wall_time_s": wall,
-        "overrides": " ".join(run.overrides),
+        "overrides": " ".join(recorded_override(o, out) for o in run.overrides),
         "optimiser": optimiser(cfg, steps),
         **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))},
         "headline": shown,
@@ -313,7 +318,7 @@ def run_ensemble(members: list[PlannedRun], out: Path, cache_dir: str | None, co
             "error": why,
             "wall_time_s": wall,
             "ensemble": f"{len(members)} seeds, {trained.path if trained else 'failed'}",
-            "overrides": " ".join(m.overrides),
+            "overrides": " ".join(recorded_override(o, out) for o in m.overrides),
             "optimiser": optimiser(cfg, steps),
             **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))},
             "headline": shown,

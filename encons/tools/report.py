@@ -46,6 +46,13 @@ def recorded(path: str | Path, out: str | Path) -> str:
     return path.relative_to(out).as_posix() or "." if path.is_relative_to(out) else path.name
 
 
+def recorded_override(override: str, out: str | Path) -> str:
+    """A ``key=value`` override as a report records it: an absolute path value (``data.path=/scratch/x.npz``)
+    ``recorded`` (relative to ``out``, else its name), every other override as it is."""
+    key, sep, value = override.partition("=")
+    return f"{key}={recorded(value, out)}" if sep and Path(value).is_absolute() else override
+
+
 def portable_row(row: dict, out: str | Path) -> dict:
     """A result row with its ``run_dir`` recorded relative to ``out`` (``recorded``)."""
     return {**row, "run_dir": recorded(row["run_dir"], out)} if row.get("run_dir") else row

@@ -10,7 +10,7 @@ import re
 from pathlib import Path
 
 from encons.tools.benchmark import recorded_config
-from encons.tools.report import recorded, write_report
+from encons.tools.report import recorded, recorded_override, write_report
 
 ROOT = Path(__file__).parents[2]
 
@@ -59,3 +59,40 @@ def test_committed_reports_hold_no_machine_folder():
         if re.search(r"(?<![\w.])/(?:work|home|tmp|root|Users)/", line)
     ]
     assert not found, "absolute machine folders in committed reports:\n" + "\n".join(found)
+
+
+def test_an_absolute_path_override_is_recorded_by_its_name(tmp_path):
+    """``train=["data.path=/abs/file.npz"]`` (cause.md's offset data, every run trained on one file) reaches every
+    run and is recorded by name in the rows and ``benchmark.yaml``; other overrides stay as they are."""
+    import torch
+    import yaml
+
+    from encons.data import store
+    from encons.entry.cli import benchmark
+
+    out = tmp_path / "bench"
+    assert recorded_override(f"data.path={tmp_path / 'offset.npz'}", out) == "data.path=offset.npz"
+    assert recorded_override(f"data.path={out / 'data' / 'x.npz'}", out) == "data.path=data/x.npz"
+    assert recorded_override("model=hnn", out) == "model=hnn"
+    assert recorded_override("data.path=rel/x.npz", out) == "data.path=rel/x.npz"
+    t = torch.arange(11, dtype=torch.float64) * 0.1
+    phase = torch.linspace(0, 3, 12, dtype=torch.float64)[:, None] + t  # 12 trajectories of a rotation, q̇ = 1
+    states = torch.stack([phase + 6.0, torch.ones_like(phase)], -1)  # beyond (−π, π): the file's, not simulated
+    data = tmp_path / "offset.npz"
+    store.save(data, t, {"train": states[:8], "val": states[8:10], "test": states[10:]}, "angle")
+    benchmark(
+        [
+            "profile=smoke",
+            "models=[node]",
+            "n_train=[]",
+            f"out={out}",
+            f"cache_dir={tmp_path / 'cache'}",
+            f'train=["data.path={data}"]',
+        ]
+    )
+    row = json.loads(next((out / "runs").glob("*/result.json")).read_text())
+    assert not row["error"] and row["overrides"].endswith(" data.path=offset.npz")
+    assert row["test/windows"] == 2  # the file's two test trajectories, not debug=fast's four simulated
+    assert yaml.safe_load((out / "benchmark.yaml").read_text())["train"] == ["data.path=offset.npz"]
+    written = "".join(p.read_text() for p in (out / "results.csv", out / "benchmark.yaml", out / "summary.md"))
+    assert str(tmp_path) not in written
