@@ -10,6 +10,7 @@ import functools
 import logging
 import re
 import warnings
+from pathlib import Path
 from typing import Any, Callable
 
 
@@ -131,3 +132,23 @@ def record_new_metric_keys(writer: Any) -> None:
     """Lightning 2.6's CSV ``ExperimentWriter`` adds the keys of its pending ``metrics`` to ``metrics_keys``
     (private ``_record_new_keys``), as its own ``save`` does before writing."""
     writer._record_new_keys()
+
+
+def retarget_file_logs(old: Path, new: Path) -> list[logging.FileHandler]:
+    """The root logger's file handlers writing to ``old`` (Hydra's job log, ``train.log``) made to append to ``new``
+    instead (Python 3.11's ``FileHandler``: ``baseFilename``, and the stream that ``emit`` reopens after ``close``).
+    Returns the handlers moved."""
+    import os
+
+    moved = []
+    for handler in logging.getLogger().handlers:
+        if isinstance(handler, logging.FileHandler) and handler.baseFilename == os.path.abspath(old):
+            handler.acquire()
+            try:
+                handler.close()  # flushed and closed; emit() reopens baseFilename (mode "a" once opened)
+                handler.baseFilename = os.path.abspath(new)
+                handler.mode = "a"
+            finally:
+                handler.release()
+            moved.append(handler)
+    return moved

@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import os
 import shlex
+import shutil
 import time
 import warnings
 from collections.abc import Iterable, Iterator
@@ -83,8 +84,9 @@ def train(cfg: DictConfig | str | list[str], summary: bool = True, request: Requ
         cfg = _composed(cfg)
     request = Request.of(cfg) if request is None else request
     os.environ.setdefault("WANDB_SILENT", "true")  # as the CLI: no wandb banner lines from Python either
+    given = Path(cfg.paths.output_dir)
     try:
-        with log_file(Path(cfg.paths.output_dir) / "train.log"):
+        with log_file(given / "train.log"), _into_resumed_folder(cfg, given):
             if cfg.get("seeds") is not None:  # one member per seed, in this process (encons.training.ensemble)
                 from encons.training import ensemble
 
@@ -94,6 +96,33 @@ def train(cfg: DictConfig | str | list[str], summary: bool = True, request: Requ
         to_log_files(f"encons: error: {err}", logging.ERROR)  # the CLI prints the same line on stderr
         _prune(Path(cfg.paths.output_dir))
         raise
+
+
+#: What a run folder holds before its run writes anything: Hydra's copy of the command and its log file
+_BEFORE_THE_RUN = {".hydra", "train.log"}
+
+
+@contextmanager
+def _into_resumed_folder(cfg: DictConfig, given: Path) -> Iterator[None]:
+    """``ckpt_path=last`` continues the interrupted run in its own folder: where the checkpoint it resumes lies in
+    an earlier run's folder (the user did not name it by ``hydra.run.dir``), ``cfg.paths.output_dir`` becomes that
+    folder and the log files follow it; this invocation's own folder, holding nothing but Hydra's copy of the
+    command, is removed at the end (kept, with whatever it holds, when it holds more)."""
+    if cfg.get("ckpt_path") != "last":
+        yield
+        return
+    resumed = Path(checkpoints.resume_from(cfg) or given).parent.parent  # <run>/checkpoints/last.ckpt
+    if resumed.resolve() == given.resolve():
+        yield
+        return
+    cfg.paths.output_dir = str(resumed)
+    compat.retarget_file_logs(given / "train.log", resumed / "train.log")  # they stay there: given is removed
+    log.info("ckpt_path=last: continuing the run in its own folder %s (this command's %s is removed)", resumed, given)
+    try:
+        yield
+    finally:
+        if given.is_dir() and {p.name for p in given.iterdir()} <= _BEFORE_THE_RUN:
+            shutil.rmtree(given, ignore_errors=True)
 
 
 def _prune(run_dir: Path) -> None:

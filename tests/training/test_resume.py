@@ -43,3 +43,22 @@ def test_divergence_raises_and_keeps_last_good_checkpoint(train_run, tmp_path, m
     ckpt = torch.load(tmp_path / "nan" / "checkpoints" / "last.ckpt", weights_only=False)
     assert ckpt["epoch"] == 1
     assert all(torch.isfinite(v).all() for v in ckpt["state_dict"].values())
+
+
+def test_ckpt_path_last_continues_in_the_interrupted_runs_own_folder(tmp_path):
+    """Issue 51: a plain ``ckpt_path=last`` (no ``hydra.run.dir``) resumed correctly but into a new folder, leaving
+    the interrupted one holding only checkpoints. Now the run goes on in its own folder, Hydra's log file with it,
+    and the command's own folder (Hydra's copy of the command only) is removed."""
+    from tests.helpers import run_cli
+
+    env = {"ENCONS_ROOT": str(tmp_path)}
+    small = ["model=node", "system=pendulum1", "debug=fast", "figures=false"]
+    first = run_cli(*small, "trainer.max_epochs=2", cwd=tmp_path, env=env)
+    assert first.returncode == 0, first.stderr[-2000:]
+    (interrupted,) = (tmp_path / "outputs" / "pendulum1-node").iterdir()
+    again = run_cli(*small, "trainer.max_epochs=4", "ckpt_path=last", cwd=tmp_path, env=env)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert list((tmp_path / "outputs" / "pendulum1-node").iterdir()) == [interrupted]
+    log = (interrupted / "train.log").read_text()
+    assert "epoch 2 of 2" in log and "epoch 4 of 4" in log and "continuing the run in its own folder" in log
+    assert torch.load(interrupted / "checkpoints" / "last.ckpt", weights_only=True)["epoch"] == 3  # from 0
