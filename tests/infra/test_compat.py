@@ -159,3 +159,22 @@ def test_quiet_upstream_drops_ddps_stride_warning_only_for_a_row_or_a_column(siz
         compat.quiet_upstream()
         warnings.warn(DDP_STRIDES.format(sizes=sizes, grad=grad, bucket=bucket), UserWarning)
     assert bool(caught) is shown
+
+
+def test_retarget_file_logs_moves_a_file_handler_to_append_to_another_file(tmp_path):
+    import logging
+
+    (tmp_path / "new").mkdir()
+    (tmp_path / "new" / "train.log").write_text("earlier run\n")
+    handler = logging.FileHandler(tmp_path / "old.log")
+    root = logging.getLogger()
+    root.addHandler(handler)
+    try:
+        assert compat.retarget_file_logs(tmp_path / "old.log", tmp_path / "new" / "train.log") == [handler]
+        root.warning("resumed")
+        handler.flush()
+    finally:
+        root.removeHandler(handler)
+        handler.close()
+    assert (tmp_path / "new" / "train.log").read_text() == "earlier run\nresumed\n"
+    assert (tmp_path / "old.log").read_text() == ""
