@@ -73,7 +73,6 @@ from encons.systems.controlled import ControlledMechanical, ControllerSettings
 #: Examples of the models whose ``energy_structure()`` gives M(q), V(q) and that take inputs (the refusal names them)
 CONTROL_MODELS = "lnode, symo, e2e_symo, hnn_structure, lnn_structure"
 
-Settings = ControllerSettings  # the name this module gave them before systems declared them
 
 #: The metrics of ``score_control`` (``test/``-prefixed in a benchmark row) a benchmark summary's headline shows
 HEADLINE = (
