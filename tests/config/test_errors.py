@@ -133,12 +133,14 @@ def test_ckpt_path_last_resumes_only_a_run_of_the_same_config(train_run, tmp_pat
     train_run(["model=node", "system=pendulum1", "trainer.max_epochs=1"], name="node")
     train_run(["model=hnn", "system=pendulum1", "trainer.max_epochs=1"], name="hnn")  # newer, another model
     train_run(["model=node", "system=pendulum1", "trainer.max_epochs=2", "ckpt_path=last"], name="again")
-    # the node run's epoch 0 was resumed (the newer hnn checkpoint would not even load): one more epoch
-    assert torch.load(tmp_path / "again" / "checkpoints" / "last.ckpt", weights_only=False)["epoch"] == 1
+    # the node run's epoch 0 was resumed (the newer hnn checkpoint would not even load): one more epoch, in the node
+    # run's own folder (the resuming run's is removed)
+    assert torch.load(tmp_path / "node" / "checkpoints" / "last.ckpt", weights_only=False)["epoch"] == 1
+    assert not (tmp_path / "again").exists()
     with pytest.raises(
         ConfigError,
         match=r"ckpt_path=last: no earlier run .* has this run's config \(newest: "
-        r"again has model.hidden=16 where this run has 24\); allowed",
+        r"node has model.hidden=16 where this run has 24\); allowed",
     ):
         train_run(["model=node", "system=pendulum1", "model.hidden=24", "ckpt_path=last"], name="other")
 

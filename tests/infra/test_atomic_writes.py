@@ -199,10 +199,10 @@ def test_resume_skips_a_damaged_last_checkpoint_with_one_warning(tmp_path, caplo
         assert checkpoints.resume_from(cfg) == str(tmp_path / "runs" / "good" / "checkpoints" / "last.ckpt")
     warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING" and str(damaged) in r.getMessage()]
     assert len(warnings) == 1 and "\n" not in warnings[0], caplog.text
-    api.train(cfg, summary=False)  # resumes from it
+    run = api.train(cfg, summary=False)  # resumes from it, in its folder (the resuming run's own is removed)
+    assert run.run_dir == tmp_path / "runs" / "good" and not (tmp_path / "runs" / "resumed").exists()
 
-    for name in ("good", "resumed"):
-        shutil.rmtree(tmp_path / "runs" / name)
+    shutil.rmtree(tmp_path / "runs" / "good")
     with pytest.raises(EnconsError) as caught:  # nothing readable left: refused in one line
         api.train(compose("again", "ckpt_path=last"), summary=False)
     assert (
