@@ -246,20 +246,7 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
         ) from None
     except EnconsError as err:
         results, error, wall, steps, shown = {}, str(err), time.perf_counter() - started, None, []
-    row = {
-        "system": run.system,
-        "model": run.label,
-        "seed": run.seed,
-        "n_train": cfg.data.n_train,
-        "data_efficiency": run.n_train is not None,
-        "run_dir": recorded(run_dir, out),
-        "error": error,
-        "wall_time_s": wall,
-        "overrides": " ".join(recorded_override(o, out) for o in run.overrides),
-        "optimiser": optimiser(cfg, steps),
-        **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))},
-        "headline": shown,
-    }
+    row = result_row(run, cfg, out, run_dir, error, wall, steps, results, shown)
     write_json(done, row, indent=1)  # atomic: a run killed before it is rerun
     return row
 
@@ -308,24 +295,43 @@ def run_ensemble(members: list[PlannedRun], out: Path, cache_dir: str | None, co
                 results.update({f"test/{k}": v for k, v in score_control(member).items()})
         steps = trained.members[i].module.trainer.global_step if trained is not None and not why else None
         shown = declared_headline(trained.members[i].module, control) if trained is not None and not why else []
-        row = {
-            "system": m.system,
-            "model": m.label,
-            "seed": m.seed,
-            "n_train": cfg.data.n_train,
-            "data_efficiency": m.n_train is not None,
-            "run_dir": recorded(finished(m, out).parent, out),
-            "error": why,
-            "wall_time_s": wall,
-            "ensemble": f"{len(members)} seeds, {trained.path if trained else 'failed'}",
-            "overrides": " ".join(recorded_override(o, out) for o in m.overrides),
-            "optimiser": optimiser(cfg, steps),
-            **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))},
-            "headline": shown,
-        }
+        ensemble_path = f"{len(members)} seeds, {trained.path if trained else 'failed'}"
+        row = result_row(m, cfg, out, finished(m, out).parent, why, wall, steps, results, shown, ensemble=ensemble_path)
         write_json(finished(m, out), row, indent=1)
         rows.append(row)
     return rows
+
+
+def result_row(
+    run: PlannedRun,
+    cfg: DictConfig,
+    out: Path,
+    run_dir: Path,
+    error: str,
+    wall: float,
+    steps: int | None,
+    results: dict,
+    shown: list[str],
+    **after_wall: str,
+) -> dict:
+    """One run's result row (``runs/<id>/result.json``), as ``run_one`` and ``run_ensemble`` write it: what it is,
+    its folder and overrides as the report records them, its error, wall time (then ``after_wall``, e.g. the
+    ensemble's path), optimiser, test and validation metrics, and the headline it declares."""
+    return {
+        "system": run.system,
+        "model": run.label,
+        "seed": run.seed,
+        "n_train": cfg.data.n_train,
+        "data_efficiency": run.n_train is not None,
+        "run_dir": recorded(run_dir, out),
+        "error": error,
+        "wall_time_s": wall,
+        **after_wall,
+        "overrides": " ".join(recorded_override(o, out) for o in run.overrides),
+        "optimiser": optimiser(cfg, steps),
+        **{k: v for k, v in results.items() if k.startswith(("test/", "val/"))},
+        "headline": shown,
+    }
 
 
 def declared_headline(module, control: bool = False) -> list[str]:
