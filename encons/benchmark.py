@@ -4,13 +4,10 @@ The library is :mod:`encons.tools.benchmark`, so importing this file is refused 
 function, never both).
 """
 
-import sys
+from encons.entry import command_file
 
-if __name__ != "__main__":
-    raise ImportError(
-        "encons.benchmark is only the command `python -m encons.benchmark`; import encons.tools.benchmark"
-    )
-
-from encons.entry.cli import main  # noqa: E402 - only when run as the command
-
-main(["benchmark", *sys.argv[1:]])
+command_file(
+    __name__,
+    "benchmark",
+    "encons.benchmark is only the command `python -m encons.benchmark`; import encons.tools.benchmark",
+)

@@ -5,11 +5,8 @@ The library is :mod:`encons.tools.control`, so importing this file is refused wi
 function, never both).
 """
 
-import sys
+from encons.entry import command_file
 
-if __name__ != "__main__":
-    raise ImportError("encons.control is only the command `python -m encons.control`; import encons.tools.control")
-
-from encons.entry.cli import main  # noqa: E402 - only when run as the command
-
-main(["control", *sys.argv[1:]])
+command_file(
+    __name__, "control", "encons.control is only the command `python -m encons.control`; import encons.tools.control"
+)

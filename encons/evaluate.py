@@ -5,14 +5,11 @@ The Python name ``encons.evaluate`` is the API's function (:func:`encons.entry.a
 refused with that name (a name is a module or a function, never both).
 """
 
-import sys
+from encons.entry import command_file
 
-if __name__ != "__main__":
-    raise ImportError(
-        "encons.evaluate is the API's function, not a module: call encons.evaluate(run); "
-        "`python -m encons.evaluate` is the command"
-    )
-
-from encons.entry.cli import main  # noqa: E402 - only when run as the command
-
-main(["evaluate", *sys.argv[1:]])
+command_file(
+    __name__,
+    "evaluate",
+    "encons.evaluate is the API's function, not a module: call encons.evaluate(run); "
+    "`python -m encons.evaluate` is the command",
+)

@@ -4,11 +4,8 @@ The library is :mod:`encons.tools.report`, so importing this file is refused wit
 function, never both).
 """
 
-import sys
+from encons.entry import command_file
 
-if __name__ != "__main__":
-    raise ImportError("encons.report is only the command `python -m encons.report`; import encons.tools.report")
-
-from encons.entry.cli import main  # noqa: E402 - only when run as the command
-
-main(["report", *sys.argv[1:]])
+command_file(
+    __name__, "report", "encons.report is only the command `python -m encons.report`; import encons.tools.report"
+)

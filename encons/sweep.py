@@ -4,11 +4,6 @@ The library is :mod:`encons.tools.sweep`, so importing this file is refused with
 function, never both).
 """
 
-import sys
+from encons.entry import command_file
 
-if __name__ != "__main__":
-    raise ImportError("encons.sweep is only the command `python -m encons.sweep`; import encons.tools.sweep")
-
-from encons.entry.cli import main  # noqa: E402 - only when run as the command
-
-main(["sweep", *sys.argv[1:]])
+command_file(__name__, "sweep", "encons.sweep is only the command `python -m encons.sweep`; import encons.tools.sweep")
