@@ -373,5 +373,15 @@ class StackedEnsemble(EnsembleModule):
     def on_validation_epoch_start(self) -> None:
         self.stacked.model.copy_to([m.model for m in self.members])
 
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        """The members' own weights current in the file as well (its ``members.<k>.`` entries, which ``encons.load``
+        and ``encons.evaluate`` read): the stacked weights copied into them, also on an epoch without validation
+        (Lightning took the state dict before this hook)."""
+        self.stacked.model.copy_to([m.model for m in self.members])
+        checkpoint["state_dict"].update(
+            {f"members.{k}.{name}": value for k, m in enumerate(self.members) for name, value in m.state_dict().items()}
+        )
+        super().on_save_checkpoint(checkpoint)
+
     def on_train_end(self) -> None:
         self.stacked.model.copy_to([m.model for m in self.members])

@@ -28,6 +28,7 @@ from encons.infra.errors import ConfigError, DivergenceError, Interrupted
 from encons.infra.io import write_yaml
 from encons.training import attempts, fitting
 from encons.training.build import build, build_trainer
+from encons.training.members import ENSEMBLE_KEY
 from encons.training.results import Ensemble, Run, member_folders, summarise
 
 log = logging.getLogger(__name__)
@@ -242,7 +243,9 @@ def _finish_wandb(loggers: list) -> None:
 
 def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") -> Run | Ensemble:
     """A run back from its folder (checkpoint ``ckpt``: best, last or a path) or from a ``.ckpt`` file; a seed
-    ensemble's folder gives an ``encons.training.results.Ensemble`` of its members, each loaded so.
+    ensemble's folder (or its ``last.ckpt``) gives an ``encons.training.results.Ensemble`` of its members: with
+    ``ckpt=best`` each member's own best checkpoint, with ``last`` or the ensemble's ``.ckpt`` every member's
+    weights from that one file.
 
     The config comes from the checkpoint itself (``encons_config``), else from ``config.yaml``
     beside ``checkpoints/``; ``overrides`` (``"data.test_steps=400"``) change it before building.
@@ -261,6 +264,13 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
             f"that train wrote, or its .ckpt"
         )
     state = checkpoints.read(ckpt_file)
+    if ENSEMBLE_KEY in state:  # an ensemble's own checkpoint: its members, each from its slice of the file
+        return _ensemble_from(run_dir, ckpt_file, state, overrides)
+    return _run_from(run_dir, ckpt_file, state, overrides)
+
+
+def _run_from(run_dir: Path, ckpt_file: Path, state: dict, overrides: Iterable[str]) -> Run:
+    """The run of folder ``run_dir`` built from its config and given the weights of checkpoint ``state``."""
     if checkpoints.CONFIG_KEY in state:
         cfg = OmegaConf.create(checkpoints.current_targets(state[checkpoints.CONFIG_KEY]))
     elif (run_dir / "config.yaml").is_file():
@@ -286,8 +296,8 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
 
 
 def _ensemble(path: Path, overrides: Iterable[str], ckpt: str) -> Ensemble | None:
-    """The seed ensemble of folder ``path``, its members loaded (None: ``path`` is not an ensemble's folder)."""
-
+    """The seed ensemble of folder ``path``, its members loaded (None: ``path`` is not an ensemble's folder):
+    ``best`` from each member's own best checkpoint, else from the ensemble's checkpoint ``ckpt``."""
     found = member_folders(path)
     if found is None:
         return None
@@ -298,7 +308,42 @@ def _ensemble(path: Path, overrides: Iterable[str], ckpt: str) -> Ensemble | Non
             f"{str(path)!r} is a seed ensemble whose member folder {missing[0]!r} is gone; allowed: "
             f"an ensemble folder with its members, or one member's folder"
         )
+    if ckpt != "best":
+        ckpt_file = checkpoints.find(path, ckpt)
+        state = checkpoints.read(ckpt_file)
+        if ENSEMBLE_KEY not in state:
+            raise ConfigError(
+                f"ckpt={ckpt}: {str(ckpt_file)!r} is not the checkpoint of the ensemble {str(path)!r}; allowed: best, "
+                f"last, or a .ckpt the ensemble wrote"
+            )
+        return _ensemble_from(path, ckpt_file, state, overrides)
     members = cast("list[Run]", [load(f, overrides, ckpt) for f in folders])  # a member's folder holds one run
+    return Ensemble(members, seeds, {}, {}, path)
+
+
+def _ensemble_from(path: Path, ckpt_file: Path, state: dict, overrides: Iterable[str]) -> Ensemble:
+    """The ensemble of folder ``path`` with every member's weights from the ensemble's checkpoint ``state``
+    (its ``members.<k>.`` entries, which the stacked path keeps current: ``StackedEnsemble.on_save_checkpoint``);
+    each member's config from its own folder."""
+    found = member_folders(path)
+    if found is None:
+        raise ConfigError(
+            f"{str(ckpt_file)!r} is a seed ensemble's checkpoint, and {str(path)!r} has no members.json; allowed: "
+            f"the checkpoint inside the ensemble's folder that wrote it"
+        )
+    seeds, folders = found
+    saved = list(state[ENSEMBLE_KEY].get("seeds", seeds))
+    if saved != list(seeds):
+        raise ConfigError(
+            f"{str(ckpt_file)!r} holds seeds {saved}, the ensemble folder {str(path)!r} seeds {list(seeds)}; "
+            f"allowed: the checkpoint of this ensemble"
+        )
+    weights = state["state_dict"]
+    members = []
+    for k, folder in enumerate(folders):
+        prefix = f"members.{k}."
+        own = {name.removeprefix(prefix): value for name, value in weights.items() if name.startswith(prefix)}
+        members.append(_run_from(folder, ckpt_file, {"state_dict": own}, overrides))
     return Ensemble(members, seeds, {}, {}, path)
 
 

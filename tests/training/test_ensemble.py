@@ -131,6 +131,29 @@ def test_a_members_best_checkpoint_is_a_single_seed_run(tmp_path, run):
     assert again == {k: v for k, v in member.metrics.items() if k.startswith("test/")}
 
 
+@pytest.mark.parametrize("stacked", [True, False])
+def test_ckpt_last_of_an_ensemble_gives_every_members_last_weights(tmp_path, run, monkeypatch, stacked):
+    """With no best checkpoint the members test their last weights; ``evaluate(folder, ckpt="last")`` and
+    ``evaluate(<its last.ckpt>)`` read those weights from the ensemble's one ``last.ckpt`` and give each member's
+    test metrics to the digit."""
+    real = ensemble._module
+    monkeypatch.setattr(ensemble, "_module", lambda c, m, s, d, _: real(c, m, s, d, stacked))
+    ovr = ["model=node", "system=pendulum1", "seeds=[0,1]", "~callbacks.best", "trainer.max_epochs=3"]
+    ens = run("ens", ovr)
+    assert ens.path.startswith("stacked" if stacked else "loop")
+    want = [{k: v for k, v in m.metrics.items() if k.startswith("test/")} for m in ens.members]
+    last = tmp_path / "ens" / "checkpoints" / "last.ckpt"
+    for source, ckpt in ((tmp_path / "ens", "last"), (last, "best")):
+        loaded = api.load(source, ckpt=ckpt)
+        assert isinstance(loaded, api.Ensemble) and [m.checkpoint for m in loaded.members] == [last, last]
+        assert [api.evaluate(m) for m in loaded.members] == want
+    single = torch.load(last, weights_only=True)
+    del single["encons_ensemble"]  # what a single run's checkpoint lacks
+    torch.save(single, tmp_path / "single.ckpt")
+    with pytest.raises(ConfigError, match="is not the checkpoint of the ensemble"):
+        api.load(tmp_path / "ens", ckpt=str(tmp_path / "single.ckpt"))
+
+
 @pytest.mark.parametrize(
     "bad, says",
     [
