@@ -127,9 +127,10 @@ def _narrow(width: int) -> bool:
 
 class EnsembleLinear(nn.Module):
     """K ``nn.Linear`` layers as one: ``weight`` (K, out, in) and ``bias`` (K, out) (or None), on inputs whose
-    leading axis is the member axis, (K, ..., in) -> (K, ..., out), by one batched product (the ensemble
-    dimension written into the layer; ``encons.training.stacked`` builds seed ensembles of them). ``MLPTape`` and
-    ``narrow_in``/``narrow_out`` read these weights per member too."""
+    leading axis is the member axis, (K, ..., in) -> (K, ..., out), or the member axis folded member-major into
+    it, (K·N, ..., in) -> (K·N, ..., out) (rows k·N … (k+1)·N − 1 are member k's: the same memory), by one
+    batched product (the ensemble dimension written into the layer; ``encons.training.stacked`` builds seed
+    ensembles of them). ``MLPTape`` and ``narrow_in``/``narrow_out`` read these weights per member too."""
 
     def __init__(self, layers: Sequence[nn.Linear]):
         super().__init__()
@@ -141,11 +142,10 @@ class EnsembleLinear(nn.Module):
         )
 
     def forward(self, x: Tensor) -> Tensor:
-        k, lead = x.shape[0], x.shape[1:-1]
-        rows = x.reshape(k, -1, x.shape[-1])
+        rows = x.reshape(self.weight.shape[0], -1, x.shape[-1])
         weight = self.weight.transpose(1, 2)
         out = torch.bmm(rows, weight) if self.bias is None else torch.baddbmm(self.bias.unsqueeze(1), rows, weight)
-        return out.reshape(k, *lead, out.shape[-1])
+        return out.reshape(*x.shape[:-1], out.shape[-1])
 
 
 #: The layers ``MLPTape`` reads as linear: a network's own, and K of them stacked

@@ -12,8 +12,10 @@ Lim & Kasim regularisers act on the latent field (``TrainingModule`` passes them
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Annotated, ClassVar
 
+import torch
 from torch import Tensor, nn
 
 from encons.infra.bounds import Count, Declared, NonNegative, Range
@@ -47,9 +49,10 @@ class Observation(nn.Module, Declared):
         """States (..., 2n) -> observations (..., *shape of one observation)."""
         return s
 
-    def loss(self, x: Tensor, s: Tensor, pred: Tensor) -> Tensor:
+    def loss(self, x: Tensor, s: Tensor, pred: Tensor, reduce: Callable[[Tensor], Tensor] = torch.mean) -> Tensor:
         """Terms added to the rollout objective, given observations ``x`` (B, T, ...), their encoded
-        states ``s`` and the rolled-out states ``pred`` (B, T, 2n). None for the identity."""
+        states ``s`` and the rolled-out states ``pred`` (B, T, 2n), one per window, meaned over the windows by
+        ``reduce`` (a stacked ensemble's means each member's, ``encons.training.stacked``). Zero for the identity."""
         return x.new_zeros(())
 
     def check_data(self, arrays: dict[str, Tensor], source: str, window: int) -> None:
@@ -154,13 +157,13 @@ class Autoencoder(Observation):
     def decode(self, s: Tensor) -> Tensor:
         return self.decode_stack(s)[..., 0, :, :]
 
-    def loss(self, x: Tensor, s: Tensor, pred: Tensor) -> Tensor:
+    def loss(self, x: Tensor, s: Tensor, pred: Tensor, reduce: Callable[[Tensor], Tensor] = torch.mean) -> Tensor:
         w_rec, w_pred, w_vel = self.weights
         rec = (self.decode_stack(s) - self.stacks(x)).square().sum((-1, -2, -3)).mean(-1)
         predicted = (self.decode(pred) - x).square().sum((-1, -2)).mean(-1)
         q, p = s.chunk(2, -1)
         velocity = (p[:, :-1] - q.diff(dim=1)).square().sum(-1).mean(-1) if s.shape[1] > 1 else 0.0
-        return (w_rec * rec + w_pred * predicted + w_vel * velocity).mean()
+        return reduce(w_rec * rec + w_pred * predicted + w_vel * velocity)
 
     def check_data(self, arrays: dict[str, Tensor], source: str, window: int) -> None:
         frames = arrays.get(self.key)

@@ -10,9 +10,10 @@ whose loss turns non-finite is reported diverged and left out from then on; the 
 
 Two paths compute the members' losses (``EnsembleModule.path``):
 
-- ``stacked``: the members' networks as one stacked model (``encons.training.stacked``:
-  ``torch.func.stack_module_state`` + ``functional_call`` + ``vmap`` over the member axis, folded into the batch axis),
-  one forward and one backward for all members; for the models and settings ``encons.training.stacked.why_not`` accepts;
+- ``stacked``: the members' networks (and observation models: the pixel models' autoencoders) as one stacked model
+  (``encons.training.stacked``: the ensemble dimension written into the layers, or ``vmap`` over the member axis,
+  folded into the batch axis), one forward and one backward for all members; for the models and settings
+  ``encons.training.stacked.why_not`` accepts;
 - ``loop``: each member's own ``training_step`` in turn (one backward of their sum) — every model, every
   objective, regulariser, observation and schedule, e.g. ``ReduceLROnPlateau`` on a member's own validation.
 

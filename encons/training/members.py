@@ -256,6 +256,7 @@ class StackedEnsemble(EnsembleModule):
             objective=m.objective,
             regulariser=m.regulariser,
             horizon=m.horizon,
+            observation=stacking.stacked_observation([x.observation for x in members]),
             model_name=m.model_name,
         )
         self.factors: list[Any] = []  # per member: a one-parameter optimiser whose lr its plateau scheduler moves
@@ -320,7 +321,7 @@ class StackedEnsemble(EnsembleModule):
         self.log("train/loss", losses.detach()[mask].mean(), prog_bar=True, batch_size=size)
         opt.zero_grad()
         self.manual_backward(torch.where(mask, losses, torch.zeros_like(losses)).sum())
-        weights = list(self.stacked.model.weights)
+        weights: list[Tensor] = list(self.stacked.parameters())  # the model's and the observation's, member axis first
         with torch.no_grad():
             for w in weights:
                 if w.grad is not None:
@@ -371,7 +372,7 @@ class StackedEnsemble(EnsembleModule):
                 s.scheduler.step(metrics[key])
 
     def on_validation_epoch_start(self) -> None:
-        self.stacked.model.copy_to([m.model for m in self.members])
+        self.stacked.copy_to(self.members)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         """The members' own weights current in the file as well (its ``members.<k>.`` entries, which ``encons.load``
@@ -384,4 +385,4 @@ class StackedEnsemble(EnsembleModule):
         super().on_save_checkpoint(checkpoint)
 
     def on_train_end(self) -> None:
-        self.stacked.model.copy_to([m.model for m in self.members])
+        self.stacked.copy_to(self.members)

@@ -106,7 +106,7 @@ class TrainingModule(pl.LightningModule):
     def rollout_loss(self, x: Tensor, states: Tensor, pred: Tensor) -> Tensor:
         """L1 of the rollout against the (encoded) states, summed over the window, plus the observation's terms."""
         return self.reduce((pred[:, : states.shape[1]] - states).abs().sum((-1, -2))) + self.observation.loss(
-            x, states, pred
+            x, states, pred, self.reduce
         )
 
     def reduce(self, terms: Tensor) -> Tensor:

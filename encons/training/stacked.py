@@ -12,16 +12,22 @@ per-sample field); ``vmap`` cannot pass a branch on values, so a discrete model'
 Outside the model the member axis is folded into the batch axis (member-major: rows ``k·N … (k+1)·N − 1`` are
 member ``k``'s copy of the batch), so the integrator, the objective and the rollout code run once, unchanged, on
 K·N windows; each objective means its terms by ``TrainingModule.reduce``, which ``StackedTraining`` takes per
-member, giving the K losses whose sum's gradient is each member's own. One optimiser over the stacked
-parameters is K optimisers when it acts elementwise (Adam, AdamW, SGD): ``why_not`` checks this by name.
-Gradient clipping is per member (a norm over one member's slices); a schedule on a member's own metric
-(``ReduceLROnPlateau``) is one scheduler per member, whose learning-rate factor scales that member's step.
-Validation, checkpoints and tests use the members' own modules, into which the stacked weights are copied
-before each validation and at the end.
+member, giving the K losses whose sum's gradient is each member's own. An observation model (the pixel models'
+autoencoder, ``encons.models.observation``) is stacked as a copy whose every ``nn.Linear`` is an ``EnsembleLinear``
+(``stacked_observation``), which takes the folded rows as they are: member ``k``'s frames are encoded by its own
+encoder, rolled out by its own dynamics and decoded by its own decoder, one batched product per layer for all
+members, and ``Observation.loss`` means its terms per member by the same ``reduce``; a regulariser acts on each
+member's own encodings. One optimiser over the stacked parameters is K optimisers when it acts elementwise (Adam,
+AdamW, SGD): ``why_not`` checks this by name. Gradient clipping is per member (a norm over one member's slices);
+a schedule on a member's own metric (``ReduceLROnPlateau``) is one scheduler per member, whose learning-rate factor
+scales that member's step.
+Validation, checkpoints and tests use the members' own modules (model and observation), into which the stacked
+weights are copied before each validation and at the end (``StackedTraining.copy_to``).
 
-``why_not`` names what no stacked way takes (an observation model's encoder, a non-elementwise optimiser,
-``compile``); ``probe`` checks on the first batch that the stacked losses equal the members' own;
-``step_times`` measures whether the stacked step is faster than the loop's (``encons.training.ensemble`` picks by it).
+``why_not`` names what no stacked way takes (an observation model with a parameter outside ``nn.Linear`` layers,
+a non-elementwise optimiser, ``compile``); ``probe`` checks on the first batch that the stacked losses equal the
+members' own; ``step_times`` measures whether the stacked step is faster than the loop's
+(``encons.training.ensemble`` picks by it).
 """
 
 from __future__ import annotations
@@ -31,7 +37,7 @@ import inspect
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from typing import Any, cast
+from typing import Any, TypeVar, cast
 
 import torch
 from torch import Tensor, nn
@@ -39,35 +45,76 @@ from torch.func import functional_call, stack_module_state, vjp, vmap
 
 from encons.models.base import DynamicsModel
 from encons.models.networks import EnsembleLinear
+from encons.models.observation import Observation
 from encons.training.module import TrainingModule
 
+M = TypeVar("M", bound=nn.Module)
 ELEMENTWISE = ("Adam", "AdamW", "SGD", "RMSprop", "Adamax")  # optimisers whose step acts on each element alone
 
 
-def dimension_model(models: Sequence[DynamicsModel]) -> nn.Module | None:
-    """A copy of ``models[0]`` whose every ``nn.Linear`` is an ``EnsembleLinear`` of the members' layers; None
-    where a parameter lives outside ``nn.Linear`` layers, a buffer differs between members (a constant of the
-    model is shared), the members differ in layout, or the model keeps a per-rollout cache (``rollout_scope``)."""
-    if getattr(type(models[0]), "rollout_scope") is not getattr(DynamicsModel, "rollout_scope"):
-        return None
-    linears = [name for name, mod in models[0].named_modules() if isinstance(mod, nn.Linear)]
+def linear_names(modules: Sequence[nn.Module]) -> list[str] | None:
+    """The names of ``modules[0]``'s ``nn.Linear`` layers where every parameter lives in them, the modules share
+    their layout (parameter names) and their buffers are equal (a constant shared by all members); else None
+    (also where there is no ``nn.Linear``)."""
+    linears = [name for name, mod in modules[0].named_modules() if isinstance(mod, nn.Linear)]
     owned = {f"{n}.{p}" for n in linears for p in ("weight", "bias")}
-    if not linears or not {n for n, _ in models[0].named_parameters()} <= owned:
+    if not linears or not {n for n, _ in modules[0].named_parameters()} <= owned:
         return None
-    buffers = [dict(m.named_buffers()) for m in models]
+    buffers = [dict(m.named_buffers()) for m in modules]
     if any(b.keys() != buffers[0].keys() or not all(torch.equal(b[n], buffers[0][n]) for n in b) for b in buffers):
         return None
-    if any([n for n, _ in m.named_parameters()] != [n for n, _ in models[0].named_parameters()] for m in models):
+    if any([n for n, _ in m.named_parameters()] != [n for n, _ in modules[0].named_parameters()] for m in modules):
         return None
-    stacked = copy.deepcopy(models[0])
-    for name in linears:
+    return linears
+
+
+def ensemble_copy(modules: Sequence[M], names: Sequence[str]) -> M:
+    """A copy of ``modules[0]`` whose ``nn.Linear`` layers ``names`` (``linear_names``) are each an
+    ``EnsembleLinear`` of the modules' layers of that name: its own code runs once for all members, on rows whose
+    leading axis is the member axis or folded member-major into it."""
+    stacked = copy.deepcopy(modules[0])
+    for name in names:
         parent, _, leaf = name.rpartition(".")
         setattr(
             stacked.get_submodule(parent) if parent else stacked,
             leaf,
-            EnsembleLinear([cast(nn.Linear, m.get_submodule(name)) for m in models]),  # names of nn.Linear layers
+            EnsembleLinear([cast(nn.Linear, m.get_submodule(name)) for m in modules]),  # names of nn.Linear layers
         )
     return stacked
+
+
+@torch.no_grad()
+def copy_linears(stacked: nn.Module, modules: Sequence[nn.Module]) -> None:
+    """Write member ``k``'s slices of every ``EnsembleLinear`` of ``stacked`` (an ``ensemble_copy``) into the
+    ``nn.Linear`` of the same name in ``modules[k]``."""
+    for name, layer in stacked.named_modules():
+        if isinstance(layer, EnsembleLinear):
+            for k, module in enumerate(modules):
+                linear = cast(nn.Linear, module.get_submodule(name))  # the layer EnsembleLinear stacks
+                linear.weight.copy_(layer.weight[k])
+                if layer.bias is not None:
+                    cast(Tensor, linear.bias).copy_(layer.bias[k])
+
+
+def dimension_model(models: Sequence[DynamicsModel]) -> nn.Module | None:
+    """``ensemble_copy`` of the models; None where ``linear_names`` finds none or the model keeps a per-rollout
+    cache (``rollout_scope``)."""
+    if getattr(type(models[0]), "rollout_scope") is not getattr(DynamicsModel, "rollout_scope"):
+        return None
+    names = linear_names(models)
+    return None if names is None else ensemble_copy(models, names)
+
+
+def stacked_observation(observations: Sequence[Observation]) -> Observation | None:
+    """The members' observation models as one: None for the identity (the stacked training's default), else
+    ``ensemble_copy`` of them (an autoencoder's encoder and decoder: one batched product per layer for all
+    members, on the member-major folded rows the stacked training passes; ``why_not`` refuses an observation
+    with a parameter outside ``nn.Linear`` layers)."""
+    if observations[0].identity:
+        return None
+    names = linear_names(observations)
+    assert names is not None  # why_not refused the run otherwise
+    return ensemble_copy(observations, names)
 
 
 class _Call(nn.Module):
@@ -132,8 +179,8 @@ class StackedModel(nn.Module):
     def per_member(self, fn: str | Callable[..., Any], args: tuple, folded: tuple[bool, ...]) -> Any:
         """``template.<fn>(*args)`` (or ``fn(template, *args)``) for every member on its weights (vmap over the
         member axis): the ``folded`` arguments are tensors folded member-major along their leading axis, the
-        others (times, points, None) are shared by all members. The result is folded the same way where an
-        argument was, else it gets a leading member axis."""
+        others (times, None) are shared by all members. The result is folded the same way where an argument was
+        (one number per member stays (K,)), else it gets a leading member axis."""
         template = _Call(self.__dict__["template"], fn)
         params, buffers = self.member_weights()
         params = {f"model.{n}": v for n, v in params.items()}
@@ -188,16 +235,16 @@ class StackedModel(nn.Module):
         yield
 
     def penalty(self, regulariser: Any, points: Tensor, u: Tensor | None) -> Tensor:
-        """``regulariser(member, points, u)`` of every member (K,), at the same points for all. With the ensemble
-        dimension (``dimension_penalty``: a Jacobian penalty on the default constrained field), every member's
-        per-sample Jacobians come from one reverse pass per field dimension through the whole stacked field (its
-        rows are independent, so row b's cotangent e_j gives row j of row b's Jacobian); else ``per_member``."""
+        """``regulariser(member, points, u)`` of every member (K,), each at its own rows of ``points`` and ``u``
+        (folded member-major: the batch's states, or each member's own encodings of its frames). With the
+        ensemble dimension (``dimension_penalty``: a Jacobian penalty on the default constrained field), every
+        member's per-sample Jacobians come from one reverse pass per field dimension through the whole stacked
+        field (its rows are independent, so row b's cotangent e_j gives row j of row b's Jacobian); else
+        ``per_member`` (one number per member: (K,))."""
         if self.dimension is None:
-            return self.per_member(regulariser, (points, u), (False, False))
-        s = points.repeat(self.k, 1)
-        u = None if u is None else u.repeat(self.k, 1)
-        z = self.to_internal(s)
-        t = torch.zeros((), dtype=s.dtype, device=s.device)
+            return self.per_member(regulariser, (points, u), (True, u is not None))
+        z = self.to_internal(points)
+        t = torch.zeros((), dtype=points.dtype, device=points.device)
         _, pullback = cast("tuple[Tensor, Callable]", vjp(lambda z: self(t, z) if u is None else self(t, z, u), z))
         basis = torch.eye(z.shape[-1], dtype=z.dtype, device=z.device).unsqueeze(1).expand(-1, *z.shape)
         jac = vmap(pullback)(basis)[0].movedim(0, 1)  # (B, d out, d in)
@@ -207,13 +254,7 @@ class StackedModel(nn.Module):
     def copy_to(self, models: Sequence[nn.Module]) -> None:
         """Write member ``k``'s slices into ``models[k]``'s own parameters and buffers."""
         if self.dimension is not None:
-            for name, layer in self.dimension.named_modules():
-                if isinstance(layer, EnsembleLinear):
-                    for k, model in enumerate(models):
-                        linear = cast(nn.Linear, model.get_submodule(name))  # the layer EnsembleLinear stacks
-                        linear.weight.copy_(layer.weight[k])
-                        if layer.bias is not None:
-                            cast(Tensor, linear.bias).copy_(layer.bias[k])
+            copy_linears(self.dimension, models)
             return
         params, buffers = self.member_weights()
         for k, model in enumerate(models):
@@ -232,8 +273,9 @@ def dimension_penalty(model: DynamicsModel, regulariser: Any) -> bool:
 
 
 class StackedTraining(TrainingModule):
-    """The training objective of all members at once: a ``TrainingModule`` on a ``StackedModel`` whose
-    ``reduce`` means each member's rows, so ``loss`` returns the K members' losses."""
+    """The training objective of all members at once: a ``TrainingModule`` on a ``StackedModel`` (and, under an
+    observation model, on its ``stacked_observation``) whose ``reduce`` means each member's rows, so ``loss``
+    returns the K members' losses."""
 
     model: StackedModel  # type: ignore[assignment]  # stands in for the DynamicsModel: forwards what it lacks to one
 
@@ -248,12 +290,18 @@ class StackedTraining(TrainingModule):
         a member's training loss is their sum."""
         k = self.model.k
         folded = {key: v.repeat(k, *[1] * (v.dim() - 1)) for key, v in batch.items() if isinstance(v, Tensor)}
-        return self.loss(folded), self.penalty(batch)
+        return self.loss(folded), self.penalty(folded)
 
     def training_loss(self, batch: dict) -> Tensor:
         """The K members' training losses (K,): each objective plus its penalty."""
         objective, penalty = self.member_losses(batch)
         return objective if penalty is None else objective + penalty
+
+    def copy_to(self, members: Sequence[TrainingModule]) -> None:
+        """Write member ``k``'s slices of the stacked weights into ``members[k]``'s model and observation."""
+        self.model.copy_to([m.model for m in members])
+        if not self.observation.identity:
+            copy_linears(self.observation, [m.observation for m in members])
 
 
 def optimizer(partial: Any, params: list[Tensor]) -> torch.optim.Optimizer:
@@ -269,10 +317,10 @@ def optimizer(partial: Any, params: list[Tensor]) -> torch.optim.Optimizer:
 
 
 def why_not(cfg: Any, members: Sequence[TrainingModule]) -> str | None:
-    """Why the members cannot train stacked (None: they can), from the model, objective and settings alone."""
+    """Why the members cannot train stacked (None: they can), from the model, observation and settings alone."""
     member = members[0]
-    if not member.observation.identity:
-        return f"observation={type(member.observation).__name__} trains an encoder beside the model"
+    if not member.observation.identity and linear_names([m.observation for m in members]) is None:
+        return f"observation={type(member.observation).__name__} has a parameter outside nn.Linear layers"
     if cfg.get("compile"):
         return "compile=true compiles one model's field"
     opt = member.optimizer.func if hasattr(member.optimizer, "func") else member.optimizer

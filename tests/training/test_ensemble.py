@@ -79,6 +79,7 @@ def _assert_member_is(ens, seed, separate, folder):
             id="e2e_symo-clipped",
         ),  # the control profile's clipping, per member
         pytest.param("glnn", "damped_oscillator", "stacked", [], marks=pytest.mark.slow),
+        ("node", "pixel_pendulum", "stacked", []),  # each member's own autoencoder; its test scores decoded frames
     ],
 )
 def test_members_equal_their_separate_runs(tmp_path, run, monkeypatch, model, system, path, extra):

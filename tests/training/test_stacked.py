@@ -35,6 +35,9 @@ FAMILIES = [
     ("lnode", "pendulum_control", ["evaluators.santos.steps=20"], "ensemble dimension"),
     ("symo", "pendulum_control", ["objective=residual", "evaluators.santos.steps=20"], "ensemble dimension"),
     ("e2e_symo", "pendulum_control", ["evaluators.santos.steps=20"], "ensemble dimension"),  # Newton, per member
+    ("node", "pixel_pendulum", [], "ensemble dimension"),  # each member's own autoencoder
+    ("node", "pixel_pendulum", ["regulariser=hamiltonian", "regulariser.weight=10"], "ensemble dimension"),
+    ("inn_node", "pixel_pendulum", [], "vmap"),  # the autoencoder's layers stacked beside a vmapped model
 ]
 
 
@@ -101,12 +104,15 @@ def test_stacked_steps_equal_each_members_own(tmp_path, cache, model, system, ex
 
 
 def test_a_loop_is_kept_only_with_its_reason(tmp_path, cache):
-    """The pixel models train an encoder beside the model: the loop, saying so in full."""
+    """An observation model with a parameter outside ``nn.Linear`` layers (here a scale added to the pixel
+    models' autoencoder) has no stacked copy: the loop, saying so in full."""
     data, members = _members("node", "pixel_pendulum", [], cache, tmp_path)
+    for member in members:
+        member.observation.scale = torch.nn.Parameter(torch.ones(()))
     cfg = api.compose(
         "model=node", "system=pixel_pendulum", "debug=fast", "logger=none", output_dir=tmp_path / "e", cache_dir=cache
     )
     assert (
         ensemble._module(cfg, members, [0, 1], data, None).path
-        == "loop: observation=Autoencoder trains an encoder beside the model"
+        == "loop: observation=Autoencoder has a parameter outside nn.Linear layers"
     )
