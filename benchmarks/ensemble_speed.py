@@ -12,7 +12,9 @@ that other processes on shared cores do not count).
 
 Cells (conf/profile): ``lim_kasim`` mass-spring NODE (2 × 200 softplus, derivative objective, one 30-state
 trajectory per batch), ``santos`` cart-pole NODE-RK4 at N_train = 8 (2 × 256 tanh, one-step objective, batch
-of one trajectory of 33 states), ``finzi`` gyroscope CHNN (3 × 200, batch 200 windows of 5; report only).
+of one trajectory of 33 states), ``finzi`` gyroscope CHNN (3 × 200, batch 200 windows of 5; report only),
+``pixels`` pixel-pendulum NODE (profile=pixels: 28 × 28 frames, two stacked, through each member's 2 × 200 ReLU
+autoencoder to a latent of 2; 2 × 200 NODE; batch 32 windows of 3 frames).
 ``--layers`` also times the network alone: ``vmap`` of ``functional_call`` against an ensemble dimension written
 into the layers (``baddbmm``). ``--split`` also splits one step at the largest K by ``torch.profiler`` into
 matrix products (``mm``/``addmm``/``bmm``/``baddbmm``: the arithmetic an ensemble cannot share), the optimiser
@@ -82,6 +84,17 @@ FINZI = [
     "optimizer.lr=1e-2",
     "optimizer.weight_decay=1e-4",
 ]
+PIXELS = [
+    "system=pixel_pendulum",
+    "optimizer=adamw",
+    "scheduler=none",
+    "optimizer.lr=1e-4",
+    "optimizer.weight_decay=0.0",
+    "model.hidden=200",
+    "model.depth=2",
+    "data.windows=all",
+    "data.chunk_len=3",
+]
 CELLS = {
     "lim_kasim": [*LIM_KASIM, "model=node"],
     "lim_kasim-hnn": [*LIM_KASIM, "model=hnn"],
@@ -99,6 +112,7 @@ CELLS = {
     "zhong-lnn_structure": [*ZHONG, "model=lnn_structure", "model.shared_trunk=false"],
     "finzi": [*FINZI, "model=chnn"],
     "finzi-clnn": [*FINZI, "model=clnn"],
+    "pixels-node": [*PIXELS, "model=node"],
 }
 SLOW = ("finzi", "zhong")  # cells whose step takes 10x longer: a tenth of the steps
 
