@@ -378,7 +378,7 @@ class StackedEnsemble(EnsembleModule):
         """The members' own weights current in the file as well (its ``members.<k>.`` entries, which ``encons.load``
         and ``encons.evaluate`` read): the stacked weights copied into them, also on an epoch without validation
         (Lightning took the state dict before this hook)."""
-        self.stacked.model.copy_to([m.model for m in self.members])
+        self.stacked.copy_to(self.members)
         checkpoint["state_dict"].update(
             {f"members.{k}.{name}": value for k, m in enumerate(self.members) for name, value in m.state_dict().items()}
         )

@@ -22,7 +22,7 @@ AdamW, SGD): ``why_not`` checks this by name. Gradient clipping is per member (a
 a schedule on a member's own metric (``ReduceLROnPlateau``) is one scheduler per member, whose learning-rate factor
 scales that member's step.
 Validation, checkpoints and tests use the members' own modules (model and observation), into which the stacked
-weights are copied before each validation and at the end (``StackedTraining.copy_to``).
+weights are copied before each validation, at each checkpoint and at the end (``StackedTraining.copy_to``).
 
 ``why_not`` names what no stacked way takes (an observation model with a parameter outside ``nn.Linear`` layers,
 a non-elementwise optimiser, ``compile``); ``probe`` checks on the first batch that the stacked losses equal the

@@ -132,14 +132,21 @@ def test_a_members_best_checkpoint_is_a_single_seed_run(tmp_path, run):
     assert again == {k: v for k, v in member.metrics.items() if k.startswith("test/")}
 
 
-@pytest.mark.parametrize("stacked", [True, False])
-def test_ckpt_last_of_an_ensemble_gives_every_members_last_weights(tmp_path, run, monkeypatch, stacked):
+@pytest.mark.parametrize(
+    "system, stacked, extra",
+    [
+        ("pendulum1", True, []),
+        ("pendulum1", False, []),
+        ("pixel_pendulum", True, ["validation.criterion=none"]),  # the autoencoders' weights too, never validated
+    ],
+)
+def test_ckpt_last_of_an_ensemble_gives_every_members_last_weights(tmp_path, run, monkeypatch, system, stacked, extra):
     """With no best checkpoint the members test their last weights; ``evaluate(folder, ckpt="last")`` and
     ``evaluate(<its last.ckpt>)`` read those weights from the ensemble's one ``last.ckpt`` and give each member's
     test metrics to the digit."""
     real = ensemble._module
     monkeypatch.setattr(ensemble, "_module", lambda c, m, s, d, _: real(c, m, s, d, stacked))
-    ovr = ["model=node", "system=pendulum1", "seeds=[0,1]", "~callbacks.best", "trainer.max_epochs=3"]
+    ovr = ["model=node", f"system={system}", "seeds=[0,1]", "~callbacks.best", "trainer.max_epochs=3", *extra]
     ens = run("ens", ovr)
     assert ens.path.startswith("stacked" if stacked else "loop")
     want = [{k: v for k, v in m.metrics.items() if k.startswith("test/")} for m in ens.members]
