@@ -19,7 +19,7 @@ from encons.training.build import build_model, build_system, compose
 #: Lowest first: one package per layer (docs/architecture.md draws them). A module may import from its own package
 #: and those before it, never from a later one; every import counts.
 LAYERS = [
-    ["infra"],  # errors, declared bounds, paths, atomic files, checkpoints, threads, progress, compat
+    ["infra"],  # errors, declared bounds, paths, atomic files, checkpoints, threads, allocator, progress, compat
     ["systems"],  # the true physics
     ["models"],  # networks with physical structure
     ["numerics"],  # rollouts, the evaluation pipeline, metrics, regularisers, the Learner protocol

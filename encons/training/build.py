@@ -194,12 +194,13 @@ def build(checked: Checked, recorded: Mapping[str, float] | None = None) -> tupl
     scores (``encons.training.attempts.record``), passed down by the run."""
     import lightning.pytorch as pl
 
-    from encons.infra import threads
+    from encons.infra import allocator, threads
 
     checked = _checked(checked, "build")
     make_folders(checked.cfg)
     _route_lightning_logs()
     threads.apply(checked.cfg.get("threads"))  # before the data are simulated
+    allocator.keep_freed_memory()
     pl.seed_everything(checked.cfg.seed, workers=True, verbose=False)
     return _instantiate(checked, recorded)
 
