@@ -7,6 +7,7 @@ import json
 
 import lightning.pytorch as pl
 import pytest
+import torch
 
 from encons.entry import api
 from encons.infra.errors import ConfigError
@@ -57,6 +58,8 @@ def test_every_5_validates_on_epochs_5_10_and_the_best_checkpoint_sees_each(tmp_
     assert [r["epoch"] for r in costs["epochs"]] == list(range(1, 13))
     assert [r["epoch"] for r in costs["epochs"] if r["validated"]] == [5, 10]
     assert all(r["validation"] == 0.0 for r in costs["epochs"] if not r["validated"])
+    # last.ckpt follows every epoch, not only the validated ones (epoch 12 validated none; counted from 0)
+    assert torch.load(tmp_path / "checkpoints" / "last.ckpt", weights_only=True)["epoch"] == 11
 
 
 def test_objective_criterion_logs_the_objective_and_plateau_steps_only_after_validations(tmp_path):
