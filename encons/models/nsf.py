@@ -4,18 +4,21 @@ A learned 1-form θ(s) (an MLP ℝ²ⁿ → ℝ²ⁿ) gives the symplectic 2-for
 W(s) = (∂θ/∂s)ᵀ − ∂θ/∂s, i.e. W_ij = ∂_i θ_j − ∂_j θ_i; a network H(s) gives the Hamiltonian,
 and the field solves W ṡ = ∇H (ι_ṡ ω = dH). For θ = (p, 0) on s = (q, p), W = Jᵀ and
 ṡ = J∇H. Coordinate-free: works in any chart. W is inverted by an O(n³) solve per state.
+
+∂θ/∂s and ∇H are taken in closed form through the two networks (``MLPTape``: θ pushed along the 2n unit
+directions, H pulled back), batched over states with no per-sample transform: the same values as
+``jacfwd``/``grad`` per state to rounding (``tests/models/test_inn.py``), and a seed ensemble stacks it by the
+ensemble dimension.
 """
 
 from __future__ import annotations
 
 import torch
 from torch import Tensor
-from torch.func import grad, jacfwd
 
-from encons.infra.batching import batched
 from encons.infra.bounds import Count
 from encons.models.base import DynamicsModel
-from encons.models.networks import mlp
+from encons.models.networks import MLPTape, mlp
 from encons.systems.base import System
 
 
@@ -41,13 +44,22 @@ class NSF(DynamicsModel):
         return self.hamiltonian_net(z).squeeze(-1)
 
     def symplectic_matrix(self, z: Tensor) -> Tensor:
-        """W(s) of one state (2n,), shape (2n, 2n)."""
-        d = jacfwd(self.one_form)(z)
-        return d.T - d
-
-    def _field(self, z: Tensor) -> Tensor:
-        # inv, not linalg.solve: torch 2.13 gets vmap(jacfwd(linalg.solve)) wrong (regularisers)
-        return torch.linalg.inv(self.symplectic_matrix(z)) @ grad(self.hamiltonian)(z)
+        """W(s) of states (..., 2n), shape (..., 2n, 2n)."""
+        return symplectic_matrix(MLPTape(self.one_form, z), z)
 
     def forward(self, t: Tensor, z: Tensor) -> Tensor:  # type: ignore[override]  # no inputs: u omitted (DynamicsModel)
-        return batched(self._field, z)
+        return field(self.symplectic_matrix(z), MLPTape(self.hamiltonian_net, z).pullback())
+
+
+def symplectic_matrix(one_form: MLPTape, z: Tensor) -> Tensor:
+    """W = (∂θ/∂s)ᵀ − ∂θ/∂s at states z (..., d) of a one-form θ's tape: ``push`` along the d unit directions
+    gives D_ij = ∂θ_j/∂s_i, so W_ij = D_ij − D_ji."""
+    d = z.shape[-1]
+    dtheta, _ = one_form.push(torch.eye(d, dtype=z.dtype, device=z.device).expand(*z.shape[:-1], d, d))
+    return dtheta - dtheta.transpose(-1, -2)
+
+
+def field(w: Tensor, grad_h: Tensor) -> Tensor:
+    """ṡ with W ṡ = ∇H, per state: W (..., d, d), ∇H (..., d)."""
+    # inv, not linalg.solve: torch 2.13 gets vmap(jacfwd(linalg.solve)) wrong (the regularisers' Jacobians)
+    return (torch.linalg.inv(w) @ grad_h.unsqueeze(-1)).squeeze(-1)

@@ -6,8 +6,8 @@ a model whose parameters all live in ``nn.Linear`` layers) a copy of the model h
 axis is the member axis: its field, ``to_internal``/``from_internal``, SyMo's ``residual``, a discrete model's
 ``rollout`` (E2E-SyMo's Newton iterations, each sample of each member converging on its own), a regulariser's
 Jacobians. Otherwise ``vmap`` over the member axis of ``functional_call`` on one template of the model
-(``torch.func.stack_module_state``), for CHNN/CLNN (their masses), the INN (its coupling scales) and NSF (a
-per-sample field); ``vmap`` cannot pass a branch on values, so a discrete model's rollout needs the dimension.
+(``torch.func.stack_module_state``), for CHNN/CLNN (their masses) and the INN (its coupling scales); ``vmap``
+cannot pass a branch on values, so a discrete model's rollout needs the dimension.
 
 Outside the model the member axis is folded into the batch axis (member-major: rows ``k·N … (k+1)·N − 1`` are
 member ``k``'s copy of the batch), so the integrator, the objective and the rollout code run once, unchanged, on

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import torch
 from torch import Tensor, nn
-from torch.func import grad, jacrev, vmap
+from torch.func import grad, jacfwd, jacrev, vmap
 from torchdiffeq import odeint
 
+from encons.models import nsf
 from encons.models.inn import INNNODE, InvertibleNet
 from encons.models.nsf import NSF
 from encons.numerics.integrators import Integrator, rollout, state_derivative
 from encons.numerics.regularisers import Hamiltonian, field_jacobian, hamiltonian_violation
-from encons.systems.base import split_state
 from encons.systems.mass_spring import MassSpring
 from encons.systems.pendulum import NPendulum
 from tests.numerics.test_regularisers import HamiltonianField
@@ -88,21 +88,27 @@ def test_hamiltonian_regulariser_acts_on_the_latent_field_eq_7():
     assert hamiltonian_violation(pushed).mean().item() > 1e-3
 
 
-class CanonicalOneForm(nn.Module):
-    """θ = (p, 0) on s = (q, p): ω = dθ is the canonical symplectic form."""
-
-    def forward(self, s: Tensor) -> Tensor:
-        q, p = split_state(s)
-        return torch.cat([p, torch.zeros_like(q)], -1)
-
-
 def test_nsf_with_canonical_one_form_and_true_energy_is_the_true_field():
+    """θ = (p, 0) on s = (q, p) gives W = Jᵀ (∂θ/∂s constant), and W ṡ = ∇E then is Hamilton's field."""
     system = MassSpring(mass=1.0, stiffness=2.0)
-    model = NSF(system, hidden=8, depth=1).double()
-    model.one_form = CanonicalOneForm()
-    model.hamiltonian = lambda s: system.energy(s, "angle")
     s = torch.randn(10, 2, dtype=torch.float64)
-    assert torch.allclose(model(torch.zeros(()), s), system.vector_field(s, "angle"), atol=1e-12)
+    dtheta = torch.tensor([[0.0, 0.0], [1.0, 0.0]], dtype=torch.float64)  # D_ij = ∂θ_j/∂s_i: only ∂θ_q/∂p = 1
+    w = (dtheta - dtheta.T).expand(10, 2, 2)
+    grad_e = vmap(grad(lambda x: system.energy(x, "angle")))(s)
+    assert torch.allclose(nsf.field(w, grad_e), system.vector_field(s, "angle"), atol=1e-12)
+
+
+def test_nsf_closed_form_equals_autodiff_of_its_networks():
+    """W from θ's tape and ∇H from H's equal jacfwd/grad of the networks per state, and so does the field."""
+    torch.manual_seed(5)
+    model = NSF(NPendulum(n_links=2), hidden=16, depth=2).double()
+    s = torch.randn(6, 3, 4, dtype=torch.float64)
+    d = vmap(vmap(jacfwd(model.one_form)))(s)  # d[..., j, i] = ∂θ_j/∂s_i
+    w = d.transpose(-1, -2) - d
+    assert torch.allclose(model.symplectic_matrix(s), w, atol=1e-12)
+    grad_h = vmap(vmap(grad(model.hamiltonian)))(s)
+    want = torch.linalg.solve(w, grad_h.unsqueeze(-1)).squeeze(-1)
+    assert torch.allclose(model(torch.zeros(()), s), want, atol=1e-9)
 
 
 def test_nsf_conserves_its_learned_hamiltonian():
@@ -112,7 +118,7 @@ def test_nsf_conserves_its_learned_hamiltonian():
     s = torch.randn(32, 4, dtype=torch.float64)
     rate = (vmap(grad(model.hamiltonian))(s) * model(torch.zeros(()), s)).sum(-1)
     assert rate.abs().max() < 1e-9
-    w = vmap(model.symplectic_matrix)(s)
+    w = model.symplectic_matrix(s)
     assert torch.allclose(w, -w.transpose(-1, -2))
 
 

@@ -23,7 +23,7 @@ FAMILIES = [
     ("second_order", "damped_oscillator", [], "ensemble dimension"),
     ("chnn", "gyroscope", [], "vmap"),
     ("clnn", "gyroscope", [], "vmap"),
-    ("nsf", "mass_spring", ["objective=derivative"], "vmap"),
+    ("nsf", "mass_spring", ["objective=derivative"], "ensemble dimension"),
     (
         "node",
         "mass_spring",
