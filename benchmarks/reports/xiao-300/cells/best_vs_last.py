@@ -49,6 +49,7 @@ CELLS = [  # (system, label) in ../cells.md's order
 TRAIN_ORDER = [0, 1, 6, 2, 3, 4, 5]  # the compound cells first (the diagnostics of diag.py need them)
 DROPPED = ("~callbacks.best", "validation.criterion=none")  # the profile's since the final start
 METRICS = ("accel_mse", "state_mse_raw", "energy_mse")  # state_mse_raw: the plain mean, as the file's old table
+STAMP = re.compile(r"^\[(\d{4}-\d\d-\d\d \d\d:\d\d):\d\d,\d+\]", re.M)
 LOSS_LINE = re.compile(r"epoch (\d+) of \d+ \(step \d+\): train/loss ([0-9.eE+-]+)")
 
 
@@ -128,6 +129,7 @@ def cell_row(run, out: Path) -> dict:
     best, last = evaluated(run, out, "best"), evaluated(run, out, "last")
     losses = train_losses(out / "runs" / run.id)
     late = [v for k, v in losses.items() if k > 200]
+    stamps = STAMP.findall((out / "runs" / run.id / "train.log").read_text())
     return {
         "cell": f"{run.system} {run.label}",
         "run": f"runs/{run.id}",
@@ -137,6 +139,7 @@ def cell_row(run, out: Path) -> dict:
         **{f"{m}_best": best["metrics"].get(m) for m in METRICS},
         **{f"{m}_last": last["metrics"].get(m) for m in METRICS},
         "train_wall_s": result.get("wall_time_s"),
+        "trained_utc": [stamps[0], stamps[-1]] if stamps else None,  # train.log's first and last line
         "train_loss_epochs_201_300_min_max": [min(late), max(late)] if late else None,
         "error": result.get("error", ""),
         "tested_by": {"best": best["tested_by"], "last": last["tested_by"]},
@@ -147,10 +150,10 @@ def cell_row(run, out: Path) -> dict:
     }
 
 
-def fmt(x: float | None) -> str:
+def fmt(x: float | None, paper: bool = False) -> str:
     if x is None:
         return "–"
-    return f"{x:.2g}" if abs(x) >= 0.01 else f"{x:.1e}"
+    return f"{x:.2g}" if paper or abs(x) >= 1e-3 else f"{x:.1e}"
 
 
 def main() -> None:
@@ -167,7 +170,7 @@ def main() -> None:
         "command": "cd benchmarks/reports/xiao-300/cells && OMP_NUM_THREADS=1 nice -n 5 python best_vs_last.py OUT",
         "out": out.name,
         "code_commit": git_commit(),
-        "date_utc": started.strftime("%Y-%m-%d %H:%M"),
+        "date_utc": started.strftime("%Y-%m-%d %H:%M"),  # of this invocation; each run's: trained_utc
         "machine": f"{os.cpu_count()} CPU cores ({platform.machine()}), shared; OMP_NUM_THREADS="
         f"{os.environ.get('OMP_NUM_THREADS')}",
         "load_1min": {"start": round(load0[0], 2), "end": round(os.getloadavg()[0], 2)},
@@ -182,7 +185,7 @@ def main() -> None:
     print("|---|---|---|---|---|---|")
     for r in rows:
         cols = [" / ".join(fmt(r[f"{m}_{c}"]) for c in ("best", "last")) for m in METRICS]
-        print(f"| {r['cell']} | {fmt(r['paper_accel_mse'])} | {' | '.join(cols)} | {r['best_epoch']} |")
+        print(f"| {r['cell']} | {fmt(r['paper_accel_mse'], paper=True)} | {' | '.join(cols)} | {r['best_epoch']} |")
     print(f"wrote {HERE / 'best_vs_last.json'}")
 
 
