@@ -2,7 +2,7 @@
 and at its last (300th epoch) checkpoint, with the Acceleration evaluator (accel_mse) beside the rollout metrics.
 
     cd benchmarks/reports/xiao-300/cells      # OMP_NUM_THREADS=1, the repository's python (encons importable)
-    nice -n 5 python best_vs_last.py OUT      # OUT outside the work tree, e.g. /work/cells-out; rerun to resume
+    nice -n 5 python best_vs_last.py OUT      # OUT outside the work tree; rerun to resume
 
 The runs are ``python -m encons.benchmark profile=xiao``'s runs of the seven cells below (seed 0, 300 epochs, the
 profile's protocol), with the two settings the profile had when the final start was trained and has dropped since
