@@ -79,6 +79,7 @@ def recorded(key: str) -> dict[str, float]:
         return {r["model"]: float(r[key]) for r in csv.DictReader(f) if r["model"] in MODELS}
 
 
+@torch.no_grad()  # as the test runs (the fields take their own gradients); a kept graph fills the memory
 def rollouts(path: Path) -> tuple[dict, dict[str, torch.Tensor]]:
     """The run's tested checkpoint and its test rollouts and truths, (N, T, D) in the model's chart."""
     run = encons.load(path)
