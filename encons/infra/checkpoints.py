@@ -19,6 +19,7 @@ from encons.infra.errors import ConfigError
 
 log = logging.getLogger(__name__)
 CONFIG_KEY = "encons_config"  # where a checkpoint carries its resolved run config
+ENSEMBLE_KEY = "encons_ensemble"  # where an ensemble's last.ckpt keeps what Lightning does not
 
 #: Modules whose classes a config names by ``_target_`` and that moved into layer packages (issue 49): a config
 #: saved before (in a checkpoint or a run's config.yaml) names the old module, read as the new one.

@@ -41,7 +41,7 @@ from encons.infra import checkpoints
 from encons.infra.errors import ConfigError
 from encons.training import stacked as stacking
 from encons.training.callbacks import MemberCheckpoints
-from encons.training.members import ENSEMBLE_KEY, EnsembleModule, StackedEnsemble
+from encons.training.members import EnsembleModule, StackedEnsemble
 from encons.training.results import MEMBERS_FILE, Ensemble, Run, spread_line, summarise
 
 if TYPE_CHECKING:
@@ -121,7 +121,7 @@ def train(
     trainer, loggers = build_trainer(checked.derived(ens_cfg))
     resume = checkpoints.resume_from(cfg)
     if resume is not None:
-        saved_state = checkpoints.read(resume, "ckpt_path").get(ENSEMBLE_KEY)
+        saved_state = checkpoints.read(resume, "ckpt_path").get(checkpoints.ENSEMBLE_KEY)
         if saved_state is None:
             raise ConfigError(
                 f"ckpt_path={resume} is not a seed ensemble's checkpoint (a single run's, or a member's "

@@ -15,6 +15,7 @@ import torch
 from lightning.pytorch.core.optimizer import LightningOptimizer
 from torch import Tensor
 
+from encons.infra.checkpoints import ENSEMBLE_KEY
 from encons.infra.compat import bare_optimizer
 from encons.infra.errors import DivergenceError
 from encons.models.base import DynamicsModel
@@ -22,9 +23,6 @@ from encons.training import stacked as stacking
 from encons.training.module import TrainingModule, takes_total_steps
 
 log = logging.getLogger(__name__)
-
-
-ENSEMBLE_KEY = "encons_ensemble"  # where an ensemble's last.ckpt keeps what Lightning does not
 
 
 class MemberOptimizers(torch.optim.Optimizer):

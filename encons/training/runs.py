@@ -28,7 +28,6 @@ from encons.infra.errors import ConfigError, DivergenceError, Interrupted
 from encons.infra.io import write_yaml
 from encons.training import attempts, fitting
 from encons.training.build import build, build_trainer
-from encons.training.members import ENSEMBLE_KEY
 from encons.training.results import Ensemble, Run, member_folders, summarise
 
 log = logging.getLogger(__name__)
@@ -264,7 +263,7 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
             f"that train wrote, or its .ckpt"
         )
     state = checkpoints.read(ckpt_file)
-    if ENSEMBLE_KEY in state:  # an ensemble's own checkpoint: its members, each from its slice of the file
+    if checkpoints.ENSEMBLE_KEY in state:  # an ensemble's own checkpoint: its members, each from its slice of the file
         return _ensemble_from(run_dir, ckpt_file, state, overrides)
     return _run_from(run_dir, ckpt_file, state, overrides)
 
@@ -311,7 +310,7 @@ def _ensemble(path: Path, overrides: Iterable[str], ckpt: str) -> Ensemble | Non
     if ckpt != "best":
         ckpt_file = checkpoints.find(path, ckpt)
         state = checkpoints.read(ckpt_file)
-        if ENSEMBLE_KEY not in state:
+        if checkpoints.ENSEMBLE_KEY not in state:
             raise ConfigError(
                 f"ckpt={ckpt}: {str(ckpt_file)!r} is not the checkpoint of the ensemble {str(path)!r}; allowed: best, "
                 f"last, or a .ckpt the ensemble wrote"
@@ -332,7 +331,7 @@ def _ensemble_from(path: Path, ckpt_file: Path, state: dict, overrides: Iterable
             f"the checkpoint inside the ensemble's folder that wrote it"
         )
     seeds, folders = found
-    saved = list(state[ENSEMBLE_KEY].get("seeds", seeds))
+    saved = list(state[checkpoints.ENSEMBLE_KEY].get("seeds", seeds))
     if saved != list(seeds):
         raise ConfigError(
             f"{str(ckpt_file)!r} holds seeds {saved}, the ensemble folder {str(path)!r} seeds {list(seeds)}; "
