@@ -264,7 +264,13 @@ def load(path: str | Path, overrides: Iterable[str] = (), ckpt: str = "best") ->
         )
     state = checkpoints.read(ckpt_file)
     if checkpoints.ENSEMBLE_KEY in state:  # an ensemble's own checkpoint: its members, each from its slice of the file
-        return _ensemble_from(run_dir, ckpt_file, state, overrides)
+        found = member_folders(run_dir)
+        if found is None:
+            raise ConfigError(
+                f"{str(ckpt_file)!r} is a seed ensemble's checkpoint, and {str(run_dir)!r} has no members.json; "
+                f"allowed: the checkpoint inside the ensemble's folder that wrote it"
+            )
+        return _ensemble_from(run_dir, found, ckpt_file, state, overrides)
     return _run_from(run_dir, ckpt_file, state, overrides)
 
 
@@ -315,21 +321,17 @@ def _ensemble(path: Path, overrides: Iterable[str], ckpt: str) -> Ensemble | Non
                 f"ckpt={ckpt}: {str(ckpt_file)!r} is not the checkpoint of the ensemble {str(path)!r}; allowed: best, "
                 f"last, or a .ckpt the ensemble wrote"
             )
-        return _ensemble_from(path, ckpt_file, state, overrides)
+        return _ensemble_from(path, found, ckpt_file, state, overrides)
     members = cast("list[Run]", [load(f, overrides, ckpt) for f in folders])  # a member's folder holds one run
     return Ensemble(members, seeds, {}, {}, path)
 
 
-def _ensemble_from(path: Path, ckpt_file: Path, state: dict, overrides: Iterable[str]) -> Ensemble:
-    """The ensemble of folder ``path`` with every member's weights from the ensemble's checkpoint ``state``
-    (its ``members.<k>.`` entries, which the stacked path keeps current: ``StackedEnsemble.on_save_checkpoint``);
-    each member's config from its own folder."""
-    found = member_folders(path)
-    if found is None:
-        raise ConfigError(
-            f"{str(ckpt_file)!r} is a seed ensemble's checkpoint, and {str(path)!r} has no members.json; allowed: "
-            f"the checkpoint inside the ensemble's folder that wrote it"
-        )
+def _ensemble_from(
+    path: Path, found: tuple[list[int], list[Path]], ckpt_file: Path, state: dict, overrides: Iterable[str]
+) -> Ensemble:
+    """The ensemble of folder ``path`` (its seeds and member folders ``found``, ``member_folders``) with every
+    member's weights from the ensemble's checkpoint ``state`` (its ``members.<k>.`` entries, which the stacked path
+    keeps current: ``StackedEnsemble.on_save_checkpoint``); each member's config from its own folder."""
     seeds, folders = found
     saved = list(state[checkpoints.ENSEMBLE_KEY].get("seeds", seeds))
     if saved != list(seeds):
