@@ -18,9 +18,15 @@ autoencoder to a latent of 2; 2 × 200 NODE; batch 32 windows of 3 frames).
 ``--layers`` also times the network alone: ``vmap`` of ``functional_call`` against an ensemble dimension written
 into the layers (``baddbmm``). ``--split`` also splits one step at the largest K by ``torch.profiler`` into
 matrix products (``mm``/``addmm``/``bmm``/``baddbmm``: the arithmetic an ensemble cannot share), the optimiser
-step and the rest (per-call overhead), both ways: where the ensemble stands against its ceiling. Usage:
+step and the rest, both ways. ``--ceiling`` measures what an ensemble could share at best: a separate
+member-step's fixed cost O, the part of its time T that does not grow with the batch (its per-call overhead,
+with the optimiser step: that does not grow with the batch either), from the same step on the batch served
+twice over (``torch.cat`` of each tensor with itself: the same windows, twice the arithmetic), O = 2 T(B) −
+T(2B), fastest of ``--repeats`` interleaved rounds. K members that shared every fixed cost and none of the
+arithmetic would take (T − O) + O / K per member-step, so the ratio's ceiling at K is T / (T − O + O / K), and
+the table gives the measured ratio's fraction of it. Usage:
 ``python benchmarks/ensemble_speed.py [--cells lim_kasim santos finzi] [--members 1 2 4 8 16] [--steps 20]
-[--repeats 3] [--threads 1] [--layers] [--split] [--out FILE.md]``.
+[--repeats 3] [--threads 1] [--layers] [--split] [--ceiling] [--out FILE.md]``.
 """
 
 from __future__ import annotations
@@ -175,6 +181,17 @@ def split(step, steps: int) -> dict[str, float]:
     }
 
 
+def fixed_share(module, opt, batch: dict, steps: int, repeats: int) -> float:
+    """O / T of one separate member-step (see the module's docstring): the share of its time that does not grow
+    with the batch, from the step on ``batch`` and on ``batch`` served twice over."""
+    twice = {key: torch.cat([value, value]) for key, value in batch.items()}
+    once_s, twice_s = float("inf"), float("inf")
+    for _ in range(repeats):
+        once_s = min(once_s, timed(lambda: separate_step([module], [opt], batch), steps))
+        twice_s = min(twice_s, timed(lambda: separate_step([module], [opt], twice), steps))
+    return min(max(2 * once_s - twice_s, 0.0) / once_s, 1.0)
+
+
 def measure(
     name: str,
     cell: list[str],
@@ -184,9 +201,13 @@ def measure(
     cache: str,
     splits: list[dict] | None = None,
     path: bool | None = None,
+    ceilings: list[dict] | None = None,
 ) -> list[dict]:
     rows = []
     pool, batch = members(cell, max(ks), cache)
+    fixed = None
+    if ceilings is not None:
+        fixed = fixed_share(pool[0], pool[0].optimizer(pool[0].parameters()), batch, steps, repeats)
     for k in ks:
         mods = pool[:k]
         module = ensemble._module(
@@ -215,6 +236,23 @@ def measure(
         }
         rows.append(row)
         print(" | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in row.values()), flush=True)
+        if ceilings is not None and fixed is not None:
+            ceiling = 1 / (1 - fixed + fixed / k)
+            ceilings.append(
+                {
+                    "cell": name,
+                    "K": k,
+                    "fixed share of a separate member-step": fixed,
+                    "ceiling": ceiling,
+                    "ensemble / separate": row["ensemble / separate"],
+                    "of the ceiling": row["ensemble / separate"] / ceiling,
+                }
+            )
+            print(
+                "  ceiling: "
+                + " | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in ceilings[-1].values()),
+                flush=True,
+            )
         if module.path.startswith("loop"):
             print(f"  ({name}: {module.path})", flush=True)
         if splits is not None and k == max(ks):
@@ -316,12 +354,16 @@ def main() -> None:
         "--layers", action="store_true", help="also time the network alone: vmap vs an ensemble dimension"
     )
     parser.add_argument("--split", action="store_true", help="also split one step at the largest K (torch.profiler)")
+    parser.add_argument(
+        "--ceiling", action="store_true", help="also measure each cell's fixed cost and the ratio's ceiling from it"
+    )
     args = parser.parse_args()
     threads.apply(args.threads)
     cache = tempfile.mkdtemp()
     header = ["cell", "K", "path", "separate member-steps/s", "ensemble member-steps/s", "ensemble / separate"]
     print(" | ".join(header), flush=True)
     splits: list[dict] | None = [] if args.split else None
+    ceilings: list[dict] | None = [] if args.ceiling else None
     rows = [
         r
         for name in args.cells
@@ -334,11 +376,14 @@ def main() -> None:
             cache,
             splits,
             None if args.path == "auto" else True,
+            ceilings,
         )
     ]
     tables = [(header, rows)]
     if splits:
         tables.append((list(splits[0]), splits))
+    if ceilings:
+        tables.append((list(ceilings[0]), ceilings))
     if args.layers:
         print("network alone (lim_kasim 2 × 200 softplus, 30 states), forward + backward:", flush=True)
         layer_rows = mlp_rows(args.members, args.steps, args.repeats)
