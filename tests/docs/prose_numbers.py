@@ -1,7 +1,8 @@
 """Prose numbers tied to committed files: the rules ``tests/docs/test_prose_numbers.py`` applies.
 
-A reader meets numbers in README.md, ``docs/*.md`` and the reports' own ``benchmarks/reports/**/README.md``
-and ``RUN.md``. Each printed number is one of three things:
+A reader meets numbers in README.md, ``docs/*.md`` and every ``.md`` under ``benchmarks/reports`` (a report's
+README.md and RUN.md, and its hand-written diagnostics such as ``xiao-300/compound_divergence.md``). Each printed
+number is one of three things:
 
 * **not looked at**: inside a fenced block or a backtick span (a command, a key, a config value: by
   convention a number in backticks is a setting, not a result), inside a rendered table
@@ -20,17 +21,19 @@ and ``RUN.md``. Each printed number is one of three things:
   names a committed file or folder by a relative path (to the repository or to the document) that holds
   the number. The items of a list speak with the paragraph that introduces them (the one just above, ending
   in a colon, or a list item ending in a colon for its sub-items), so a lead-in that names the file ties its
-  items too. A report's README.md or RUN.md also
-  speaks for the files beside it (its folder, recursively, prose files aside) and for its own tables, so its
-  numbers may come from any of them;
-* **recorded**: a table row of a report's README.md or RUN.md is the report's record itself (a table typed
-  where the run printed it, with no CSV beside it); prose that quotes it names that README.
+  items too. A report's document (any ``.md`` in a report's folder) also speaks for the files beside it (its
+  folder, recursively) and for its own tables, so its numbers may come from any of them. A ``.md`` used as a
+  source, named or met in a folder's walk, gives only its table lines: prose never ties prose, so a number
+  printed only in another document's prose (or the document's own) ties nothing;
+* **recorded**: a table row of a report's ``.md`` is the report's record itself (a table typed where the run
+  printed it, with no CSV beside it); prose that quotes it names that file.
 
 A printed number matches a file if the file holds a number that prints the same at the printed precision:
 ``3.07e-5`` matches ``3.0712e-05`` (three significant digits), ``0.0000307`` matches it too (seven decimals),
-``1,000`` is ``1000``, ``94.7`` matches ``94.7`` or ``0.947`` (a percentage or a fraction), and a ratio
-``1.71×`` matches a file's ``1.71`` or the quotient of two numbers the same paragraph prints (``0.169 vs
-0.0994``). Anything else fails, naming the file, the line and the paragraph.
+``1,000`` is ``1000``, a file's ``−8.4`` (U+2212) matches ``−8.4`` or, as a drop, ``8.4``, ``94.7`` matches
+``94.7`` or ``0.947`` (a percentage or a fraction), and a ratio ``1.71×`` matches a file's ``1.71`` or the
+quotient of two numbers the same paragraph prints (``0.169 vs 0.0994``). Anything else fails, naming the file,
+the line and the paragraph.
 
 **Pending.** The paragraphs that held untied numbers when this check was written are listed by fingerprint (file
 and a hash of the paragraph's text) in ``tests/docs/prose_numbers_pending.txt``: the debt, not an exemption of new
@@ -48,7 +51,6 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 TEXT = {".csv", ".md", ".json", ".jsonl", ".yaml", ".txt", ".log", ".py"}
-PROSE = {"README.md", "RUN.md"}
 
 NUMBER = re.compile(r"(?<![\w.\-/^])[-−]?(?:\d{1,3}(?:,\d{3})+|\d+)(?:\.\d+)?(?:[eE][-+−]?\d+)?(?![\w/]|\.\d)")
 FILE_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
@@ -89,12 +91,12 @@ SETTING = re.compile(
 
 
 def documents(root: Path = ROOT) -> list[Path]:
-    """The prose a reader meets: README.md, docs/*.md and every report's README.md and RUN.md."""
+    """The prose a reader meets: README.md, docs/*.md and every .md under benchmarks/reports."""
     reports = root / "benchmarks" / "reports"
     return [
         root / "README.md",
         *sorted((root / "docs").glob("*.md")),
-        *sorted(p for p in reports.rglob("*.md") if p.name in PROSE),
+        *sorted(reports.rglob("*.md")),
     ]
 
 
@@ -190,8 +192,8 @@ def is_record(p: Paragraph, root: Path = ROOT) -> bool:
 
 
 def sources(p: Paragraph, root: Path = ROOT) -> list[Path]:
-    """The committed files a paragraph names (a folder stands for its text files), and for a report's
-    README.md or RUN.md the files beside it."""
+    """The committed files a paragraph names (a folder stands for its text files), and for a report's document
+    the files beside it and the document itself (of a .md, ``file_numbers`` reads only the tables)."""
     named: list[Path] = []
     for candidate in PATH.findall(p.text + "\n" + p.lead):
         candidate = candidate.rstrip(".")
@@ -212,19 +214,22 @@ def sources(p: Paragraph, root: Path = ROOT) -> list[Path]:
             files += [
                 f
                 for f in sorted(path.rglob("*"))
-                if f.is_file() and f.suffix in TEXT and f.name not in PROSE and not f.name.startswith(".")
+                if f.is_file() and f.suffix in TEXT and f != p.doc and not f.name.startswith(".")
             ]
     return files
 
 
 @lru_cache(maxsize=None)
 def file_numbers(path: Path) -> tuple[float, ...]:
-    """The numbers a file holds; of a report's README.md or RUN.md only those in its tables."""
+    """The numbers a file holds; of a .md only those in its tables (prose never ties prose)."""
     text = path.read_text(errors="replace")
-    if path.name in PROSE:
+    if path.suffix == ".md":
         text = "\n".join(line for line in text.splitlines() if line.lstrip().startswith("|"))
+    text = text.replace(",", " ")
+    # a U+2212 minus reads as a sign and, as before, as a magnitude ("−63.9 %" a drop of 63.9 %)
+    signed = ["-" + n for n in re.findall(r"−((?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)", text)]
     values = []
-    for n in FILE_NUMBER.findall(text.replace(",", " ")):
+    for n in FILE_NUMBER.findall(text) + signed:
         try:
             values.append(float(n))
         except ValueError:

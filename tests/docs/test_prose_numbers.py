@@ -1,4 +1,4 @@
-"""Every number a reader sees in README.md, docs/*.md and the reports' README.md / RUN.md is tied to a committed
+"""Every number a reader sees in README.md, docs/*.md and every .md under benchmarks/reports is tied to a committed
 file, marked as not a result, or in a paragraph still listed as pending (the rules: ``tests/docs/prose_numbers.py``).
 A planted wrong digit fails, naming the file and the paragraph."""
 
@@ -75,6 +75,36 @@ def test_a_report_readme_is_tied_to_the_files_beside_it(tmp_path):
     assert len(wrong) == 1 and wrong[0].startswith("benchmarks/reports/control/README.md:")
 
 
+def test_a_reports_diagnostic_is_checked_and_its_own_prose_ties_nothing(tmp_path):
+    root = _copy(tmp_path)
+    cell = root / "benchmarks" / "reports" / "xiao-300" / "compound_cell.md"
+    assert cell in pn.documents(root)  # every .md under benchmarks/reports, not only README.md / RUN.md
+    text = cell.read_text()
+    assert "Baseline: 0.174 / 1.452 here (`compound_cell/so_traj_300.json`)" in text
+    assert not pn.check(root, [cell]).untied
+    cell.write_text(text.replace("Baseline: 0.174 / 1.452 here", "Baseline: 0.174 / 1.462 here"))
+    planted = [u for u in pn.check(root, [cell]).untied if ": 1.462 not in " in u]
+    assert len(planted) == 1  # the planted digit is in the file's own prose, which is no source
+    assert planted[0].startswith("benchmarks/reports/xiao-300/compound_cell.md:")
+    assert "benchmarks/reports/xiao-300/compound_cell/so_traj_300.json" in planted[0]
+
+
+def test_another_documents_prose_does_not_tie_a_docs_paragraph(tmp_path):
+    report = tmp_path / "benchmarks" / "reports" / "diag"
+    report.mkdir(parents=True)
+    (report / "note.md").write_text("A diagnostic measured 0.123 here.\n\n| run | value |\n|---|---|\n| a | 4.56 |\n")
+    doc = tmp_path / "docs" / "page.md"
+    doc.parent.mkdir()
+    doc.write_text(
+        "Named (`benchmarks/reports/diag/note.md`): 0.123 and 4.56.\n\n"
+        "Its folder (`benchmarks/reports/diag/`): 0.123 and 4.56.\n"
+    )
+    untied = [u.split(" not in ")[0] for u in pn.check(tmp_path, [doc]).untied]
+    assert untied == ["docs/page.md:1: 0.123", "docs/page.md:3: 0.123"]  # 4.56, in note.md's table, ties
+    verdict = pn.check(tmp_path, [report / "note.md"])  # nor does a diagnostic's own prose tie itself
+    assert [u.split(" not in ")[0] for u in verdict.untied] == ["benchmarks/reports/diag/note.md:1: 0.123"]
+
+
 def test_the_usual_renderings_match(tmp_path):
     source = tmp_path / "numbers.csv"
     source.write_text("a,b,c\n3.0731868976897446e-05,0.947,1000\n")
@@ -83,6 +113,10 @@ def test_the_usual_renderings_match(tmp_path):
     for printed in ("3.08e-5", "94.6", "1,001"):
         assert not pn.matches(printed, source), printed
     assert pn.is_ratio("1.71", ["0.17", "0.0994"]) and not pn.is_ratio("1.8", ["0.17", "0.0994"])
+    table = tmp_path / "table.md"
+    table.write_text("a −8.4 in prose\n\n| drop | −63.9 % |\n")  # a .md gives its table lines only
+    assert pn.matches("−63.9", table) and pn.matches("63.9", table) and not pn.matches("−63.8", table)
+    assert not pn.matches("−8.4", table)
 
 
 def test_a_mark_exempts_only_the_numbers_it_lists(tmp_path):
