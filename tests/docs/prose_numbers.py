@@ -13,7 +13,9 @@ number is one of three things:
   ``issue 42``; a range such as ``Figs. 3–4`` or ``eqs. 12–13`` too);
 * **a setting**, by its word: a number list next to a setting's key or unit from ``SETTING`` (``lr 1e-3``,
   ``seeds 0–2``, ``N_train 8, 32, 128``, ``2000 epochs``, ``800 training trajectories``, ``3 × 200``
-  networks): the word marks it as a configuration or a size, not a result;
+  networks): the word marks it as a configuration or a size, not a result. A number joined to the unit by a
+  preposition or article (``0.595 at epoch 37``, ``272 by epoch 300``) is a result at that setting: only the
+  setting's own number (37, 300) is exempt;
 * **marked** as not a result: the paragraph holds ``<!-- not-a-result: REASON N1 N2 ... -->``, whose
   numbers (as printed) are exempt in that paragraph. REASON says what they are, e.g. ``config``, ``size``,
   ``date``, ``paper Finzi et al. Table 2``. Only the listed numbers are exempt;
@@ -84,8 +86,10 @@ DATE = re.compile(
     rf"\b{_MONTH}\s+\d{{4}}|"
     r"\b\d{4}-\d\d-\d\d\b|\b\d{1,2}:\d\d(?::\d\d)?(?:[–-]\d{1,2}:\d\d(?::\d\d)?)?\b"
 )
+#: words that join a result to a unit rather than qualify the unit ("0.595 at epoch 37" is a result at a setting)
+_JOINS = r"(?:at|in|after|by|over|from|to|per|of|on|for|and|or|than|vs|against|the|a|an)\b"
 SETTING = re.compile(
-    rf"(?<![\w.])(?:(?:{KEYS})\s*(?:=|:|of)?\s*{_LIST}|{_LIST}\s+(?:[a-z-]+\s+)?(?:{UNITS})\b|"
+    rf"(?<![\w.])(?:(?:{KEYS})\s*(?:=|:|of)?\s*{_LIST}|{_LIST}\s+(?:(?!{_JOINS})[a-z-]+\s+)?(?:{UNITS})\b|"
     rf"\d+\s*[×x]\s*\d+(?:\s*[×x]\s*\d+)*(?!\.\d|\d))"
 )
 

@@ -139,3 +139,17 @@ def test_dates_equations_and_a_list_lead_in(tmp_path):
     )
     untied = [u.split(" not in ")[0] for u in pn.check(tmp_path, [doc]).untied]
     assert untied == ["docs/page.md:6: 1.78", "docs/page.md:8: 1.77"]
+
+
+def test_a_result_at_a_setting_is_looked_at_and_the_setting_is_not(tmp_path):
+    """"0.595 at epoch 37": 37 is the setting (by its word), 0.595 a result that must tie; "2000 epochs" and
+    "800 training trajectories" stay settings."""
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "r.csv").write_text("x\n0.595\n")
+    doc = tmp_path / "docs" / "page.md"
+    doc.parent.mkdir()
+    doc.write_text(
+        "Best 0.595 at epoch 37 (`data/r.csv`), then 1.9 by epoch 60; 2000 epochs of 800 training trajectories.\n"
+    )
+    untied = [u.split(" not in ")[0] for u in pn.check(tmp_path, [doc]).untied]
+    assert untied == ["docs/page.md:1: 1.9"]
