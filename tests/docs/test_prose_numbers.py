@@ -142,7 +142,7 @@ def test_dates_equations_and_a_list_lead_in(tmp_path):
 
 
 def test_a_result_at_a_setting_is_looked_at_and_the_setting_is_not(tmp_path):
-    """"0.595 at epoch 37": 37 is the setting (by its word), 0.595 a result that must tie; "2000 epochs" and
+    """ "0.595 at epoch 37": 37 is the setting (by its word), 0.595 a result that must tie; "2000 epochs" and
     "800 training trajectories" stay settings."""
     (tmp_path / "data").mkdir()
     (tmp_path / "data" / "r.csv").write_text("x\n0.595\n")
