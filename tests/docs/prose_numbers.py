@@ -8,12 +8,13 @@ number is one of three things:
   convention a number in backticks is a setting, not a result), inside a rendered table
   (``<!-- encons-report: ... -->``, checked by ``tests/docs/test_docs.py``), a link target, a heading, part of a
   word (``pendulum2``, ``L-NODE-RK4``, ``float64``), a list item's number, a year after a citation
-  (``Zhong et al. 2021``), a date or a clock time (``27 November 2026``, ``2026-11-26``, ``01:11–01:18``) or a
-  reference (``§6``, ``Table 1``, ``Fig. 3``, ``Eq. 12``, ``eqs. 15``, ``equation (11)``, ``Theorem 1``,
-  ``issue 42``; a range such as ``Figs. 3–4`` or ``eqs. 12–13`` too);
+  (``Zhong et al. 2021``), a date or a clock time (``27 November 2026``, ``26–27 November``, ``2026-11-26``,
+  ``01:11–01:18``) or a reference (``§6``, ``Table 1``, ``Fig. 3``, ``Eq. 12``, ``eqs. 15``, ``equation (11)``,
+  ``Theorem 1``, ``issue 42``; a range such as ``Figs. 3–4`` or ``eqs. 12–13`` too);
 * **a setting**, by its word: a number list next to a setting's key or unit from ``SETTING`` (``lr 1e-3``,
   ``seeds 0–2``, ``N_train 8, 32, 128``, ``2000 epochs``, ``800 training trajectories``, ``3 × 200``
-  networks): the word marks it as a configuration or a size, not a result. A number joined to the unit by a
+  networks, a hyphenated ``32-step`` rollout, ``16 cells``, ``12 runs``, ``nice 19``): the word marks it as a
+  configuration or a size, not a result. A number joined to the unit by a
   preposition or article (``0.595 at epoch 37``, ``272 by epoch 300``) is a result at that setting: only the
   setting's own number (37, 300) is exempt;
 * **marked** as not a result: the paragraph holds ``<!-- not-a-result: REASON N1 N2 ... -->``, whose
@@ -23,19 +24,23 @@ number is one of three things:
   names a committed file or folder by a relative path (to the repository or to the document) that holds
   the number. The items of a list speak with the paragraph that introduces them (the one just above, ending
   in a colon, or a list item ending in a colon for its sub-items), so a lead-in that names the file ties its
-  items too. A report's document (any ``.md`` in a report's folder) also speaks for the files beside it (its
-  folder, recursively) and for its own tables, so its numbers may come from any of them. A ``.md`` used as a
-  source, named or met in a folder's walk, gives only its table lines: prose never ties prose, so a number
-  printed only in another document's prose (or the document's own) ties nothing;
+  items too. A paragraph that names a file or folder ties only to what it names (a named folder stands for its
+  text files, recursively): naming ``a.csv`` does not let a number come from ``b.csv`` beside it. A report's
+  document (any ``.md`` in a report's folder) also speaks for its own tables, and, in a paragraph that (with
+  its lead-in) names nothing, for the files beside it (its folder, recursively). A ``.md`` used as a source,
+  named or met in a folder's walk, gives only its table lines: prose never ties prose, so a number printed
+  only in another document's prose (or the document's own) ties nothing;
 * **recorded**: a table row of a report's ``.md`` is the report's record itself (a table typed where the run
   printed it, with no CSV beside it); prose that quotes it names that file.
 
 A printed number matches a file if the file holds a number that prints the same at the printed precision:
 ``3.07e-5`` matches ``3.0712e-05`` (three significant digits), ``0.0000307`` matches it too (seven decimals),
-``1,000`` is ``1000``, a file's ``−8.4`` (U+2212) matches ``−8.4`` or, as a drop, ``8.4``, ``94.7`` matches
-``94.7`` or ``0.947`` (a percentage or a fraction), and a ratio ``1.71×`` matches a file's ``1.71`` or the
-quotient of two numbers the same paragraph prints (``0.169 vs 0.0994``). Anything else fails, naming the file,
-the line and the paragraph.
+``1,000`` is ``1000``, a file's ``−8.4`` (U+2212) matches ``−8.4`` or, as a drop, ``8.4``, a percentage
+matches the file's fraction too (``94.7 %`` a file's ``0.947``; a percentage is a number followed by ``%``, or
+by a list of numbers that ends in ``%``, as ``90 / 94 / 100 %`` or ``17–82 %``: a bare ``94.7`` or ``90``
+matches only as printed, so a fraction ×100 that happens to print the same ties nothing), and a ratio
+``1.71×`` matches a file's ``1.71`` or the quotient of two numbers the same paragraph prints (``0.169 vs
+0.0994``). Anything else fails, naming the file, the line and the paragraph.
 
 **Pending.** The paragraphs that held untied numbers when this check was written are listed by fingerprint (file
 and a hash of the paragraph's text) in ``tests/docs/prose_numbers_pending.txt``: the debt, not an exemption of new
@@ -70,28 +75,32 @@ _N = r"[-−]?\d[\d,]*(?:\.\d+)?(?:[eE][-+−]?\d+)?"
 _LIST = rf"{_N}(?:\s*(?:,|–|-|…|\.\.\.|/|and|or|to|and then)\s*{_N})*"
 KEYS = (
     r"lr|learning rates?|seeds?|batch(?: size)?|widths?|depths?|N_train|n_train|rtol|atol|tol|weight decay|epochs?|"
-    r"K|k|dt|horizon|noise|patience|max_epochs|chunks? of|windows? of|step size|grid of|every"
+    r"K|k|dt|horizon|noise|patience|max_epochs|chunks? of|windows? of|step size|grid of|every|nice(?: -n)?"
 )
 UNITS = (
     r"epochs?|trajector(?:y|ies)|steps?|seeds|networks?|layers?|hidden units|units|neurons|starts|members|cores?|"
     r"threads?|workers?|points|samples|GPUs?|CPUs?|iterations|batches|dimensions|frames|links|bodies|trials|"
-    r"time steps|hidden layers|pixels|px|channels|evaluations|rollouts|states|digits|bits|masses|pendulums"
+    r"time steps|hidden layers|pixels|px|channels|evaluations|rollouts|states|digits|bits|masses|pendulums|"
+    r"cells|models|runs|windows|videos"
 )
 _MONTH = (
     r"(?:January|February|March|April|May|June|July|August|September|October|November|December|"
     r"Jan|Feb|Mar|Apr|Jun|Jul|Aug|Sept?|Oct|Nov|Dec)\b\.?"
 )
 DATE = re.compile(
-    rf"\b\d{{1,2}}\s+{_MONTH}(?:\s+\d{{4}})?|\b{_MONTH}\s+\d{{1,2}}(?:,?\s+\d{{4}})?\b|"
+    rf"\b(?:\d{{1,2}}[–-])?\d{{1,2}}\s+{_MONTH}(?:\s+\d{{4}})?|\b{_MONTH}\s+\d{{1,2}}(?:,?\s+\d{{4}})?\b|"
     rf"\b{_MONTH}\s+\d{{4}}|"
     r"\b\d{4}-\d\d-\d\d\b|\b\d{1,2}:\d\d(?::\d\d)?(?:[–-]\d{1,2}:\d\d(?::\d\d)?)?\b"
 )
 #: words that join a result to a unit rather than qualify the unit ("0.595 at epoch 37" is a result at a setting)
 _JOINS = r"(?:at|in|after|by|over|from|to|per|of|on|for|and|or|than|vs|against|the|a|an)\b"
 SETTING = re.compile(
-    rf"(?<![\w.])(?:(?:{KEYS})\s*(?:=|:|of)?\s*{_LIST}|{_LIST}\s+(?:(?!{_JOINS})[a-z-]+\s+)?(?:{UNITS})\b|"
+    rf"(?<![\w.])(?:(?:{KEYS})\s*(?:=|:|of)?\s*{_LIST}|{_LIST}(?:\s+(?:(?!{_JOINS})[a-z-]+\s+)?|-)(?:{UNITS})\b|"
     rf"\d+\s*[×x]\s*\d+(?:\s*[×x]\s*\d+)*(?!\.\d|\d))"
 )
+
+#: what follows a percentage: "%", or a list of numbers that ends in "%" ("90 / 94 / 100 %", "17–82 %")
+PERCENT = re.compile(rf"(?:\s*(?:,|–|-|/|and|or|to|vs\.?)\s*{_N})*\s?%")
 
 
 def documents(root: Path = ROOT) -> list[Path]:
@@ -112,6 +121,7 @@ class Paragraph:
     exempt: set[str] = field(default_factory=set)
     settings: int = 0
     lead: str = ""  # a list item's lead-in paragraph (ending in a colon), else empty
+    percent: set[int] = field(default_factory=set)  # indices (in ``numbers(p)``) of numbers followed by %
 
 
 def paragraphs(doc: Path) -> list[Paragraph]:
@@ -171,6 +181,7 @@ def numbers(p: Paragraph) -> list[str]:
     settings = [m.span() for m in SETTING.finditer(text)]
     dates = [m.span() for m in DATE.finditer(text)]
     found = []
+    p.percent = set()
     for m in NUMBER.finditer(text):
         if any(a <= m.start() and m.end() <= b for a, b in dates):
             continue
@@ -182,6 +193,8 @@ def numbers(p: Paragraph) -> list[str]:
             continue
         if re.match(r"(?:1[89]|20)\d\d$", m.group(0)) and re.search(r"(?:et al\.,?|&\s?\w+|\w+,)\s*\(?$", before):
             continue
+        if PERCENT.match(text, m.end()):
+            p.percent.add(len(found))
         found.append(m.group(0))
     return found
 
@@ -196,8 +209,9 @@ def is_record(p: Paragraph, root: Path = ROOT) -> bool:
 
 
 def sources(p: Paragraph, root: Path = ROOT) -> list[Path]:
-    """The committed files a paragraph names (a folder stands for its text files), and for a report's document
-    the files beside it and the document itself (of a .md, ``file_numbers`` reads only the tables)."""
+    """The committed files a paragraph (or its lead-in) names (a folder stands for its text files); for a report's
+    document also the document itself (of a .md, ``file_numbers`` reads only the tables) and, only where the
+    paragraph names nothing, the files beside it (its folder, recursively)."""
     named: list[Path] = []
     for candidate in PATH.findall(p.text + "\n" + p.lead):
         candidate = candidate.rstrip(".")
@@ -209,7 +223,7 @@ def sources(p: Paragraph, root: Path = ROOT) -> list[Path]:
                 named.append(path)
                 break
     if is_report(p.doc, root):
-        named += [p.doc.parent, p.doc]
+        named += [p.doc] if named else [p.doc.parent, p.doc]
     files = []
     for path in named:
         if path.is_file():
@@ -242,12 +256,14 @@ def file_numbers(path: Path) -> tuple[float, ...]:
 
 
 @lru_cache(maxsize=None)
-def _printed(path: Path, how: str, digits: int) -> frozenset[str]:
+def _printed(path: Path, how: str, digits: int, percent: bool = False) -> frozenset[str]:
+    """The file's numbers printed at a precision; with ``percent`` also ×100 (a fraction printed as a percentage)."""
     fmt = f"{{:.{digits}{how}}}"
     out = set()
     for v in file_numbers(path):
         out.add(fmt.format(v))
-        out.add(fmt.format(v * 100))
+        if percent:
+            out.add(fmt.format(v * 100))
     return frozenset(out)
 
 
@@ -260,10 +276,11 @@ def _precision(printed: str) -> tuple[float, str, int]:
     return float(text), "f", len(mantissa.partition(".")[2])
 
 
-def matches(printed: str, path: Path) -> bool:
-    """Whether ``path`` holds a number that prints as ``printed`` at its precision (or is its fraction)."""
+def matches(printed: str, path: Path, percent: bool = False) -> bool:
+    """Whether ``path`` holds a number that prints as ``printed`` at its precision, or, where the printed number
+    is a percentage (``percent``: followed by %), whose fraction it is (94.7 % for 0.947)."""
     value, how, digits = _precision(printed)
-    return f"{{:.{digits}{how}}}".format(value) in _printed(path, how, digits)
+    return f"{{:.{digits}{how}}}".format(value) in _printed(path, how, digits, percent)
 
 
 def is_ratio(printed: str, others: list[str]) -> bool:
@@ -300,10 +317,10 @@ def check(root: Path = ROOT, docs: list[Path] | None = None) -> Verdict:
                 continue
             verdict.settings += p.settings
             files = sources(p, root)
-            for n in printed:
+            for i, n in enumerate(printed):
                 if _canon(n) in p.exempt:
                     verdict.marked += 1
-                elif any(matches(n, f) for f in files if f != p.doc or not is_record(p, root)):
+                elif any(matches(n, f, i in p.percent) for f in files if f != p.doc or not is_record(p, root)):
                     verdict.tied += 1
                 elif re.search(rf"(?<![\w.]){re.escape(n)}\s?×", _visible(p.text)) and is_ratio(n, printed):
                     verdict.tied += 1
