@@ -181,6 +181,11 @@ def split(step, steps: int) -> dict[str, float]:
     }
 
 
+def line(values) -> str:
+    """A table row as the script prints it: floats to three significant digits."""
+    return " | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in values)
+
+
 def fixed_share(module, opt, batch: dict, steps: int, repeats: int) -> float:
     """O / T of one separate member-step (see the module's docstring): the share of its time that does not grow
     with the batch, from the step on ``batch`` and on ``batch`` served twice over."""
@@ -205,9 +210,11 @@ def measure(
 ) -> list[dict]:
     rows = []
     pool, batch = members(cell, max(ks), cache)
-    fixed = None
-    if ceilings is not None:
-        fixed = fixed_share(pool[0], pool[0].optimizer(pool[0].parameters()), batch, steps, repeats)
+    fixed = (
+        None
+        if ceilings is None
+        else fixed_share(pool[0], pool[0].optimizer(pool[0].parameters()), batch, steps, repeats)
+    )
     for k in ks:
         mods = pool[:k]
         module = ensemble._module(
@@ -235,7 +242,7 @@ def measure(
             "ensemble / separate": best_sep / best_ens,
         }
         rows.append(row)
-        print(" | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in row.values()), flush=True)
+        print(line(row.values()), flush=True)
         if ceilings is not None and fixed is not None:
             ceiling = 1 / (1 - fixed + fixed / k)
             ceilings.append(
@@ -248,11 +255,7 @@ def measure(
                     "of the ceiling": row["ensemble / separate"] / ceiling,
                 }
             )
-            print(
-                "  ceiling: "
-                + " | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in ceilings[-1].values()),
-                flush=True,
-            )
+            print("  ceiling: " + line(ceilings[-1].values()), flush=True)
         if module.path.startswith("loop"):
             print(f"  ({name}: {module.path})", flush=True)
         if splits is not None and k == max(ks):
@@ -271,9 +274,7 @@ def measure(
                         **{f"{p} share": v / total for p, v in part.items()},
                     }
                 )
-                print(
-                    " | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in splits[-1].values()), flush=True
-                )
+                print(line(splits[-1].values()), flush=True)
     return rows
 
 
@@ -322,7 +323,7 @@ def mlp_rows(ks: list[int], steps: int, repeats: int, width: int = 200, rows: in
             "separate / dimension": best["separate"] / best["dimension"],
         }
         out.append(row)
-        print(" | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in row.values()), flush=True)
+        print(line(row.values()), flush=True)
     return out
 
 
