@@ -90,17 +90,24 @@ def test_a_reports_diagnostic_is_checked_and_its_own_prose_ties_nothing(tmp_path
     assert "benchmarks/reports/xiao-300/compound_cell/so_traj_300.json" in planted[0]
 
 
+def _untied_on_a_page(root: Path, text: str) -> list[str]:
+    """Write ``text`` as ``docs/page.md`` under ``root`` and check it alone: its untied numbers as
+    ``file:line: number``."""
+    doc = root / "docs" / "page.md"
+    doc.parent.mkdir(exist_ok=True)
+    doc.write_text(text)
+    return [u.split(" not in ")[0] for u in pn.check(root, [doc]).untied]
+
+
 def test_another_documents_prose_does_not_tie_a_docs_paragraph(tmp_path):
     report = tmp_path / "benchmarks" / "reports" / "diag"
     report.mkdir(parents=True)
     (report / "note.md").write_text("A diagnostic measured 0.123 here.\n\n| run | value |\n|---|---|\n| a | 4.56 |\n")
-    doc = tmp_path / "docs" / "page.md"
-    doc.parent.mkdir()
-    doc.write_text(
+    untied = _untied_on_a_page(
+        tmp_path,
         "Named (`benchmarks/reports/diag/note.md`): 0.123 and 4.56.\n\n"
-        "Its folder (`benchmarks/reports/diag/`): 0.123 and 4.56.\n"
+        "Its folder (`benchmarks/reports/diag/`): 0.123 and 4.56.\n",
     )
-    untied = [u.split(" not in ")[0] for u in pn.check(tmp_path, [doc]).untied]
     assert untied == ["docs/page.md:1: 0.123", "docs/page.md:3: 0.123"]  # 4.56, in note.md's table, ties
     verdict = pn.check(tmp_path, [report / "note.md"])  # nor does a diagnostic's own prose tie itself
     assert [u.split(" not in ")[0] for u in verdict.untied] == ["benchmarks/reports/diag/note.md:1: 0.123"]
@@ -133,14 +140,12 @@ def test_a_mark_exempts_only_the_numbers_it_lists(tmp_path):
 def test_dates_equations_and_a_list_lead_in(tmp_path):
     (tmp_path / "data").mkdir()
     (tmp_path / "data" / "r.csv").write_text("x\n1.77\n")
-    doc = tmp_path / "docs" / "page.md"
-    doc.parent.mkdir()
-    doc.write_text(
+    untied = _untied_on_a_page(
+        tmp_path,
         "Run on 27 November 2026 at 01:11–01:18 (2026-11-26 before), by eq. 15 and Theorem 1.\n\n"
         "Measured (`data/r.csv`):\n\n- ratio 1.77× at K = 2;\n- ratio 1.78× at K = 4.\n\n"
-        "After the list: 1.77× again.\n"
+        "After the list: 1.77× again.\n",
     )
-    untied = [u.split(" not in ")[0] for u in pn.check(tmp_path, [doc]).untied]
     assert untied == ["docs/page.md:6: 1.78", "docs/page.md:8: 1.77"]
 
 
@@ -149,12 +154,10 @@ def test_a_result_at_a_setting_is_looked_at_and_the_setting_is_not(tmp_path):
     "800 training trajectories" stay settings."""
     (tmp_path / "data").mkdir()
     (tmp_path / "data" / "r.csv").write_text("x\n0.595\n")
-    doc = tmp_path / "docs" / "page.md"
-    doc.parent.mkdir()
-    doc.write_text(
-        "Best 0.595 at epoch 37 (`data/r.csv`), then 1.9 by epoch 60; 2000 epochs of 800 training trajectories.\n"
+    untied = _untied_on_a_page(
+        tmp_path,
+        "Best 0.595 at epoch 37 (`data/r.csv`), then 1.9 by epoch 60; 2000 epochs of 800 training trajectories.\n",
     )
-    untied = [u.split(" not in ")[0] for u in pn.check(tmp_path, [doc]).untied]
     assert untied == ["docs/page.md:1: 1.9"]
 
 
@@ -182,13 +185,12 @@ def test_a_paragraph_that_names_a_file_ties_only_to_it(tmp_path):
     )
     untied = [u.split(" not in ")[0] for u in pn.check(tmp_path, [readme]).untied]
     assert untied == ["benchmarks/reports/run/README.md:1: 0.456"]
-    doc = tmp_path / "docs" / "page.md"  # the same from docs/: a named file, not its folder
-    doc.parent.mkdir()
-    doc.write_text(
+    # the same from docs/: a named file, not its folder
+    untied = _untied_on_a_page(
+        tmp_path,
         "Scored 0.123 and 0.456 (`benchmarks/reports/run/a.csv`).\n\n"
-        "Scored 0.123 and 0.456 (`benchmarks/reports/run/`).\n"
+        "Scored 0.123 and 0.456 (`benchmarks/reports/run/`).\n",
     )
-    untied = [u.split(" not in ")[0] for u in pn.check(tmp_path, [doc]).untied]
     assert untied == ["docs/page.md:1: 0.456"]
 
 
@@ -196,22 +198,17 @@ def test_a_percentage_ties_to_a_fraction_only_when_printed_with_percent(tmp_path
     """94.7 matches a file's 0.947 only as "94.7 %" (or a list ending in %: "45.6 / 94.7 %"); a bare 94.7 or 45.6
     is not a percentage, so a fraction ×100 that happens to print the same no longer ties it."""
     _report(tmp_path)
-    doc = tmp_path / "docs" / "page.md"
-    doc.parent.mkdir()
-    doc.write_text(
+    untied = _untied_on_a_page(
+        tmp_path,
         "Held 94.7 % and 94.7% of the starts (`benchmarks/reports/run/b.csv`).\n\n"
         "Held 45.6 / 94.7 % of the starts (`benchmarks/reports/run/b.csv`).\n\n"
-        "Scored 94.7 and 45.6 (`benchmarks/reports/run/b.csv`).\n"
+        "Scored 94.7 and 45.6 (`benchmarks/reports/run/b.csv`).\n",
     )
-    untied = [u.split(" not in ")[0] for u in pn.check(tmp_path, [doc]).untied]
     assert untied == ["docs/page.md:5: 94.7", "docs/page.md:5: 45.6"]
 
 
 def test_hyphenated_units_and_date_ranges_are_not_results(tmp_path):
-    doc = tmp_path / "docs" / "page.md"
-    doc.parent.mkdir()
-    doc.write_text("A 32-step rollout of 16 cells, regenerated on 26–27 November, then 0.5.\n")
-    untied = [u.split(" not in ")[0] for u in pn.check(tmp_path, [doc]).untied]
+    untied = _untied_on_a_page(tmp_path, "A 32-step rollout of 16 cells, regenerated on 26–27 November, then 0.5.\n")
     assert untied == ["docs/page.md:1: 0.5"]
 
 
