@@ -10,6 +10,8 @@ regularisers act on f at g(s), eq. (7).
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Sequence
 from typing import cast
 
 import torch
@@ -18,7 +20,7 @@ from torch import Tensor, nn
 from encons.infra.bounds import Count, Positive
 from encons.infra.errors import ConfigError
 from encons.models.base import DynamicsModel
-from encons.models.networks import mlp
+from encons.models.networks import member_view, mlp, product
 from encons.systems.base import System
 
 
@@ -52,6 +54,22 @@ class CouplingBlock(nn.Module):
         self.offset = nn.Parameter(torch.zeros(dim))
         self.register_buffer("rotation", random_rotation(dim))
 
+    @classmethod
+    def ensemble(cls, members: Sequence[CouplingBlock]) -> CouplingBlock:
+        """K members' blocks as one whose own scales, offsets and rotations carry the member axis first ((K, dim),
+        (K, dim, dim)), acting per member on rows (K, ..., dim) whose leading axis is the member axis (a seed
+        ensemble's ensemble dimension, ``encons.training.stacked``, which stacks the coupling networks' layers
+        itself)."""
+        out = copy.deepcopy(members[0])
+        out.log_scale = nn.Parameter(torch.stack([m.log_scale.detach() for m in members]))
+        out.offset = nn.Parameter(torch.stack([m.offset.detach() for m in members]))
+        out.rotation = torch.stack([m.rotation for m in members])
+        return out
+
+    def _per_member(self, v: Tensor, x: Tensor) -> Tensor:
+        """A vector of the block, (dim,) or member-stacked (K, dim), broadcastable against rows ``x``."""
+        return v if v.dim() == 1 else member_view(v, x.dim())
+
     def _affine(self, x1: Tensor) -> tuple[Tensor, Tensor]:
         s, t = self.coupling(x1).chunk(2, -1)
         return self.clamp * torch.tanh(s / self.clamp), t
@@ -60,11 +78,15 @@ class CouplingBlock(nn.Module):
         x1, x2 = x[..., : self.split], x[..., self.split :]
         s, t = self._affine(x1)
         u = torch.cat([x1, x2 * torch.exp(s) + t], -1)
-        return (u * torch.exp(self.log_scale) + self.offset) @ self.rotation.T
+        return product(
+            u * torch.exp(self._per_member(self.log_scale, u)) + self._per_member(self.offset, u),
+            self.rotation.transpose(-1, -2),
+        )
 
     def inverse(self, y: Tensor) -> Tensor:
         # R⁻¹, not Rᵀ: R drawn in float32 is orthogonal to ~1e-7 only, which a float64 model would inherit.
-        u = (y @ torch.linalg.inv(self.rotation).T - self.offset) * torch.exp(-self.log_scale)
+        rotated = product(y, torch.linalg.inv(self.rotation).transpose(-1, -2))
+        u = (rotated - self._per_member(self.offset, y)) * torch.exp(-self._per_member(self.log_scale, y))
         u1, u2 = u[..., : self.split], u[..., self.split :]
         s, t = self._affine(u1)
         return torch.cat([u1, (u2 - t) * torch.exp(-s)], -1)

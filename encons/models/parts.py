@@ -3,6 +3,9 @@ matrix M(q), the potential V(q) and the Cartesian point masses (Finzi et al.).""
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Sequence
+
 import torch
 from torch import Tensor, nn
 
@@ -174,14 +177,25 @@ class PointMasses(nn.Module):
         self.register_buffer("frame", frame.float(), persistent=False)
         self.register_buffer("frame_inverse", torch.linalg.inv(frame).float(), persistent=False)
 
+    @classmethod
+    def ensemble(cls, members: Sequence[PointMasses]) -> PointMasses:
+        """K members' masses as one whose parameters carry the member axis first, (K, points of the body): its
+        matrices come out member-stacked, (K, n_points, n_points) (a seed ensemble's ensemble dimension,
+        ``encons.training.stacked``; member k's slices are its own parameters)."""
+        out = copy.deepcopy(members[0])
+        out.log_params = nn.ParameterList(
+            [nn.Parameter(torch.stack([m.log_params[i].detach() for m in members])) for i in range(len(out.log_params))]
+        )
+        return out
+
     def params(self) -> Tensor:
-        """c: every body's positive parameters, concatenated (n_points,)."""
-        return torch.cat(list(self.log_params)).exp()
+        """c: every body's positive parameters, concatenated (n_points,) (member-stacked: (K, n_points))."""
+        return torch.cat(list(self.log_params), -1).exp()
 
     def forward(self) -> Tensor:
         """The (n_points, n_points) mass matrix over points, Tᵀ diag(c) T."""
-        return (self.frame.T * self.params()) @ self.frame
+        return (self.frame.T * self.params().unsqueeze(-2)) @ self.frame
 
     def inverse(self) -> Tensor:
         """Its inverse T⁻¹ diag(1/c) T⁻ᵀ."""
-        return (self.frame_inverse * self.params().reciprocal()) @ self.frame_inverse.T
+        return (self.frame_inverse * self.params().reciprocal().unsqueeze(-2)) @ self.frame_inverse.T

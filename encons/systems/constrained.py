@@ -106,7 +106,7 @@ class DistanceConstraints:
 
     def eliminate_linear(self, minv: Tensor) -> tuple[Tensor, Tensor | None]:
         """M_P⁻¹ = P₂ M⁻¹ and P₂ = I − M⁻¹A₂ᵀ(A₂M⁻¹A₂ᵀ)⁻¹A₂ (D, D) for the linear rows A₂ and the
-        constant ``minv`` (D, D); (``minv``, None) without linear rows.
+        constant ``minv`` (D, D) (member-stacked (members, D, D): each so); (``minv``, None) without linear rows.
 
         P₂ is the M-orthogonal projection onto null(A₂). Eliminating λ₂ of the constant rows (their
         D_xΦ̇ is 0) by the Schur complement leaves eq. (15) over the distance rows with M_P⁻¹ in
@@ -138,9 +138,18 @@ def jacobians(phi: Constraint, x: Tensor, v: Tensor, linear_rows: bool = True) -
 
 
 def full_mass_matrix(mp: Tensor, dim: int) -> Tensor:
-    """kron(``mp``, I_dim): a matrix over points (n_points, n_points) as one over coordinates (D, D)."""
+    """kron(``mp``, I_dim): a matrix over points (n_points, n_points) as one over coordinates (D, D); member-stacked
+    (members, n_points, n_points) gives (members, D, D)."""
     eye = torch.eye(dim, dtype=mp.dtype, device=mp.device)
-    return (mp[:, None, :, None] * eye[None, :, None, :]).reshape(mp.shape[0] * dim, mp.shape[1] * dim)
+    rows, cols = mp.shape[-2:]
+    return (mp[..., :, None, :, None] * eye[:, None, :]).reshape(*mp.shape[:-2], rows * dim, cols * dim)
+
+
+def times(x: Tensor, m: Tensor) -> Tensor:
+    """x @ m for a constant matrix m (D, E); for member-stacked matrices m (members, D, E) (a seed ensemble's
+    learned masses, ``encons.training.stacked``) member k's m acts on x[k], x (members, ..., D) having the member
+    axis first."""
+    return x @ (m if m.dim() == 2 else m.reshape(m.shape[0], *[1] * (x.dim() - 3), *m.shape[1:]))
 
 
 def constrained_acceleration(
@@ -148,7 +157,8 @@ def constrained_acceleration(
 ) -> Tensor:
     """ẍ of Zhong et al. eq. (15): Lagrangian dynamics with explicit constraints.
 
-    ``minv`` is the constant inverse mass matrix (D, D) (``full_mass_matrix``); ``grad_v`` is ∇V(x).
+    ``minv`` is the constant inverse mass matrix (D, D) (``full_mass_matrix``; or member-stacked: ``times``);
+    ``grad_v`` is ∇V(x).
     ẍ = M⁻¹ Aᵀ λ − M⁻¹ ∇V with (A M⁻¹ Aᵀ) λ = A M⁻¹ ∇V − C v, A = DΦ, C = D_xΦ̇; the products
     with M⁻¹ and with A are one matmul each. Constant linear rows of Φ enter through M_P⁻¹
     (``eliminate_linear``), which gives the same ẍ; ``eliminated``: ``minv`` already is M_P⁻¹
@@ -158,7 +168,7 @@ def constrained_acceleration(
         minv = eliminate_linear(phi, minv)[0]
     jac, d_rate = jacobians(phi, x, v, linear_rows=False)  # the linear rows are in M_P⁻¹
     k = jac.shape[-2]
-    scaled = torch.cat([jac, grad_v.unsqueeze(-2)], -2) @ minv  # rows of A M⁻¹, then (M⁻¹ ∇V)ᵀ (M symmetric)
+    scaled = times(torch.cat([jac, grad_v.unsqueeze(-2)], -2), minv)  # rows of A M⁻¹, then (M⁻¹ ∇V)ᵀ (M symmetric)
     prod = torch.cat([jac, d_rate], -2) @ torch.cat([scaled, v.unsqueeze(-2)], -2).transpose(-1, -2)
     lam = torch.linalg.solve_ex(prod[..., :k, :k], prod[..., :k, k] - prod[..., k:, k + 1])[0]
     return (lam.unsqueeze(-1) * scaled[..., :k, :]).sum(-2) - scaled[..., k, :]  # a K-term sum: no tiny bmm
@@ -171,8 +181,8 @@ def constrained_hamiltonian_field(
 
     ``grad_h`` is ∇H (..., 2D). Ψ = (Φ(x), DΦ(x) M⁻¹ p) (§2.4) enters through the blocks of
     DΨ = [[A, 0], [C, A M⁻¹]]: ``jac`` A = DΦ and ``d_rate`` C = D_x Φ̇ (..., K, D), with
-    ``minv`` the constant M⁻¹ (D, D). Then DΨ J DΨᵀ = [[0, S], [−S, W]] with S = A M⁻¹ Aᵀ and
-    W = C M⁻¹ Aᵀ − A M⁻¹ Cᵀ, and eq. (20) needs one K × K solve (K + 2 right-hand sides)
+    ``minv`` the constant M⁻¹ (D, D) (or member-stacked: ``times``). Then DΨ J DΨᵀ = [[0, S], [−S, W]] with
+    S = A M⁻¹ Aᵀ and W = C M⁻¹ Aᵀ − A M⁻¹ Cᵀ, and eq. (20) needs one K × K solve (K + 2 right-hand sides)
     instead of a 2K × 2K one: λ₂ = S⁻¹ A ∇_p H, λ₁ = S⁻¹ (W λ₂ − C ∇_p H + A M⁻¹ ∇_x H),
     ẋ = ∇_p H − M⁻¹ Aᵀ λ₂, ṗ = −∇_x H + Aᵀ λ₁ + Cᵀ λ₂. The products with [A; C] are one batched
     matmul; those with the multipliers, K-term sums.
@@ -184,7 +194,7 @@ def constrained_hamiltonian_field(
     grad_x, grad_p = grad_h.chunk(2, -1)
     k = jac.shape[-2]
     rows = torch.cat([jac, d_rate], -2)  # [A; C]
-    scaled = torch.cat([jac, grad_x.unsqueeze(-2)], -2) @ minv  # rows of A M⁻¹, then (M⁻¹ ∇_x H)ᵀ
+    scaled = times(torch.cat([jac, grad_x.unsqueeze(-2)], -2), minv)  # rows of A M⁻¹, then (M⁻¹ ∇_x H)ᵀ
     prod = rows @ torch.cat([grad_p.unsqueeze(-2), scaled], -2).transpose(-1, -2)  # [A; C] [∇_pH, M⁻¹Aᵀ, M⁻¹∇_xH]
     cross = prod[..., k:, 1 : k + 1]  # C M⁻¹ Aᵀ
     rhs = torch.cat(
@@ -195,4 +205,6 @@ def constrained_hamiltonian_field(
     lam_1 = solved[..., 2:] @ lam_2 - solved[..., 1:2]
     # Aᵀλ₁ + Cᵀλ₂ and Aᵀλ₂ as K-term broadcast sums, not as one batched matmul of tiny matrices
     p_dot = (lam_1 * jac + lam_2 * d_rate).sum(-2) - grad_x
-    return torch.cat([grad_p - (lam_2 * jac).sum(-2) @ minv, p_dot if project is None else p_dot @ project], -1)
+    return torch.cat(
+        [grad_p - times((lam_2 * jac).sum(-2), minv), p_dot if project is None else times(p_dot, project)], -1
+    )

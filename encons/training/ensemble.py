@@ -188,7 +188,7 @@ def _module(cfg: DictConfig, members: list, seeds: list[int], data, stacked: boo
     for dimension in ways:  # the ensemble dimension first (measured faster than vmap), then vmap
         module = StackedEnsemble(members, seeds, _clip(cfg), dimension)
         if dimension and module.stacked.model.dimension is None:
-            why = "a parameter outside nn.Linear layers or a per-rollout cache (no ensemble dimension)"
+            why = "a parameter outside nn.Linear layers and modules that define ensemble (no ensemble dimension)"
             continue
         why = stacking.probe(module.stacked, members, batch)
         if why is None:

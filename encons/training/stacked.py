@@ -1,12 +1,14 @@
 """The stacked path of a seed ensemble (``encons.training.ensemble``): K members' networks as one model.
 
 ``StackedModel`` evaluates every member in one call, two ways. With the ensemble dimension (``dimension_model``:
-a model whose parameters all live in ``nn.Linear`` layers) a copy of the model has each layer replaced by an
-``EnsembleLinear`` of the members' layers, and the model's own code runs once on rows (K, N, ...) whose leading
-axis is the member axis: its field, ``to_internal``/``from_internal``, SyMo's ``residual``, a discrete model's
+a model whose parameters all live in ``nn.Linear`` layers or in modules that define ``ensemble``, as
+``PointMasses``: ``stacker``) a copy of the model has each such part replaced by one of the members' parts with
+a member axis first on its parameters (``EnsembleLinear`` for a layer), and the model's own code runs once on rows
+(K, N, ...) whose leading axis is the member axis: its field, ``to_internal``/``from_internal``, a per-rollout cache
+(``rollout_scope``: CHNN/CLNN's inverse masses, member-stacked), SyMo's ``residual``, a discrete model's
 ``rollout`` (E2E-SyMo's Newton iterations, each sample of each member converging on its own), a regulariser's
 Jacobians. Otherwise ``vmap`` over the member axis of ``functional_call`` on one template of the model
-(``torch.func.stack_module_state``), for CHNN/CLNN (their masses) and the INN (its coupling scales); ``vmap``
+(``torch.func.stack_module_state``), for the INN (its coupling scales and per-member rotations); ``vmap``
 cannot pass a branch on values, so a discrete model's rollout needs the dimension.
 
 Outside the model the member axis is folded into the batch axis (member-major: rows ``k·N … (k+1)·N − 1`` are
@@ -24,7 +26,7 @@ scales that member's step.
 Validation, checkpoints and tests use the members' own modules (model and observation), into which the stacked
 weights are copied before each validation, at each checkpoint and at the end (``StackedTraining.copy_to``).
 
-``why_not`` names what no stacked way takes (an observation model with a parameter outside ``nn.Linear`` layers,
+``why_not`` names what no stacked way takes (an observation model with a parameter outside ``stacker``'s modules,
 a non-elementwise optimiser, ``compile``); ``probe`` checks on the first batch that the stacked losses equal the
 members' own; ``step_times`` measures whether the stacked step is faster than the loop's
 (``encons.training.ensemble`` picks by it).
@@ -52,56 +54,61 @@ M = TypeVar("M", bound=nn.Module)
 ELEMENTWISE = ("Adam", "AdamW", "SGD", "RMSprop", "Adamax")  # optimisers whose step acts on each element alone
 
 
-def linear_names(modules: Sequence[nn.Module]) -> list[str] | None:
-    """The names of ``modules[0]``'s ``nn.Linear`` layers where every parameter lives in them, the modules share
-    their layout (parameter names) and their buffers are equal (a constant shared by all members); else None
-    (also where there is no ``nn.Linear``)."""
-    linears = [name for name, mod in modules[0].named_modules() if isinstance(mod, nn.Linear)]
-    owned = {f"{n}.{p}" for n in linears for p in ("weight", "bias")}
-    if not linears or not {n for n, _ in modules[0].named_parameters()} <= owned:
-        return None
-    buffers = [dict(m.named_buffers()) for m in modules]
-    if any(b.keys() != buffers[0].keys() or not all(torch.equal(b[n], buffers[0][n]) for n in b) for b in buffers):
+def stacker(module: nn.Module) -> Callable[[Sequence[Any]], nn.Module] | None:
+    """How K members' copies of ``module`` become one module whose own parameters (those not inside a submodule
+    that has a stacker too) carry the member axis first, member k's slice being its own parameter of the same name:
+    ``EnsembleLinear`` for an ``nn.Linear``, a module class's own ``ensemble`` classmethod (``PointMasses``,
+    the INN's ``CouplingBlock``); None for any other module."""
+    if isinstance(module, nn.Linear):
+        return EnsembleLinear
+    return getattr(type(module), "ensemble", None)
+
+
+def stacked_names(modules: Sequence[nn.Module]) -> list[str] | None:
+    """The names of ``modules[0]``'s submodules that ``stacker`` takes, outer before inner, where every parameter
+    lives inside one of them, the modules share their layout (parameter names) and their buffers outside them are
+    equal (a constant shared by all members); else None (also where there is none)."""
+    names = [name for name, mod in modules[0].named_modules() if name and stacker(mod) is not None]
+    inside = tuple(f"{n}." for n in names)
+    if not names or not all(p.startswith(inside) for p, _ in modules[0].named_parameters()):
         return None
     if any([n for n, _ in m.named_parameters()] != [n for n, _ in modules[0].named_parameters()] for m in modules):
         return None
-    return linears
+    buffers = [{n: b for n, b in m.named_buffers() if not n.startswith(inside)} for m in modules]
+    if any(b.keys() != buffers[0].keys() or not all(torch.equal(b[n], buffers[0][n]) for n in b) for b in buffers):
+        return None
+    return names
 
 
 def ensemble_copy(modules: Sequence[M], names: Sequence[str]) -> M:
-    """A copy of ``modules[0]`` whose ``nn.Linear`` layers ``names`` (``linear_names``) are each an
-    ``EnsembleLinear`` of the modules' layers of that name: its own code runs once for all members, on rows whose
-    leading axis is the member axis or folded member-major into it."""
+    """A copy of ``modules[0]`` whose submodules ``names`` (``stacked_names``, outer first) are each the
+    ``stacker`` of the modules' submodules of that name (an inner one then replaces what its outer one copied):
+    every parameter carries the member axis first, and the copy's own code runs once for all members, on rows
+    whose leading axis is the member axis or folded member-major into it."""
     stacked = copy.deepcopy(modules[0])
     for name in names:
         parent, _, leaf = name.rpartition(".")
+        parts = [m.get_submodule(name) for m in modules]
         setattr(
             stacked.get_submodule(parent) if parent else stacked,
             leaf,
-            EnsembleLinear([cast(nn.Linear, m.get_submodule(name)) for m in modules]),  # names of nn.Linear layers
+            cast(Callable[[Sequence[Any]], nn.Module], stacker(parts[0]))(parts),  # stacked_names: a stacker's
         )
     return stacked
 
 
 @torch.no_grad()
-def copy_linears(stacked: nn.Module, modules: Sequence[nn.Module]) -> None:
-    """Write member ``k``'s slices of every ``EnsembleLinear`` of ``stacked`` (an ``ensemble_copy``) into the
-    ``nn.Linear`` of the same name in ``modules[k]``."""
-    for name, layer in stacked.named_modules():
-        if isinstance(layer, EnsembleLinear):
-            for k, module in enumerate(modules):
-                linear = cast(nn.Linear, module.get_submodule(name))  # the layer EnsembleLinear stacks
-                linear.weight.copy_(layer.weight[k])
-                if layer.bias is not None:
-                    cast(Tensor, linear.bias).copy_(layer.bias[k])
+def copy_members(stacked: nn.Module, modules: Sequence[nn.Module]) -> None:
+    """Write member ``k``'s slice of every parameter of ``stacked`` (an ``ensemble_copy`` of ``modules``) into
+    the parameter of the same name in ``modules[k]``."""
+    for name, value in stacked.named_parameters():
+        for k, module in enumerate(modules):
+            module.get_parameter(name).copy_(value[k])
 
 
 def dimension_model(models: Sequence[DynamicsModel]) -> nn.Module | None:
-    """``ensemble_copy`` of the models; None where ``linear_names`` finds none or the model keeps a per-rollout
-    cache (``rollout_scope``)."""
-    if getattr(type(models[0]), "rollout_scope") is not getattr(DynamicsModel, "rollout_scope"):
-        return None
-    names = linear_names(models)
+    """``ensemble_copy`` of the models; None where ``stacked_names`` finds no way to stack them."""
+    names = stacked_names(models)
     return None if names is None else ensemble_copy(models, names)
 
 
@@ -109,10 +116,10 @@ def stacked_observation(observations: Sequence[Observation]) -> Observation | No
     """The members' observation models as one: None for the identity (the stacked training's default), else
     ``ensemble_copy`` of them (an autoencoder's encoder and decoder: one batched product per layer for all
     members, on the member-major folded rows the stacked training passes; ``why_not`` refuses an observation
-    with a parameter outside ``nn.Linear`` layers)."""
+    with a parameter outside ``nn.Linear`` layers and modules that define ``ensemble``)."""
     if observations[0].identity:
         return None
-    names = linear_names(observations)
+    names = stacked_names(observations)
     assert names is not None  # why_not refused the run otherwise
     return ensemble_copy(observations, names)
 
@@ -136,9 +143,10 @@ class StackedModel(nn.Module):
     leading axis is the member axis folded into the batch (member-major: rows ``k·N … (k+1)·N − 1`` are member
     ``k``'s) and return the same layout: each member's own call on its rows, by the ensemble dimension in the
     layers (``dimension``, where ``dimension_model`` allows it: measured faster than ``vmap``), else by ``vmap``
-    over the member axis of ``functional_call`` on one template. ``rollout_scope`` is empty: a model's
-    per-rollout cache (CHNN/CLNN's inverse masses) is the template's, so each field evaluation computes it from
-    the member's weights instead. ``penalty`` gives a regulariser per member.
+    over the member axis of ``functional_call`` on one template. ``rollout_scope`` is the dimension's own (a
+    per-rollout cache holds every member's), empty under ``vmap`` (the template's cache would be one member's, so
+    each field evaluation computes it from the member's weights instead). ``penalty`` gives a regulariser per
+    member.
     """
 
     def __init__(self, models: Sequence[DynamicsModel], dimension: bool = True):
@@ -147,10 +155,7 @@ class StackedModel(nn.Module):
         self.dimension = dimension_model(models) if dimension else None
         if self.dimension is not None:
             self.names, self.buffer_names = [], []
-            layers = [layer for layer in self.dimension.modules() if isinstance(layer, EnsembleLinear)]
-            self.weights = nn.ParameterList(
-                [w for layer in layers for w in (layer.weight, layer.bias) if w is not None]
-            )
+            self.weights = nn.ParameterList(list(self.dimension.parameters()))  # each member-stacked
             self.__dict__["template"] = self.dimension
             return
         params, buffers = stack_module_state(list(models))
@@ -232,7 +237,13 @@ class StackedModel(nn.Module):
 
     @contextmanager
     def rollout_scope(self) -> Iterator[None]:
-        yield
+        """The ensemble dimension's own (a per-rollout cache, e.g. CHNN/CLNN's inverse masses, holds every
+        member's); none under ``vmap`` (each field evaluation computes it from the member's weights)."""
+        if self.dimension is None:
+            yield
+            return
+        with cast(DynamicsModel, self.dimension).rollout_scope():
+            yield
 
     def penalty(self, regulariser: Any, points: Tensor, u: Tensor | None) -> Tensor:
         """``regulariser(member, points, u)`` of every member (K,), each at its own rows of ``points`` and ``u``
@@ -254,7 +265,7 @@ class StackedModel(nn.Module):
     def copy_to(self, models: Sequence[nn.Module]) -> None:
         """Write member ``k``'s slices into ``models[k]``'s own parameters and buffers."""
         if self.dimension is not None:
-            copy_linears(self.dimension, models)
+            copy_members(self.dimension, models)
             return
         params, buffers = self.member_weights()
         for k, model in enumerate(models):
@@ -301,7 +312,7 @@ class StackedTraining(TrainingModule):
         """Write member ``k``'s slices of the stacked weights into ``members[k]``'s model and observation."""
         self.model.copy_to([m.model for m in members])
         if not self.observation.identity:
-            copy_linears(self.observation, [m.observation for m in members])
+            copy_members(self.observation, [m.observation for m in members])
 
 
 def optimizer(partial: Any, params: list[Tensor]) -> torch.optim.Optimizer:
@@ -319,8 +330,11 @@ def optimizer(partial: Any, params: list[Tensor]) -> torch.optim.Optimizer:
 def why_not(cfg: Any, members: Sequence[TrainingModule]) -> str | None:
     """Why the members cannot train stacked (None: they can), from the model, observation and settings alone."""
     member = members[0]
-    if not member.observation.identity and linear_names([m.observation for m in members]) is None:
-        return f"observation={type(member.observation).__name__} has a parameter outside nn.Linear layers"
+    if not member.observation.identity and stacked_names([m.observation for m in members]) is None:
+        return (
+            f"observation={type(member.observation).__name__} has a parameter outside nn.Linear layers and modules "
+            "that define ensemble"
+        )
     if cfg.get("compile"):
         return "compile=true compiles one model's field"
     opt = member.optimizer.func if hasattr(member.optimizer, "func") else member.optimizer

@@ -4,6 +4,8 @@ Jacobians, assembled and inverted mass matrix)."""
 
 from __future__ import annotations
 
+import contextlib
+
 import pytest
 import torch
 
@@ -12,6 +14,7 @@ from encons.systems.base import point_mass_matrix
 from encons.systems.constrained import DistanceConstraints, constraint_jacobians
 from encons.systems.gyroscope import Gyroscope
 from encons.systems.pendulum import NPendulum
+from encons.training import stacked
 
 SYSTEMS = {
     "pendulum1": lambda: NPendulum(1),
@@ -76,3 +79,36 @@ def test_fast_field_equals_general_path(cls, system_name):
     assert (z - general.to_internal(s)).abs().max() < 1e-12
     assert (fast(t, z) - general(t, z)).abs().max() < 1e-10 * max(1.0, general(t, z).abs().max().item())
     assert (fast.from_internal(z) - s).abs().max() < 1e-10
+
+
+@pytest.mark.parametrize("system_name", ["pendulum2", "gyroscope"])  # without and with constant linear rows
+@pytest.mark.parametrize("cls", [CHNN, CLNN], ids=lambda c: c.__name__)
+def test_member_stacked_masses_give_each_members_own_field(cls, system_name):
+    """Three members with their own random masses and potentials, as one model with the ensemble dimension
+    (``PointMasses.ensemble``: member-stacked M⁻¹, M_P⁻¹ and P₂, ``times``), outside and inside ``rollout_scope``:
+    member k's rows of the field, ``to_internal`` and ``from_internal`` equal member k's own."""
+    system = SYSTEMS[system_name]()
+    members = []
+    for seed in range(3):
+        torch.manual_seed(seed)
+        model = cls(system, hidden=16, depth=2).double()
+        with torch.no_grad():
+            for p in model.masses.parameters():
+                p.normal_(0.0, 0.5)
+        members.append(model)
+    one = stacked.dimension_model(members)
+    assert one is not None and one.masses.params().shape == (3, system.layout.n_points)
+    s = torch.stack([off_manifold_states(system, 5)] * 3)  # (K, N, 2D): the member axis first
+    t = torch.tensor(0.0, dtype=torch.float64)
+    want_z = torch.stack([m.to_internal(s[k]) for k, m in enumerate(members)])
+    want_field = torch.stack([m(t, want_z[k]) for k, m in enumerate(members)])
+    assert (one.to_internal(s) - want_z).abs().max() < 1e-12
+    for scope in (contextlib.nullcontext(), one.rollout_scope()):
+        with scope:
+            assert (one(t, want_z) - want_field).abs().max() < 1e-10 * want_field.abs().max()
+            assert (one.from_internal(want_z) - s).abs().max() < 1e-10
+    fresh = [cls(system, hidden=16, depth=2).double() for _ in range(3)]
+    stacked.copy_members(one, fresh)  # the members' slices written back: each is its member again
+    assert (torch.stack([m(t, want_z[k]) for k, m in enumerate(fresh)]) - want_field).abs().max() < 1e-10 * (
+        want_field.abs().max()
+    )

@@ -65,7 +65,9 @@ def _assert_member_is(ens, seed, separate, folder):
             ["scheduler=plateau", "scheduler.patience=0", *SANTOS_TINY],
             marks=pytest.mark.slow,
         ),  # controls; ReduceLROnPlateau on each member's own val/loss
-        pytest.param("chnn", "gyroscope", "stacked", [], marks=pytest.mark.slow),  # per-member to_internal, no cache
+        pytest.param(
+            "chnn", "gyroscope", "stacked", [], marks=pytest.mark.slow
+        ),  # member-stacked masses and rollout cache
         pytest.param("lnn", "pendulum2", "stacked", [], marks=pytest.mark.slow),  # guarded_solve's per-sample mask
         pytest.param("hnn_angle", "pendulum2", "stacked", [], marks=pytest.mark.slow),
         pytest.param("node", "mass_spring", "stacked", ["regulariser=hamiltonian"], marks=pytest.mark.slow),

@@ -10,6 +10,8 @@ import torch
 
 from encons.entry import api
 from encons.entry.api import build
+from encons.models.base import DynamicsModel
+from encons.systems.pendulum import NPendulum
 from encons.training import ensemble, stacked
 
 #: one model of every family the papers use, at its usual system, and the stacked way it takes
@@ -21,8 +23,8 @@ FAMILIES = [
     ("lnn_structure_angle", "pendulum2", [], "ensemble dimension"),
     ("glnn", "damped_oscillator", ["objective=acceleration"], "ensemble dimension"),
     ("second_order", "damped_oscillator", [], "ensemble dimension"),
-    ("chnn", "gyroscope", [], "vmap"),
-    ("clnn", "gyroscope", [], "vmap"),
+    ("chnn", "gyroscope", [], "ensemble dimension"),  # member-stacked masses, their per-rollout cache
+    ("clnn", "gyroscope", [], "ensemble dimension"),
     ("nsf", "mass_spring", ["objective=derivative"], "ensemble dimension"),
     (
         "node",
@@ -30,14 +32,19 @@ FAMILIES = [
         ["objective=derivative", "regulariser=hamiltonian", "regulariser.weight=10"],
         "ensemble dimension",
     ),
-    ("inn_node", "mass_spring", ["objective=derivative", "regulariser=hamiltonian", "regulariser.weight=10"], "vmap"),
+    (
+        "inn_node",
+        "mass_spring",
+        ["objective=derivative", "regulariser=hamiltonian", "regulariser.weight=10"],
+        "ensemble dimension",
+    ),
     ("node", "damped_pendulum", ["objective=derivative", "regulariser=dissipative"], "ensemble dimension"),
     ("lnode", "pendulum_control", ["evaluators.santos.steps=20"], "ensemble dimension"),
     ("symo", "pendulum_control", ["objective=residual", "evaluators.santos.steps=20"], "ensemble dimension"),
     ("e2e_symo", "pendulum_control", ["evaluators.santos.steps=20"], "ensemble dimension"),  # Newton, per member
     ("node", "pixel_pendulum", [], "ensemble dimension"),  # each member's own autoencoder
     ("node", "pixel_pendulum", ["regulariser=hamiltonian", "regulariser.weight=10"], "ensemble dimension"),
-    ("inn_node", "pixel_pendulum", [], "vmap"),  # the autoencoder's layers stacked beside a vmapped model
+    ("inn_node", "pixel_pendulum", [], "ensemble dimension"),
 ]
 
 
@@ -114,5 +121,29 @@ def test_a_loop_is_kept_only_with_its_reason(tmp_path, cache):
     )
     assert (
         ensemble._module(cfg, members, [0, 1], data, None).path
-        == "loop: observation=Autoencoder has a parameter outside nn.Linear layers"
+        == "loop: observation=Autoencoder has a parameter outside nn.Linear layers and modules that define ensemble"
     )
+
+
+class _Scaled(DynamicsModel):
+    """A user's model with a parameter outside ``nn.Linear`` layers and no ``ensemble``: ż = e^c · net(z)."""
+
+    def __init__(self, system):
+        super().__init__(system)
+        self.net = torch.nn.Linear(2 * self.n, 2 * self.n)
+        self.log_gain = torch.nn.Parameter(torch.randn(()))
+
+    def forward(self, t, z, u=None):
+        return self.log_gain.exp() * self.net(z)
+
+
+def test_a_model_without_an_ensemble_dimension_stacks_by_vmap():
+    """Its members' fields, one ``vmap`` call over the member axis, equal each member's own (rows folded
+    member-major); with the dimension asked for, there is none to take."""
+    torch.manual_seed(0)
+    models = [_Scaled(NPendulum(2)) for _ in range(3)]
+    assert stacked.dimension_model(models) is None
+    one = stacked.StackedModel(models)
+    z = torch.randn(3 * 5, 4)
+    want = torch.cat([m(torch.zeros(()), z[5 * k : 5 * (k + 1)]) for k, m in enumerate(models)])
+    assert torch.allclose(one(torch.zeros(()), z), want, rtol=1e-6, atol=1e-7)
