@@ -225,11 +225,8 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
     started = time.perf_counter()
     try:
         trained = runs.train(cfg, summary=False)
-        results, error, wall = (
-            dict(trained.metrics),
-            "",
-            time.perf_counter() - started,
-        )  # training and the test of this process (a resumed run: from the resume on)
+        # training and test (a resumed run: its segments before the checkpoint it resumed from too)
+        results, error, wall = dict(trained.metrics), "", trained.metrics["wall_time_s"]
         # a planned run is one seed's (a cell's seeds train together through ensemble.train): a Run
         one = cast("Run", trained)
         steps = one.module.trainer.global_step
@@ -254,7 +251,8 @@ def run_one(run: PlannedRun, out: Path, cache_dir: str | None, control: bool = F
 def run_ensemble(members: list[PlannedRun], out: Path, cache_dir: str | None, control: bool = False) -> list[dict]:
     """Train the seeds of one cell as one ensemble (``encons.training.ensemble``: each member the run of its seed) and
     write each member's result row into its own ``runs/<id>/`` (its checkpoints, curves and figures there too),
-    as ``run_one`` would; ``wall_time_s`` is the whole ensemble's. A member that diverged is a failed row."""
+    as ``run_one`` would; ``wall_time_s`` is the whole ensemble's (``Ensemble.wall_time_s``). A member that
+    diverged is a failed row."""
     from encons.training import ensemble, runs
     from encons.training.build import Request, compose
 
@@ -274,7 +272,7 @@ def run_ensemble(members: list[PlannedRun], out: Path, cache_dir: str | None, co
             trained = ensemble.train(
                 cfg, False, Request.of(cfg), member_dir=lambda seed: finished(by_seed[seed], out).parent
             )
-        wall, error = time.perf_counter() - started, ""
+        wall, error = trained.wall_time_s, ""  # the segments before a resume too
     except Interrupted as err:
         raise Interrupted(
             f"{first.cell}: {str(err).split(';')[0]}; rerun the same benchmark command: finished "

@@ -115,14 +115,45 @@ class CostLine(pl.Callback):
     """What an epoch costs, split: ``validation`` (the validation loop), ``checkpoint`` (writing checkpoint
     files, ``encons.infra.lightning_io.AtomicCheckpointIO.seconds``) and ``train`` (the rest of the epoch: its
     optimiser steps, logging, callbacks), in seconds. One line per epoch in the log files, one line of
-    means on the console at the end of fit, and ``costs.json`` in ``output_dir`` (per-epoch rows)."""
+    means on the console at the end of fit, and ``costs.json`` in ``output_dir`` (per-epoch rows).
+
+    Its state is in every checkpoint: a resumed run's ``costs.json`` has the epochs before the stop too (each
+    epoch's row as it stood when its checkpoint was written), and ``before_s`` is the wall time of the run's
+    earlier segments up to the checkpoint it resumed from, which the run's ``wall_time_s`` adds
+    (``resumed_seconds``): what a run stopped and resumed took in all, less the work lost after its last
+    checkpoint."""
 
     def __init__(self, output_dir: str | Path):
         self.output_dir = Path(output_dir)
-
-    def on_fit_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         self.rows: list[dict[str, float]] = []
         self.open: dict[str, float] | None = None
+        self.before_s = 0.0
+        self.started = time.perf_counter()
+
+    def on_fit_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        self.started = time.perf_counter()
+
+    def state_dict(self) -> dict[str, Any]:
+        now = time.perf_counter()
+        current = (
+            []
+            if self.open is None
+            else [
+                {
+                    "epoch": self.open["epoch"],
+                    "validation": self.open["validation"],
+                    "validated": self.open["validated"],
+                    "total": now - self.open["start"],
+                    "checkpoint": 0.0,
+                    "train": now - self.open["start"] - self.open["validation"],
+                }
+            ]
+        )
+        return {"rows": [*self.rows, *current], "wall_s": self.before_s + now - self.started}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self.rows = list(state_dict["rows"])
+        self.before_s = float(state_dict["wall_s"])
 
     def _written(self, trainer: pl.Trainer) -> float:
         return getattr(trainer.strategy.checkpoint_io, "seconds", 0.0)
@@ -175,6 +206,13 @@ class CostLine(pl.Callback):
         )
         self.output_dir.mkdir(parents=True, exist_ok=True)
         write_json(self.output_dir / "costs.json", {"mean": mean, "epochs": self.rows})
+
+
+def resumed_seconds(trainer: pl.Trainer) -> float:
+    """The wall time of the run's segments before the checkpoint ``trainer`` resumed from (``CostLine.before_s``);
+    0 for a run that did not resume or has no ``CostLine``."""
+    kept = trainer.callbacks  # type: ignore[attr-defined]  # set by Lightning's callback connector, untyped
+    return next((c.before_s for c in kept if isinstance(c, CostLine)), 0.0)
 
 
 def monitored(trainer: pl.Trainer) -> str:

@@ -40,7 +40,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from encons.infra import checkpoints
 from encons.infra.errors import ConfigError
 from encons.training import stacked as stacking
-from encons.training.callbacks import MemberCheckpoints
+from encons.training.callbacks import MemberCheckpoints, resumed_seconds
 from encons.training.members import EnsembleModule, StackedEnsemble
 from encons.training.results import MEMBERS_FILE, Ensemble, Run, spread_line, summarise
 
@@ -258,6 +258,7 @@ def _test_members(
 
     seeds, configs, saved, dirs = module.seeds, files.configs, files.saved, files.dirs
     fit_metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
+    before = resumed_seconds(trainer)
     runs, per_member, diverged = [], {}, {seeds[i]: why for i, why in module.diverged.items()}
     for i, (member, c, d) in enumerate(zip(module.members, configs, dirs)):
         prefix = f"seed{seeds[i]}/"
@@ -280,7 +281,7 @@ def _test_members(
             tester, _ = build_trainer(checked.derived(test_cfg))
             tester.test(member, datamodule=data, verbose=False, weights_only=True)
             results.update({f"test/{k}": v for k, v in member.test_metrics.items()})
-        results["wall_time_s"] = time.perf_counter() - started
+        results["wall_time_s"] = time.perf_counter() - started + before  # the segments before a resume too
         results["threads"] = float(torch.get_num_threads())
         per_member[seeds[i]] = results
         runs.append(Run(member, data, saved[i], d, tested, results, checked=checked.derived(c)))
@@ -301,4 +302,6 @@ def _test_members(
     )
     shown = {k: v for k, v in metrics.items() if not k.endswith(("_min", "_max"))}
     print_summary(f"{module.members[0].run_title()} × {len(seeds)} seeds", shown, run_dir, note=note, console=summary)
-    return Ensemble(runs, seeds, diverged, metrics, run_dir, module.path, per_member)
+    return Ensemble(
+        runs, seeds, diverged, metrics, run_dir, module.path, per_member, time.perf_counter() - started + before
+    )

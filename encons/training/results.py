@@ -43,7 +43,8 @@ class Ensemble:
     """A trained ensemble: one :class:`encons.training.runs.Run` per member (in ``seeds`` order; a diverged member's
     ``checkpoint`` is None and its ``metrics`` empty), the seeds that ``diverged`` (seed -> why), the
     ``metrics`` over members (mean, ``_sd``, ``_min``, ``_max``) and the run folder; ``path`` says how the
-    members were stepped (``stacked`` or ``loop``, and why not stacked)."""
+    members were stepped (``stacked`` or ``loop``, and why not stacked); ``wall_time_s`` is the whole ensemble's
+    (training, every member's test, and the segments before the checkpoint it resumed from)."""
 
     members: list[Run]
     seeds: list[int]
@@ -52,6 +53,7 @@ class Ensemble:
     run_dir: Path
     path: str = "loop"
     member_metrics: dict[int, dict[str, float]] = field(default_factory=dict)
+    wall_time_s: float = 0.0
 
 
 def member_folders(path: Path) -> tuple[list[int], list[Path]] | None:

@@ -169,6 +169,7 @@ def _attempt(attempt: attempts.Attempt, checked: Checked, summary: bool, started
     one the attempt policy derived from it), its time counted from ``started``."""
     import torch
 
+    from encons.training.callbacks import resumed_seconds
     from encons.training.summary import print_summary
 
     cfg, request = checked.cfg, checked.request
@@ -188,6 +189,7 @@ def _attempt(attempt: attempts.Attempt, checked: Checked, summary: bool, started
     tested = None
     try:
         fitting.fit(cfg, trainer, module, data, resume, request)
+        before = resumed_seconds(trainer)  # now: testing a checkpoint restores the callbacks' state of that file
         results = {k: float(v) for k, v in trainer.callback_metrics.items()}
         best = _best_checkpoint(trainer)
         if best is not None:
@@ -208,7 +210,8 @@ def _attempt(attempt: attempts.Attempt, checked: Checked, summary: bool, started
             module.load_state_dict(checkpoints.read(tested)["state_dict"])
     finally:
         _finish_wandb(loggers)
-    results["wall_time_s"] = time.perf_counter() - started
+    # this process's training and test, and the segments before the checkpoint it resumed from
+    results["wall_time_s"] = time.perf_counter() - started + before
     results["threads"] = float(torch.get_num_threads())  # what wall_time_s ran on (encons.infra.threads)
     if trainer.is_global_zero:
         note = "; ".join(

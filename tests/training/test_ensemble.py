@@ -275,6 +275,9 @@ def test_an_ensemble_stopped_by_sigterm_resumes_to_the_uninterrupted_result(tmp_
     assert _losses(tmp_path / "part", "seed1/train/loss")[-4:] == pytest.approx(
         _losses(tmp_path / "whole", "seed1/train/loss")[-4:], rel=1e-6
     )
+    epochs = json.loads((tmp_path / "part" / "costs.json").read_text())["epochs"]  # the epochs before the stop too
+    assert [int(e["epoch"]) for e in epochs] == [1, 2, 3, 4]
+    assert resumed.wall_time_s >= sum(e["total"] for e in epochs)  # and their time
 
 
 @pytest.mark.slow

@@ -62,3 +62,27 @@ def test_ckpt_path_last_continues_in_the_interrupted_runs_own_folder(tmp_path):
     log = (interrupted / "train.log").read_text()
     assert "epoch 2 of 2" in log and "epoch 4 of 4" in log and "continuing the run in its own folder" in log
     assert torch.load(interrupted / "checkpoints" / "last.ckpt", weights_only=True)["epoch"] == 3  # from 0
+
+
+def test_a_resumed_run_counts_the_time_and_epochs_before_its_stop(train_run, tmp_path, monkeypatch):
+    """A run stopped after epoch 2 and resumed to 4: its ``costs.json`` lists epochs 1–4 (``CostLine``'s state is in
+    the checkpoint), and its ``wall_time_s`` covers every one of them: the first segment's epochs were slowed by
+    1.5 s each, which the resumed process alone (as ``wall_time_s`` counted before) does not contain."""
+    import json
+    import time
+
+    step = TrainingModule.training_step
+
+    def slow(self, batch, batch_idx):
+        if batch_idx == 0:
+            time.sleep(1.5)
+        return step(self, batch, batch_idx)
+
+    monkeypatch.setattr(TrainingModule, "training_step", slow)
+    train_run(["model=node", "system=pendulum1", "trainer.max_epochs=2"], name="part")
+    monkeypatch.setattr(TrainingModule, "training_step", step)
+    resumed = train_run(["model=node", "system=pendulum1", "trainer.max_epochs=4", "ckpt_path=last"], name="resumed")
+    epochs = json.loads((tmp_path / "part" / "costs.json").read_text())["epochs"]  # it goes on in its folder
+    assert [int(e["epoch"]) for e in epochs] == [1, 2, 3, 4]
+    assert min(e["total"] for e in epochs[:2]) >= 1.5
+    assert resumed["wall_time_s"] >= sum(e["total"] for e in epochs)
