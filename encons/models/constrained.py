@@ -14,6 +14,7 @@ from typing import Iterator
 import torch
 from torch import Tensor
 
+from encons.infra.batching import product
 from encons.infra.bounds import Count
 from encons.models.base import DynamicsModel
 from encons.models.networks import MLPTape
@@ -25,7 +26,6 @@ from encons.systems.constrained import (
     eliminate_linear,
     full_mass_matrix,
     jacobians,
-    times,
 )
 
 
@@ -97,15 +97,17 @@ class CHNN(CartesianModel):
 
     def to_internal(self, s: Tensor) -> Tensor:
         x, v = split_state(s)
-        return torch.cat([x, times(v, full_mass_matrix(self.point_masses(), self.dim))], -1)
+        return torch.cat([x, product(v, full_mass_matrix(self.point_masses(), self.dim))], -1)
 
     def from_internal(self, z: Tensor) -> Tensor:
         x, p = split_state(z)
-        return torch.cat([x, times(p, self.mass_terms()[0])], -1)
+        return torch.cat([x, product(p, self.mass_terms()[0])], -1)
 
     def forward(self, t: Tensor, z: Tensor, u: Tensor | None = None) -> Tensor:
         x, p = split_state(z)
         minv, minv_p, project = self.mass_terms()
-        jac, d_rate = jacobians(self.constraints, x, times(p, minv), linear_rows=False)  # the linear rows are in M_P⁻¹
-        grad_h = torch.cat([self.potential_gradient(x), times(p, minv_p)], -1)  # ∇_pH = M⁻¹p, projected (M_P⁻¹ p)
+        jac, d_rate = jacobians(
+            self.constraints, x, product(p, minv), linear_rows=False
+        )  # the linear rows are in M_P⁻¹
+        grad_h = torch.cat([self.potential_gradient(x), product(p, minv_p)], -1)  # ∇_pH = M⁻¹p, projected (M_P⁻¹ p)
         return constrained_hamiltonian_field(grad_h, jac, d_rate, minv_p, project)

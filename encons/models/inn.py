@@ -17,10 +17,11 @@ from typing import cast
 import torch
 from torch import Tensor, nn
 
+from encons.infra.batching import member_view, product
 from encons.infra.bounds import Count, Positive
 from encons.infra.errors import ConfigError
 from encons.models.base import DynamicsModel
-from encons.models.networks import member_view, mlp, product
+from encons.models.networks import mlp
 from encons.systems.base import System
 
 

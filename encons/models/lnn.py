@@ -13,11 +13,11 @@ import torch
 from torch import Tensor
 from torch.func import grad, jvp, vjp, vmap
 
-from encons.infra.batching import batched_grad
+from encons.infra.batching import batched_grad, member_view
 from encons.infra.bounds import Count, Range
 from encons.infra.errors import PhysicsError
 from encons.models.base import DynamicsModel
-from encons.models.networks import MLPTape, cranmer_init_, member_view, mlp, narrow_in
+from encons.models.networks import MLPTape, cranmer_init_, mlp, narrow_in
 from encons.models.parts import AngleEmbedding, embed_angles, embedded_width
 from encons.models.structured import MassPotentialModel
 from encons.systems.base import System, split_state

@@ -10,6 +10,7 @@ from typing import Callable, cast
 import torch
 from torch import Tensor, nn
 
+from encons.infra.batching import member_view, product
 from encons.infra.errors import ConfigError
 
 ACTIVATIONS = {"softplus": nn.Softplus, "tanh": nn.Tanh, "relu": nn.ReLU, "silu": nn.SiLU}
@@ -150,21 +151,6 @@ class EnsembleLinear(nn.Module):
 
 #: The layers ``MLPTape`` reads as linear: a network's own, and K of them stacked
 LINEAR = (nn.Linear, EnsembleLinear)
-
-
-def member_view(t: Tensor, dim: int) -> Tensor:
-    """A member-stacked tensor (K, *rest) viewed as (K, 1, ..., 1, *rest) of ``dim`` axes: broadcastable against
-    activations (K, ..., ·) whose leading axis is the member axis."""
-    return t.reshape(t.shape[0], *[1] * (dim - t.dim()), *t.shape[1:])
-
-
-def product(x: Tensor, w: Tensor) -> Tensor:
-    """x @ w for a matrix w (a, b), or per member for member-stacked matrices w (K, a, b) and x (K, ..., a) whose
-    leading axis is the member axis (an ensemble's networks, ``encons.training.stacked.EnsembleLinear``): one batched
-    product for all members."""
-    if w.dim() == 2:
-        return x @ w
-    return torch.bmm(x.reshape(w.shape[0], -1, x.shape[-1]), w).reshape(*x.shape[:-1], w.shape[-1])
 
 
 def narrow_in(x: Tensor, weight_t: Tensor, bias: Tensor | None = None) -> Tensor:

@@ -19,6 +19,8 @@ import torch
 from torch import Tensor
 from torch.func import grad
 
+from encons.infra.batching import product
+
 Constraint = Callable[[Tensor], Tensor]
 
 
@@ -145,20 +147,13 @@ def full_mass_matrix(mp: Tensor, dim: int) -> Tensor:
     return (mp[..., :, None, :, None] * eye[:, None, :]).reshape(*mp.shape[:-2], rows * dim, cols * dim)
 
 
-def times(x: Tensor, m: Tensor) -> Tensor:
-    """x @ m for a constant matrix m (D, E); for member-stacked matrices m (members, D, E) (a seed ensemble's
-    learned masses, ``encons.training.stacked``) member k's m acts on x[k], x (members, ..., D) having the member
-    axis first."""
-    return x @ (m if m.dim() == 2 else m.reshape(m.shape[0], *[1] * (x.dim() - 3), *m.shape[1:]))
-
-
 def constrained_acceleration(
     x: Tensor, v: Tensor, minv: Tensor, grad_v: Tensor, phi: Constraint, eliminated: bool = False
 ) -> Tensor:
     """ẍ of Zhong et al. eq. (15): Lagrangian dynamics with explicit constraints.
 
-    ``minv`` is the constant inverse mass matrix (D, D) (``full_mass_matrix``; or member-stacked: ``times``);
-    ``grad_v`` is ∇V(x).
+    ``minv`` is the constant inverse mass matrix (D, D) (``full_mass_matrix``; or member-stacked,
+    ``encons.infra.batching.product``); ``grad_v`` is ∇V(x).
     ẍ = M⁻¹ Aᵀ λ − M⁻¹ ∇V with (A M⁻¹ Aᵀ) λ = A M⁻¹ ∇V − C v, A = DΦ, C = D_xΦ̇; the products
     with M⁻¹ and with A are one matmul each. Constant linear rows of Φ enter through M_P⁻¹
     (``eliminate_linear``), which gives the same ẍ; ``eliminated``: ``minv`` already is M_P⁻¹
@@ -168,7 +163,7 @@ def constrained_acceleration(
         minv = eliminate_linear(phi, minv)[0]
     jac, d_rate = jacobians(phi, x, v, linear_rows=False)  # the linear rows are in M_P⁻¹
     k = jac.shape[-2]
-    scaled = times(torch.cat([jac, grad_v.unsqueeze(-2)], -2), minv)  # rows of A M⁻¹, then (M⁻¹ ∇V)ᵀ (M symmetric)
+    scaled = product(torch.cat([jac, grad_v.unsqueeze(-2)], -2), minv)  # rows of A M⁻¹, then (M⁻¹ ∇V)ᵀ (M symmetric)
     prod = torch.cat([jac, d_rate], -2) @ torch.cat([scaled, v.unsqueeze(-2)], -2).transpose(-1, -2)
     lam = torch.linalg.solve_ex(prod[..., :k, :k], prod[..., :k, k] - prod[..., k:, k + 1])[0]
     return (lam.unsqueeze(-1) * scaled[..., :k, :]).sum(-2) - scaled[..., k, :]  # a K-term sum: no tiny bmm
@@ -181,11 +176,11 @@ def constrained_hamiltonian_field(
 
     ``grad_h`` is ∇H (..., 2D). Ψ = (Φ(x), DΦ(x) M⁻¹ p) (§2.4) enters through the blocks of
     DΨ = [[A, 0], [C, A M⁻¹]]: ``jac`` A = DΦ and ``d_rate`` C = D_x Φ̇ (..., K, D), with
-    ``minv`` the constant M⁻¹ (D, D) (or member-stacked: ``times``). Then DΨ J DΨᵀ = [[0, S], [−S, W]] with
-    S = A M⁻¹ Aᵀ and W = C M⁻¹ Aᵀ − A M⁻¹ Cᵀ, and eq. (20) needs one K × K solve (K + 2 right-hand sides)
-    instead of a 2K × 2K one: λ₂ = S⁻¹ A ∇_p H, λ₁ = S⁻¹ (W λ₂ − C ∇_p H + A M⁻¹ ∇_x H),
-    ẋ = ∇_p H − M⁻¹ Aᵀ λ₂, ṗ = −∇_x H + Aᵀ λ₁ + Cᵀ λ₂. The products with [A; C] are one batched
-    matmul; those with the multipliers, K-term sums.
+    ``minv`` the constant M⁻¹ (D, D) (or member-stacked, ``encons.infra.batching.product``). Then
+    DΨ J DΨᵀ = [[0, S], [−S, W]] with S = A M⁻¹ Aᵀ and W = C M⁻¹ Aᵀ − A M⁻¹ Cᵀ, and eq. (20) needs one
+    K × K solve (K + 2 right-hand sides) instead of a 2K × 2K one: λ₂ = S⁻¹ A ∇_p H,
+    λ₁ = S⁻¹ (W λ₂ − C ∇_p H + A M⁻¹ ∇_x H), ẋ = ∇_p H − M⁻¹ Aᵀ λ₂, ṗ = −∇_x H + Aᵀ λ₁ + Cᵀ λ₂. The
+    products with [A; C] are one batched matmul; those with the multipliers, K-term sums.
     Constant linear rows A₂ eliminated (``eliminate_linear``: ``project`` P₂, ``minv`` M_P⁻¹, A and
     C of the other rows, C still at v = M⁻¹p): pass ∇_pH projected, P₂ ∇_pH (for H: M_P⁻¹ p), and
     ṗ comes out as P₂ᵀ(−∇_xH + Aᵀλ₁ + Cᵀλ₂), the same ż as with every row: the symplectic
@@ -194,7 +189,7 @@ def constrained_hamiltonian_field(
     grad_x, grad_p = grad_h.chunk(2, -1)
     k = jac.shape[-2]
     rows = torch.cat([jac, d_rate], -2)  # [A; C]
-    scaled = times(torch.cat([jac, grad_x.unsqueeze(-2)], -2), minv)  # rows of A M⁻¹, then (M⁻¹ ∇_x H)ᵀ
+    scaled = product(torch.cat([jac, grad_x.unsqueeze(-2)], -2), minv)  # rows of A M⁻¹, then (M⁻¹ ∇_x H)ᵀ
     prod = rows @ torch.cat([grad_p.unsqueeze(-2), scaled], -2).transpose(-1, -2)  # [A; C] [∇_pH, M⁻¹Aᵀ, M⁻¹∇_xH]
     cross = prod[..., k:, 1 : k + 1]  # C M⁻¹ Aᵀ
     rhs = torch.cat(
@@ -206,5 +201,5 @@ def constrained_hamiltonian_field(
     # Aᵀλ₁ + Cᵀλ₂ and Aᵀλ₂ as K-term broadcast sums, not as one batched matmul of tiny matrices
     p_dot = (lam_1 * jac + lam_2 * d_rate).sum(-2) - grad_x
     return torch.cat(
-        [grad_p - times((lam_2 * jac).sum(-2), minv), p_dot if project is None else times(p_dot, project)], -1
+        [grad_p - product((lam_2 * jac).sum(-2), minv), p_dot if project is None else product(p_dot, project)], -1
     )
