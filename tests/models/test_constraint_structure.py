@@ -85,8 +85,9 @@ def test_fast_field_equals_general_path(cls, system_name):
 @pytest.mark.parametrize("cls", [CHNN, CLNN], ids=lambda c: c.__name__)
 def test_member_stacked_masses_give_each_members_own_field(cls, system_name):
     """Three members with their own random masses and potentials, as one model with the ensemble dimension
-    (``PointMasses.ensemble``: member-stacked M⁻¹, M_P⁻¹ and P₂, ``encons.infra.batching.product``), outside and inside ``rollout_scope``:
-    member k's rows of the field, ``to_internal`` and ``from_internal`` equal member k's own."""
+    (``PointMasses.ensemble``: member-stacked M⁻¹, M_P⁻¹ and P₂, ``encons.infra.batching.product``), outside and
+    inside ``rollout_scope``: member k's rows of the field, ``to_internal`` and ``from_internal`` equal member k's
+    own."""
     system = SYSTEMS[system_name]()
     members = []
     for seed in range(3):
