@@ -135,20 +135,7 @@ class CostLine(pl.Callback):
 
     def state_dict(self) -> dict[str, Any]:
         now = time.perf_counter()
-        current = (
-            []
-            if self.open is None
-            else [
-                {
-                    "epoch": self.open["epoch"],
-                    "validation": self.open["validation"],
-                    "validated": self.open["validated"],
-                    "total": now - self.open["start"],
-                    "checkpoint": 0.0,
-                    "train": now - self.open["start"] - self.open["validation"],
-                }
-            ]
-        )
+        current = [] if self.open is None else [self._row(self.open, now, 0.0)]  # its checkpoint is being written
         return {"rows": [*self.rows, *current], "wall_s": self.before_s + now - self.started}
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
@@ -158,13 +145,18 @@ class CostLine(pl.Callback):
     def _written(self, trainer: pl.Trainer) -> float:
         return getattr(trainer.strategy.checkpoint_io, "seconds", 0.0)
 
+    @staticmethod
+    def _row(opened: dict[str, float], now: float, checkpoint: float) -> dict[str, float]:
+        """An epoch's row from its open record at time ``now``, with ``checkpoint`` seconds of writing."""
+        total = now - opened["start"]
+        kept = {k: v for k, v in opened.items() if k not in ("start", "written")}
+        return {**kept, "total": total, "checkpoint": checkpoint, "train": total - opened["validation"] - checkpoint}
+
     def _close(self, trainer: pl.Trainer) -> None:
         if self.open is None:
             return
-        row, self.open = self.open, None
-        row["total"] = time.perf_counter() - row.pop("start")
-        row["checkpoint"] = self._written(trainer) - row.pop("written")
-        row["train"] = row["total"] - row["validation"] - row["checkpoint"]
+        opened, self.open = self.open, None
+        row = self._row(opened, time.perf_counter(), self._written(trainer) - opened["written"])
         self.rows.append(row)
         if trainer.is_global_zero:
             to_log_files(
