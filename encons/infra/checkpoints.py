@@ -219,5 +219,6 @@ def check_fits(module: Any, path: str) -> None:
             said = ["absent" if s is None else f"shape {s}" for s in shapes]
             raise ConfigError(
                 f"ckpt_path={path!r}: parameter {name} is {said[0]} in the checkpoint and {said[1]} "
-                f"in this model; allowed: a checkpoint of the same model config (model.*)"
+                f"in this model; allowed: a checkpoint of the same model config (model.*) written by this "
+                f"version of encons"
             )

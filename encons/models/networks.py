@@ -131,21 +131,40 @@ class EnsembleLinear(nn.Module):
     leading axis is the member axis, (K, ..., in) -> (K, ..., out), or the member axis folded member-major into
     it, (K·N, ..., in) -> (K·N, ..., out) (rows k·N … (k+1)·N − 1 are member k's: the same memory), by one
     batched product (the ensemble dimension written into the layer; ``encons.training.stacked`` builds seed
-    ensembles of them). ``MLPTape`` and ``narrow_in``/``narrow_out`` read these weights per member too."""
+    ensembles of them). ``MLPTape`` and ``narrow_in``/``narrow_out`` read these weights per member too.
+
+    The parameter is ``weight_t``, Wᵀ (K, in, out) row-major, and ``weight`` its transposed view: the product
+    x Wᵀ then reads it as stored, and ``bmm``'s backward, which gives its second operand's gradient as
+    xᵀ ḡ (K, in, out) row-major whatever that operand's layout, gives it in the parameter's own layout. With a
+    (K, out, in) parameter autograd copied that gradient into the parameter's layout at every step (K·out·in
+    numbers per layer; the 2-D ``mm`` of one ``nn.Linear`` has a layout-aware backward and does not), and a
+    transposed-strided parameter sends the fused AdamW through a copy instead (it takes contiguous tensors)."""
 
     def __init__(self, layers: Sequence[nn.Linear]):
         super().__init__()
-        self.weight = nn.Parameter(torch.stack([layer.weight.detach() for layer in layers]).contiguous())
+        self.weight_t = nn.Parameter(torch.stack([layer.weight.detach().T for layer in layers]).contiguous())
         self.bias = (
             None
             if layers[0].bias is None
             else nn.Parameter(torch.stack([layer.bias.detach() for layer in layers]).contiguous())
         )
 
+    @property
+    def weight(self) -> Tensor:
+        """The members' weights (K, out, in): a view of ``weight_t``."""
+        return self.weight_t.transpose(1, 2)
+
+    def member_parameters(self) -> dict[str, Tensor]:
+        """The stacked tensors under the members' own parameter names (``encons.training.stacked.copy_members``)."""
+        return {"weight": self.weight} | ({} if self.bias is None else {"bias": self.bias})
+
     def forward(self, x: Tensor) -> Tensor:
-        rows = x.reshape(self.weight.shape[0], -1, x.shape[-1])
-        weight = self.weight.transpose(1, 2)
-        out = torch.bmm(rows, weight) if self.bias is None else torch.baddbmm(self.bias.unsqueeze(1), rows, weight)
+        rows = x.reshape(self.weight_t.shape[0], -1, x.shape[-1])
+        out = (
+            torch.bmm(rows, self.weight_t)
+            if self.bias is None
+            else torch.baddbmm(self.bias.unsqueeze(1), rows, self.weight_t)
+        )
         return out.reshape(*x.shape[:-1], out.shape[-1])
 
 

@@ -141,6 +141,8 @@ def train(
     for lg in loggers:
         lg.log_hyperparams(OmegaConf.to_container(checked.resolved))
     module = _module(cfg, members, seeds, data, stacked)
+    if resume is not None:
+        checkpoints.check_fits(module, resume)
     monitor = _monitor(cfg, checked.targets)
     if monitor is not None:
         plain = [cast(dict, OmegaConf.to_container(c)) for c in saved]  # a DictConfig's container: a dict

@@ -56,9 +56,10 @@ ELEMENTWISE = ("Adam", "AdamW", "SGD", "RMSprop", "Adamax")  # optimisers whose 
 
 def stacker(module: nn.Module) -> Callable[[Sequence[Any]], nn.Module] | None:
     """How K members' copies of ``module`` become one module whose own parameters (those not inside a submodule
-    that has a stacker too) carry the member axis first, member k's slice being its own parameter of the same name:
-    ``EnsembleLinear`` for an ``nn.Linear``, a module class's own ``ensemble`` classmethod (``PointMasses``,
-    the INN's ``CouplingBlock``); None for any other module."""
+    that has a stacker too) carry the member axis first, member k's slice being its own parameter of the same name
+    (or of the name the module's ``member_parameters()`` gives it): ``EnsembleLinear`` for an ``nn.Linear``, a
+    module class's own ``ensemble`` classmethod (``PointMasses``, the INN's ``CouplingBlock``); None for any other
+    module."""
     if isinstance(module, nn.Linear):
         return EnsembleLinear
     return getattr(type(module), "ensemble", None)
@@ -100,10 +101,13 @@ def ensemble_copy(modules: Sequence[M], names: Sequence[str]) -> M:
 @torch.no_grad()
 def copy_members(stacked: nn.Module, modules: Sequence[nn.Module]) -> None:
     """Write member ``k``'s slice of every parameter of ``stacked`` (an ``ensemble_copy`` of ``modules``) into
-    the parameter of the same name in ``modules[k]``."""
-    for name, value in stacked.named_parameters():
-        for k, module in enumerate(modules):
-            module.get_parameter(name).copy_(value[k])
+    the parameter of the same name in ``modules[k]``: a submodule's own parameters, or what its
+    ``member_parameters()`` names (a stacked tensor held in another layout: ``EnsembleLinear``'s)."""
+    for prefix, part in stacked.named_modules():
+        own = getattr(part, "member_parameters", lambda: dict(part.named_parameters(recurse=False)))()
+        for name, value in own.items():
+            for k, module in enumerate(modules):
+                module.get_parameter(f"{prefix}.{name}" if prefix else name).copy_(value[k])
 
 
 def dimension_model(models: Sequence[DynamicsModel]) -> nn.Module | None:

@@ -314,6 +314,27 @@ def test_a_members_best_checkpoint_is_refused_for_resuming_in_one_line(tmp_path,
         run("ens2", ["model=node", "system=pendulum1", "seeds=[0,1]", f"ckpt_path={best}"])
 
 
+def test_a_stacked_checkpoint_of_another_layout_is_refused_for_resuming_in_one_line(tmp_path, run, monkeypatch):
+    """A stacked ensemble's last.ckpt from an encons that held its layers as (K, out, in) ``weight`` (before
+    ``EnsembleLinear.weight_t``): one line naming the parameter, not Lightning's missing-keys traceback."""
+    real = ensemble._module
+    monkeypatch.setattr(ensemble, "_module", lambda c, m, s, d, _: real(c, m, s, d, True))  # not by timing
+    ovr = ["model=node", "system=pendulum1", "seeds=[0,1]", "trainer.max_epochs=2"]
+    ens = run("ens", ovr)
+    assert ens.path.startswith("stacked")
+    last = tmp_path / "ens" / "checkpoints" / "last.ckpt"
+    state = torch.load(last, weights_only=True)
+    old = {
+        k.removesuffix("_t"): v.transpose(1, 2) if k.endswith("weight_t") else v for k, v in state["state_dict"].items()
+    }
+    assert old.keys() != state["state_dict"].keys()
+    torch.save(state | {"state_dict": old}, last)
+    with pytest.raises(
+        ConfigError, match=r"parameter \S+\.weight is shape .* absent in this model; .* written by this version"
+    ):
+        run("ens", [*ovr, f"ckpt_path={last}"])
+
+
 def test_the_spread_line_names_mean_sd_min_max_and_no_spread_where_there_is_none():
     metrics = ensemble.summarise({0: {"test/traj_rel_err": 0.5}, 1: {"test/traj_rel_err": 0.7}})
     assert ensemble.spread_line(metrics, 2) == (

@@ -147,3 +147,37 @@ def test_a_model_without_an_ensemble_dimension_stacks_by_vmap():
     z = torch.randn(3 * 5, 4)
     want = torch.cat([m(torch.zeros(()), z[5 * k : 5 * (k + 1)]) for k, m in enumerate(models)])
     assert torch.allclose(one(torch.zeros(()), z), want, rtol=1e-6, atol=1e-7)
+
+
+def test_an_ensemble_linear_is_its_members_layers_and_takes_its_gradient_as_it_comes():
+    """K ``nn.Linear`` as one ``EnsembleLinear``: each member's outputs and weight gradients (float64, to 1e-12);
+    the weight's gradient arrives in the parameter's own layout (Wᵀ row-major), so autograd keeps the product's
+    result instead of copying it into another layout (no ``copy_`` of a weight's size in the backward), and
+    ``copy_members`` writes each member's (out, in) weight back."""
+    from encons.models.networks import EnsembleLinear
+
+    torch.manual_seed(0)
+    layers = [torch.nn.Linear(5, 7).double() for _ in range(3)]
+    stack = EnsembleLinear(layers)
+    x = torch.randn(3, 4, 5, dtype=torch.float64)
+    out = stack(x)
+    for k, layer in enumerate(layers):
+        assert torch.allclose(out[k], layer(x[k]), atol=1e-12)
+        layer(x[k]).pow(2).sum().backward()
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CPU], record_shapes=True) as prof:
+        out.pow(2).sum().backward()
+    copies = [e.input_shapes for e in prof.events() if e.name == "aten::copy_" and [3, 7, 5] in e.input_shapes]
+    assert not copies  # (K, out, in) weights: the gradient copied into the parameter's layout
+    grad = stack.weight_t.grad
+    assert grad is not None and grad.stride() == stack.weight_t.stride()
+    for k, layer in enumerate(layers):
+        assert torch.allclose(stack.weight[k], layer.weight) and torch.allclose(
+            grad[k].T, layer.weight.grad, atol=1e-12
+        )
+    with torch.no_grad():
+        stack.weight_t.add_(1.0)
+    stacked.copy_members(torch.nn.Sequential(stack), [torch.nn.Sequential(layer) for layer in layers])
+    for k, layer in enumerate(layers):
+        assert torch.equal(layer.weight, stack.weight[k]) and torch.equal(layer.bias, stack.bias[k])
