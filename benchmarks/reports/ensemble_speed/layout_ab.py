@@ -1,0 +1,82 @@
+"""A/B of ``EnsembleLinear``'s weight layout in one process (issue 47; ``cells.md``, section "EnsembleLinear holds
+Wᵀ"): a cell's stacked training step as encons builds it (the parameter Wᵀ, (K, in, out)) against the same step
+with every ``EnsembleLinear`` swapped for the layout before ``bfb2362`` (the parameter W, (K, out, in), the product
+x Wᵀ on its transposed view), the same weights, fastest of 5 interleaved rounds of process CPU time, one thread.
+Usage: ``PYTHONPATH=. python benchmarks/reports/ensemble_speed/layout_ab.py CELL [CELL ...]`` (cells of
+``benchmarks/ensemble_speed.py``)."""
+
+from __future__ import annotations
+
+import copy
+import sys
+import tempfile
+
+import torch
+from torch import Tensor, nn
+
+from benchmarks import ensemble_speed as es
+from encons.entry import api
+from encons.models.networks import EnsembleLinear
+from encons.training import ensemble, stacked
+
+
+class Before(EnsembleLinear):
+    """``EnsembleLinear`` as it was: a (K, out, in) parameter, the product on its transposed view."""
+
+    def __init__(self, now: EnsembleLinear):
+        nn.Module.__init__(self)
+        self.w = nn.Parameter(now.weight.detach().contiguous().clone())
+        self.bias = None if now.bias is None else nn.Parameter(now.bias.detach().clone())
+
+    @property
+    def weight(self) -> Tensor:
+        return self.w
+
+    def forward(self, x: Tensor) -> Tensor:
+        rows = x.reshape(self.w.shape[0], -1, x.shape[-1])
+        w = self.w.transpose(1, 2)
+        out = torch.bmm(rows, w) if self.bias is None else torch.baddbmm(self.bias.unsqueeze(1), rows, w)
+        return out.reshape(*x.shape[:-1], out.shape[-1])
+
+
+def swap(module: nn.Module) -> int:
+    """Replace every ``EnsembleLinear`` under ``module`` by ``Before``; how many."""
+    count = 0
+    for name, child in list(module.named_children()):
+        if isinstance(child, EnsembleLinear):
+            setattr(module, name, Before(child))
+            count += 1
+        else:
+            count += swap(child)
+    return count
+
+
+def main(cells: list[str], cache: str) -> None:
+    torch.set_num_threads(1)
+    for name in cells:
+        cell = es.CELLS[name]
+        pool, batch = es.members(cell, 8, cache)
+        for k in (3, 8):
+            cfg = api.compose(*cell, *es.SMALL_DATA, output_dir=tempfile.mkdtemp(), cache_dir=cache)
+            now = ensemble._module(cfg, pool[:k], list(range(k)), es._Data(batch), True)
+            before = copy.deepcopy(now)
+            if not isinstance(now, ensemble.StackedEnsemble) or not swap(before.stacked):
+                print(f"{name}: no EnsembleLinear on its stacked path", flush=True)
+                break
+            assert torch.allclose(now.stacked.training_loss(batch), before.stacked.training_loss(batch), rtol=1e-5)
+            opt_now = stacked.optimizer(pool[0].optimizer, list(now.stacked.parameters()))
+            opt_before = stacked.optimizer(pool[0].optimizer, list(before.stacked.parameters()))
+            steps = 10 if name.startswith(es.SLOW + ("pixels",)) else 50
+            t_now, t_before = float("inf"), float("inf")
+            for _ in range(5):
+                t_before = min(t_before, es.timed(lambda: es.ensemble_step(before, opt_before, batch), steps))
+                t_now = min(t_now, es.timed(lambda: es.ensemble_step(now, opt_now, batch), steps))
+            print(
+                f"{name} K={k}: (K, out, in) {t_before * 1e3:.3f} ms, Wᵀ {t_now * 1e3:.3f} ms per stacked step: "
+                f"{t_before / t_now:.3f}x",
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:], tempfile.mkdtemp())
