@@ -103,11 +103,20 @@ def copy_members(stacked: nn.Module, modules: Sequence[nn.Module]) -> None:
     """Write member ``k``'s slice of every parameter of ``stacked`` (an ``ensemble_copy`` of ``modules``) into
     the parameter of the same name in ``modules[k]``: a submodule's own parameters, or what its
     ``member_parameters()`` names (a stacked tensor held in another layout: ``EnsembleLinear``'s)."""
+    stacks: dict[str, Tensor] = {}
     for prefix, part in stacked.named_modules():
         own = getattr(part, "member_parameters", lambda: dict(part.named_parameters(recurse=False)))()
-        for name, value in own.items():
-            for k, module in enumerate(modules):
-                module.get_parameter(f"{prefix}.{name}" if prefix else name).copy_(value[k])
+        stacks |= {f"{prefix}.{name}" if prefix else name: value for name, value in own.items()}
+    write_slices(stacks, modules)
+
+
+@torch.no_grad()
+def write_slices(stacks: dict[str, Tensor], modules: Sequence[nn.Module]) -> None:
+    """``modules[k]``'s parameter or buffer of each name in ``stacks`` := slice k of that stacked tensor."""
+    for k, module in enumerate(modules):
+        own = dict(module.named_parameters()) | dict(module.named_buffers())
+        for name, value in stacks.items():
+            own[name].copy_(value[k])
 
 
 def dimension_model(models: Sequence[DynamicsModel]) -> nn.Module | None:
@@ -272,10 +281,7 @@ class StackedModel(nn.Module):
             copy_members(self.dimension, models)
             return
         params, buffers = self.member_weights()
-        for k, model in enumerate(models):
-            own = dict(model.named_parameters()) | dict(model.named_buffers())
-            for name, value in (params | buffers).items():
-                own[name].copy_(value[k])
+        write_slices(params | buffers, models)
 
 
 def dimension_penalty(model: DynamicsModel, regulariser: Any) -> bool:

@@ -147,6 +147,12 @@ def test_a_model_without_an_ensemble_dimension_stacks_by_vmap():
     z = torch.randn(3 * 5, 4)
     want = torch.cat([m(torch.zeros(()), z[5 * k : 5 * (k + 1)]) for k, m in enumerate(models)])
     assert torch.allclose(one(torch.zeros(()), z), want, rtol=1e-6, atol=1e-7)
+    with torch.no_grad():  # and member k's slices go back into its own model
+        for weight in one.weights:
+            weight.add_(torch.arange(3.0).reshape(-1, *[1] * (weight.dim() - 1)))
+    one.copy_to(models)
+    stacks = dict(zip(one.names, one.weights))
+    assert all(torch.equal(p, stacks[n][k]) for k, m in enumerate(models) for n, p in m.named_parameters())
 
 
 def test_an_ensemble_linear_is_its_members_layers_and_takes_its_gradient_as_it_comes():
