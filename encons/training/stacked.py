@@ -262,16 +262,32 @@ class StackedModel(nn.Module):
         """``regulariser(member, points, u)`` of every member (K,), each at its own rows of ``points`` and ``u``
         (folded member-major: the batch's states, or each member's own encodings of its frames). With the
         ensemble dimension (``dimension_penalty``: a Jacobian penalty on the default constrained field), every
-        member's per-sample Jacobians come from one reverse pass per field dimension through the whole stacked
-        field (its rows are independent, so row b's cotangent e_j gives row j of row b's Jacobian); else
-        ``per_member`` (one number per member: (K,))."""
+        member's per-sample Jacobians come from one reverse pass through the whole stacked field on its rows
+        repeated once per field dimension j, each copy's cotangent e_j (the rows are independent, so copy j of
+        row b gives row j of row b's Jacobian). Not ``vmap`` of the pullback over the e_j: its batching rule for
+        ``bmm`` broadcasts every (K, in, out) weight to (d, K, in, out) and copies it, per layer and step
+        (``benchmarks/reports/ensemble_speed/cells.md``); the stacked rows stay member-major. Else ``per_member``
+        (one number per member: (K,))."""
         if self.dimension is None:
             return self.per_member(regulariser, (points, u), (True, u is not None))
         z = self.to_internal(points)
+        d = z.shape[-1]
+
+        def repeated(x: Tensor) -> Tensor:  # (K·N, m) -> (K·d·N, m): member k's N rows, d times, member-major
+            return x.reshape(self.k, 1, -1, x.shape[-1]).expand(-1, d, -1, -1).reshape(-1, x.shape[-1])
+
+        rows, controls = repeated(z), None if u is None else repeated(u)
         t = torch.zeros((), dtype=points.dtype, device=points.device)
-        _, pullback = cast("tuple[Tensor, Callable]", vjp(lambda z: self(t, z) if u is None else self(t, z, u), z))
-        basis = torch.eye(z.shape[-1], dtype=z.dtype, device=z.device).unsqueeze(1).expand(-1, *z.shape)
-        jac = vmap(pullback)(basis)[0].movedim(0, 1)  # (B, d out, d in)
+        _, pullback = cast(
+            "tuple[Tensor, Callable]", vjp(lambda r: self(t, r) if u is None else self(t, r, controls), rows)
+        )
+        basis = (
+            torch.eye(d, dtype=z.dtype, device=z.device)
+            .reshape(1, d, 1, d)
+            .expand(self.k, -1, z.shape[0] // self.k, -1)
+        )
+        (grad,) = pullback(basis.reshape(-1, d))
+        jac = grad.reshape(self.k, d, -1, d).transpose(1, 2).reshape(-1, d, d)  # (K·N, d out, d in)
         return regulariser.weight * regulariser.violation(jac).reshape(self.k, -1).mean(1)
 
     @torch.no_grad()
