@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -159,6 +160,24 @@ def timed(step, steps: int) -> float:
     return (time.process_time() - start) / steps
 
 
+def fastest(steps_of: dict[str, Callable[[], None]], steps: int, rounds: int = 5) -> dict[str, float]:
+    """Each named step's process CPU time per step (s), fastest of ``rounds`` interleaved rounds of ``steps``
+    (interleaved: load on the shared cores hits every way alike)."""
+    best = dict.fromkeys(steps_of, float("inf"))
+    for _ in range(rounds):
+        for name, step in steps_of.items():
+            best[name] = min(best[name], timed(step, steps))
+    return best
+
+
+def stacked_ensemble(cell: list[str], pool: list, batch: dict, k: int, cache: str):
+    """``pool[:k]`` (``members``) as the stacked ensemble of ``cell`` (stacked wherever it can, not by timing)
+    and its optimiser over the stacked weights."""
+    cfg = api.compose(*cell, *SMALL_DATA, output_dir=tempfile.mkdtemp(), cache_dir=cache)
+    module = ensemble._module(cfg, pool[:k], list(range(k)), _Data(batch), True)
+    return module, stacked.optimizer(pool[0].optimizer, list(module.stacked.parameters()))
+
+
 MATMUL = ("aten::mm", "aten::addmm", "aten::bmm", "aten::baddbmm")
 
 
@@ -190,11 +209,15 @@ def fixed_share(module, opt, batch: dict, steps: int, repeats: int) -> float:
     """O / T of one separate member-step (see the module's docstring): the share of its time that does not grow
     with the batch, from the step on ``batch`` and on ``batch`` served twice over."""
     twice = {key: torch.cat([value, value]) for key, value in batch.items()}
-    once_s, twice_s = float("inf"), float("inf")
-    for _ in range(repeats):
-        once_s = min(once_s, timed(lambda: separate_step([module], [opt], batch), steps))
-        twice_s = min(twice_s, timed(lambda: separate_step([module], [opt], twice), steps))
-    return min(max(2 * once_s - twice_s, 0.0) / once_s, 1.0)
+    t = fastest(
+        {
+            "once": lambda: separate_step([module], [opt], batch),
+            "twice": lambda: separate_step([module], [opt], twice),
+        },
+        steps,
+        repeats,
+    )
+    return min(max(2 * t["once"] - t["twice"], 0.0) / t["once"], 1.0)
 
 
 def measure(
@@ -229,10 +252,15 @@ def measure(
         else:
             opt = mods[0].optimizer([p for m in mods for p in m.parameters()])
         opts = [m.optimizer(m.parameters()) for m in mods]
-        best_sep, best_ens = float("inf"), float("inf")
-        for _ in range(repeats):  # interleaved: load on the shared cores hits both alike
-            best_sep = min(best_sep, timed(lambda: separate_step(mods, opts, batch), steps))
-            best_ens = min(best_ens, timed(lambda: ensemble_step(module, opt, batch), steps))
+        t = fastest(
+            {
+                "separate": lambda: separate_step(mods, opts, batch),
+                "ensemble": lambda: ensemble_step(module, opt, batch),
+            },
+            steps,
+            repeats,
+        )
+        best_sep, best_ens = t["separate"], t["ensemble"]
         row = {
             "cell": name,
             "K": k,

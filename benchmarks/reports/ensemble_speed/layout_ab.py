@@ -15,7 +15,6 @@ import torch
 from torch import Tensor, nn
 
 from benchmarks import ensemble_speed as es
-from encons.entry import api
 from encons.models.networks import EnsembleLinear
 from encons.training import ensemble, stacked
 
@@ -57,20 +56,22 @@ def main(cells: list[str], cache: str) -> None:
         cell = es.CELLS[name]
         pool, batch = es.members(cell, 8, cache)
         for k in (3, 8):
-            cfg = api.compose(*cell, *es.SMALL_DATA, output_dir=tempfile.mkdtemp(), cache_dir=cache)
-            now = ensemble._module(cfg, pool[:k], list(range(k)), es._Data(batch), True)
+            now, opt_now = es.stacked_ensemble(cell, pool, batch, k, cache)
             before = copy.deepcopy(now)
             if not isinstance(now, ensemble.StackedEnsemble) or not swap(before.stacked):
                 print(f"{name}: no EnsembleLinear on its stacked path", flush=True)
                 break
             assert torch.allclose(now.stacked.training_loss(batch), before.stacked.training_loss(batch), rtol=1e-5)
-            opt_now = stacked.optimizer(pool[0].optimizer, list(now.stacked.parameters()))
             opt_before = stacked.optimizer(pool[0].optimizer, list(before.stacked.parameters()))
             steps = 10 if name.startswith(es.SLOW + ("pixels",)) else 50
-            t_now, t_before = float("inf"), float("inf")
-            for _ in range(5):
-                t_before = min(t_before, es.timed(lambda: es.ensemble_step(before, opt_before, batch), steps))
-                t_now = min(t_now, es.timed(lambda: es.ensemble_step(now, opt_now, batch), steps))
+            t = es.fastest(
+                {
+                    "before": lambda: es.ensemble_step(before, opt_before, batch),
+                    "now": lambda: es.ensemble_step(now, opt_now, batch),
+                },
+                steps,
+            )
+            t_before, t_now = t["before"], t["now"]
             print(
                 f"{name} K={k}: (K, out, in) {t_before * 1e3:.3f} ms, Wᵀ {t_now * 1e3:.3f} ms per stacked step: "
                 f"{t_before / t_now:.3f}x",

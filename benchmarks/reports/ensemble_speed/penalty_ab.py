@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import sys
 import tempfile
+from collections.abc import Callable
 from typing import Any
 
 import torch
@@ -16,8 +17,7 @@ from torch import Tensor
 from torch.func import vjp, vmap
 
 from benchmarks import ensemble_speed as es
-from encons.entry import api
-from encons.training import ensemble, stacked
+from encons.training import stacked
 
 NOW = stacked.StackedModel.penalty
 
@@ -40,15 +40,18 @@ def main(cells: list[str], cache: str) -> None:
         cell = es.CELLS[name]
         pool, batch = es.members(cell, 8, cache)
         for k in (3, 8):
-            cfg = api.compose(*cell, *es.SMALL_DATA, output_dir=tempfile.mkdtemp(), cache_dir=cache)
-            module = ensemble._module(cfg, pool[:k], list(range(k)), es._Data(batch), True)
-            opt = stacked.optimizer(pool[0].optimizer, list(module.stacked.parameters()))
-            times = {}
-            for way in (before, NOW) * 5:
-                stacked.StackedModel.penalty = way  # type: ignore[method-assign]
-                step = es.timed(lambda: es.ensemble_step(module, opt, batch), 30)
-                times[way] = min(times.get(way, float("inf")), step)
+            module, opt = es.stacked_ensemble(cell, pool, batch, k, cache)
+
+            def step(way: Any) -> Callable[[], None]:
+                def run() -> None:
+                    stacked.StackedModel.penalty = way  # type: ignore[method-assign]
+                    es.ensemble_step(module, opt, batch)
+
+                return run
+
+            t = es.fastest({"before": step(before), "now": step(NOW)}, 30)
             stacked.StackedModel.penalty = NOW  # type: ignore[method-assign]
+            times = {before: t["before"], NOW: t["now"]}
             print(
                 f"{name} K={k}: vmap over e_j {times[before] * 1e3:.3f} ms, rows repeated {times[NOW] * 1e3:.3f} ms "
                 f"per stacked step: {times[before] / times[NOW]:.3f}x",
