@@ -94,6 +94,7 @@ def summarise(per_member: dict[int, dict[str, float]]) -> dict[str, float]:
             continue
         mean = sum(values) / len(values)
         out[key] = mean
-        out[f"{key}_sd"] = math.sqrt(sum((v - mean) ** 2 for v in values) / max(1, len(values) - 1))
+        # (v − mean)·(v − mean), not ** 2: a float's square past its range is inf, its power an OverflowError
+        out[f"{key}_sd"] = math.sqrt(sum((v - mean) * (v - mean) for v in values) / max(1, len(values) - 1))
         out[f"{key}_min"], out[f"{key}_max"] = min(values), max(values)
     return out

@@ -335,6 +335,15 @@ def test_a_stacked_checkpoint_of_another_layout_is_refused_for_resuming_in_one_l
         run("ens", [*ovr, f"ckpt_path={last}"])
 
 
+def test_a_spread_past_the_float_range_is_inf_not_an_overflow():
+    """A member whose test rollout left the state space scores ~1e164 (the campaign's Xiao compound GLNN 400 × 4):
+    the spread is inf, not an OverflowError that ends the ensemble's test and the benchmark with it."""
+    metrics = ensemble.summarise(
+        {0: {"test/energy_mse": 1.0}, 1: {"test/energy_mse": 9.8e163}, 2: {"test/energy_mse": 2.0}}
+    )
+    assert metrics["test/energy_mse_sd"] == math.inf and metrics["test/energy_mse_max"] == 9.8e163
+
+
 def test_the_spread_line_names_mean_sd_min_max_and_no_spread_where_there_is_none():
     metrics = ensemble.summarise({0: {"test/traj_rel_err": 0.5}, 1: {"test/traj_rel_err": 0.7}})
     assert ensemble.spread_line(metrics, 2) == (
