@@ -170,6 +170,15 @@ def fastest(steps_of: dict[str, Callable[[], None]], steps: int, rounds: int = 5
     return best
 
 
+def ab_line(name: str, k: int, before: str, now: str, times: dict[str, float]) -> None:
+    """Print an A/B of one cell's stacked step: ``times["before"]`` and ``times["now"]`` (s, ``fastest``)."""
+    print(
+        f"{name} K={k}: {before} {times['before'] * 1e3:.3f} ms, {now} {times['now'] * 1e3:.3f} ms per stacked "
+        f"step: {times['before'] / times['now']:.3f}x",
+        flush=True,
+    )
+
+
 def stacked_ensemble(cell: list[str], pool: list, batch: dict, k: int, cache: str):
     """``pool[:k]`` (``members``) as the stacked ensemble of ``cell`` (stacked wherever it can, not by timing)
     and its optimiser over the stacked weights."""

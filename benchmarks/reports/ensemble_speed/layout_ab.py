@@ -71,12 +71,7 @@ def main(cells: list[str], cache: str) -> None:
                 },
                 steps,
             )
-            t_before, t_now = t["before"], t["now"]
-            print(
-                f"{name} K={k}: (K, out, in) {t_before * 1e3:.3f} ms, Wᵀ {t_now * 1e3:.3f} ms per stacked step: "
-                f"{t_before / t_now:.3f}x",
-                flush=True,
-            )
+            es.ab_line(name, k, "(K, out, in)", "Wᵀ", t)
 
 
 if __name__ == "__main__":

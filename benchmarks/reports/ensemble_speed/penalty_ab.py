@@ -51,12 +51,7 @@ def main(cells: list[str], cache: str) -> None:
 
             t = es.fastest({"before": step(before), "now": step(NOW)}, 30)
             stacked.StackedModel.penalty = NOW  # type: ignore[method-assign]
-            times = {before: t["before"], NOW: t["now"]}
-            print(
-                f"{name} K={k}: vmap over e_j {times[before] * 1e3:.3f} ms, rows repeated {times[NOW] * 1e3:.3f} ms "
-                f"per stacked step: {times[before] / times[NOW]:.3f}x",
-                flush=True,
-            )
+            es.ab_line(name, k, "vmap over e_j", "rows repeated", t)
 
 
 if __name__ == "__main__":
