@@ -400,7 +400,15 @@ def step_times(
 
 def probe(stacked: StackedTraining, members: Sequence[TrainingModule], batch: dict, rtol: float = 1e-4) -> str | None:
     """None when the stacked losses on ``batch`` equal each member's own (relative ``rtol``), else why not
-    (the first line of the error ``vmap`` raised, e.g. at a data-dependent branch)."""
+    (the first line of the error the stacked forward raised, e.g. ``vmap``'s at a data-dependent branch).
+
+    Compared in float64, on copies: what the probe asks is whether the stacked code computes each member's loss,
+    and a float32 loss can be good to less than ``rtol`` whichever way it is computed. Lim & Kasim's NSF at its
+    own sizes (a 2-form made of differences of derivatives, inverted) gave a member's separate float32 loss 8.6e-5
+    from its float64 value and the stacked one 1.2e-4, 2e-4 apart, and a float32 probe sent that ensemble down
+    the slower ``vmap`` path (``benchmarks/reports/ensemble_speed/cells.md``, "The probe in float64")."""
+    stacked, members = copy.deepcopy(stacked).double(), [copy.deepcopy(m).double() for m in members]
+    batch = {k: v.double() if isinstance(v, Tensor) and v.is_floating_point() else v for k, v in batch.items()}
     try:
         got = stacked.training_loss(batch).detach()
     except Exception as err:  # noqa: BLE001 - any failure of the stacked forward sends the run down the loop path

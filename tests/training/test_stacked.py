@@ -125,6 +125,41 @@ def test_a_loop_is_kept_only_with_its_reason(tmp_path, cache):
     )
 
 
+#: Lim & Kasim's NSF cell (``benchmarks/ensemble_speed.py``, ``lim_kasim-nsf``): 2 × 200, one 30-step window
+LIM_KASIM_NSF = [
+    "model=nsf",
+    "system=mass_spring",
+    "objective=derivative",
+    "optimizer=adamw",
+    "model.depth=2",
+    "model.hidden=200",
+    "data.batch_size=1",
+    "data.chunk_len=30",
+    "data.n_val=2",
+    "data.n_test=2",
+]
+
+
+def test_the_probe_asks_whether_the_stacked_code_computes_the_losses_not_how_float32_rounds(tmp_path, cache):
+    """NSF at Lim & Kasim's sizes inverts a 2-form made of differences of derivatives: member 0's float32 loss on
+    the first batch is itself good to ~1e-4, computed stacked or apart, and the two differ by more than the
+    probe's 1e-4 (2e-4 measured). The probe compares float64 copies, where they agree, so the ensemble takes the
+    ensemble dimension; a float32 probe sent it down the slower ``vmap`` path."""
+    built = [
+        build(api.compose(*LIM_KASIM_NSF, "logger=none", f"seed={s}", output_dir=tmp_path / f"m{s}", cache_dir=cache))
+        for s in range(2)
+    ]
+    data, members = built[0][0], [m for _, m in built]
+    cfg = api.compose(*LIM_KASIM_NSF, "logger=none", output_dir=tmp_path / "ens", cache_dir=cache)
+    module = ensemble._module(cfg, members, [0, 1], data, True)
+    assert module.path == "stacked (ensemble dimension)", module.path
+    batch = next(iter(data.train_dataloader()))
+    got = module.stacked.training_loss(batch).detach()
+    want = torch.stack([m.training_loss(batch).detach() for m in members])
+    assert float(((got - want).abs() / want.abs()).max()) > 1e-4  # float32 alone would have refused it
+    assert stacked.probe(module.stacked, members, batch, rtol=1e-9) is None  # float64: the same code
+
+
 class _Scaled(DynamicsModel):
     """A user's model with a parameter outside ``nn.Linear`` layers and no ``ensemble``: ż = e^c · net(z)."""
 
