@@ -38,6 +38,12 @@ SANTOS_PANELS = {
 }
 
 
+#: A curve's mean past this ends the curve, as a non-finite one does: only a diverged rollout reaches it (its
+#: threshold, ``encons.numerics.metrics.DIVERGED_ENERGY_ERROR``, is 1e10 in energy), and matplotlib's log axis
+#: cannot place ticks past ~1e280 (an OverflowError instead of a figure; a Xiao compound GLNN member's energy MSE)
+SHOWN_MAX = 1e100
+
+
 def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, horizon: int = 4) -> list[Path]:
     """The papers' comparison plots over a benchmark grid, one panel per system.
 
@@ -114,9 +120,10 @@ def comparison_figures(rows: list[dict], summary: list[dict], out_dir: Path, hor
                             curves.setdefault(row["model"], []).append((f["t"], curve))
             for model, runs in curves.items():
                 k = styles.setdefault(model, len(styles))
+                mean = np.mean([c for _, c in runs], 0)[1:]
                 ax.plot(
                     runs[0][0][1:],
-                    np.mean([c for _, c in runs], 0)[1:],
+                    np.where(np.isfinite(mean) & (np.abs(mean) < SHOWN_MAX), mean, np.nan),
                     label=model,
                     color=matplotlib.colormaps["tab20"](k % 20),
                     linestyle=("-", "--", ":")[k // 10 % 3],

@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Any, cast
 from rich.console import Console
 
 from encons.infra.errors import ConfigError
+from encons.training.results import mean_and_sd
 
 if TYPE_CHECKING:
     from omegaconf import DictConfig
@@ -100,9 +101,7 @@ def seed_summary(rows: list[dict]) -> list[dict]:
         for key in metrics:
             values = [r[key] for r in group if key in r and not r.get("error")]
             if values:
-                mean = sum(values) / len(values)
-                entry[key] = mean
-                entry[f"{key}_sd"] = math.sqrt(sum((v - mean) ** 2 for v in values) / max(1, len(values) - 1))
+                entry[key], entry[f"{key}_sd"] = mean_and_sd(values)
         summary.append(entry)
     return summary + oracle_entries(rows)
 
@@ -133,10 +132,7 @@ def oracle_entries(rows: list[dict]) -> list[dict]:
             "optimiser": "none (the true dynamics)",
         }
         for key in dict.fromkeys(k for f in floors for k in f):
-            values = [f[key] for f in floors if key in f]
-            mean = sum(values) / len(values)
-            entry[key] = mean
-            entry[f"{key}_sd"] = math.sqrt(sum((v - mean) ** 2 for v in values) / max(1, len(values) - 1))
+            entry[key], entry[f"{key}_sd"] = mean_and_sd([f[key] for f in floors if key in f])
         entries.append(entry)
     return entries
 

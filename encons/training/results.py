@@ -84,6 +84,14 @@ def spread_line(metrics: dict[str, float], members: int) -> str:
     )
 
 
+def mean_and_sd(values: list[float]) -> tuple[float, float]:
+    """The mean and sample standard deviation (0 for one value) of ``values`` (at least one); inf, not an error,
+    where a value is past the float range's square root (a diverged rollout's metric, ~1e164 and beyond)."""
+    mean = sum(values) / len(values)
+    # (v − mean)·(v − mean), not ** 2: a float's square past its range is inf, its power an OverflowError
+    return mean, math.sqrt(sum((v - mean) * (v - mean) for v in values) / max(1, len(values) - 1))
+
+
 def summarise(per_member: dict[int, dict[str, float]]) -> dict[str, float]:
     """Mean, sample std (``_sd``), ``_min`` and ``_max`` over members of every metric they share."""
     out: dict[str, float] = {}
@@ -92,9 +100,6 @@ def summarise(per_member: dict[int, dict[str, float]]) -> dict[str, float]:
         values = [m[key] for m in per_member.values() if key in m]
         if not values:
             continue
-        mean = sum(values) / len(values)
-        out[key] = mean
-        # (v − mean)·(v − mean), not ** 2: a float's square past its range is inf, its power an OverflowError
-        out[f"{key}_sd"] = math.sqrt(sum((v - mean) * (v - mean) for v in values) / max(1, len(values) - 1))
+        out[key], out[f"{key}_sd"] = mean_and_sd(values)
         out[f"{key}_min"], out[f"{key}_max"] = min(values), max(values)
     return out

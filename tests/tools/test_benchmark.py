@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import re
 from pathlib import Path
 
@@ -252,3 +253,31 @@ def test_train_debug_fast_shrinks_a_profiles_sizes_and_a_users_key_wins():
         compose(["profile=lim_kasim", 'train=["debug=fast","trainer.max_epochs=7"]'], config_name="benchmark")
     )
     assert compose(mine[0].overrides).trainer.max_epochs == 7
+
+
+def test_a_member_past_the_float_range_reports_inf_and_ends_its_curve(tmp_path):
+    """A diverged member (the campaign's Xiao compound GLNN 400 × 4: an energy error of 5.9e239, energy MSE curves
+    at the float range's end) gives its cell a spread of inf and its figure curves that end, not an
+    OverflowError from the seeds' spread or from matplotlib's log axis."""
+    import numpy as np
+
+    t = np.linspace(0.0, 1.0, 5)
+    for seed, scale in ((0, 1.0), (1, 1e241)):
+        run = tmp_path / "runs" / f"pendulum1-hnn-seed{seed}"
+        run.mkdir(parents=True)
+        row = {"system": "pendulum1", "model": "hnn", "seed": seed, "n_train": 8, "data_efficiency": False}
+        row |= {"error": "", "wall_time_s": 1.0, "optimiser": "AdamW", "test/traj_rel_err": 0.1 * scale}
+        (run / "result.json").write_text(json.dumps(row | {"test/energy_abs_err": 0.01 * scale}))
+        np.savez(
+            run / "test_curves.npz",
+            t=t,
+            rel_err=np.full((3, 5), 0.1 * scale),
+            energy_err=np.full((3, 5), 0.01 * scale),
+            energy_mse_model=np.array([1e-4, 1e-3, 1e-2, 1e-2, 1e-2])
+            * (1 if seed == 0 else [1, 1e10, 1e270, math.inf, math.inf]),  # as that member's: 5e268, then inf
+        )
+    write_report(tmp_path)
+    with (tmp_path / "summary.csv").open() as f:
+        (cell,) = [r for r in csv.DictReader(f) if r["model"] == "hnn"]
+    assert float(cell["test/energy_abs_err_sd"]) == math.inf
+    assert all((tmp_path / name).stat().st_size > 0 for name in ("energy_err_vs_time.png", "energy_mse_vs_time.png"))
