@@ -406,14 +406,19 @@ def probe(stacked: StackedTraining, members: Sequence[TrainingModule], batch: di
     and a float32 loss can be good to less than ``rtol`` whichever way it is computed. Lim & Kasim's NSF at its
     own sizes (a 2-form made of differences of derivatives, inverted) gave a member's separate float32 loss 8.6e-5
     from its float64 value and the stacked one 1.2e-4, 2e-4 apart, and a float32 probe sent that ensemble down
-    the slower ``vmap`` path (``benchmarks/reports/ensemble_speed/cells.md``, "The probe in float64")."""
-    stacked, members = copy.deepcopy(stacked).double(), [copy.deepcopy(m).double() for m in members]
-    batch = {k: v.double() if isinstance(v, Tensor) and v.is_floating_point() else v for k, v in batch.items()}
+    the slower ``vmap`` path (``benchmarks/reports/ensemble_speed/cells.md``, "The probe in float64"). A model
+    that does not run in float64 (a user's that makes float32 tensors of its own) is compared as it trains."""
+    wide = (copy.deepcopy(stacked).double(), [copy.deepcopy(m).double() for m in members])
+    batch64 = {k: v.double() if isinstance(v, Tensor) and v.is_floating_point() else v for k, v in batch.items()}
+    try:
+        want = torch.stack([m.training_loss(batch64).detach() for m in wide[1]])
+        stacked, batch = wide[0], batch64
+    except Exception:  # noqa: BLE001 - any failure in float64: the members' own losses as they train
+        want = torch.stack([m.training_loss(batch).detach() for m in members])
     try:
         got = stacked.training_loss(batch).detach()
     except Exception as err:  # noqa: BLE001 - any failure of the stacked forward sends the run down the loop path
         return f"the stacked field failed ({type(err).__name__}: {str(err).splitlines()[0]})"
-    want = torch.stack([m.training_loss(batch).detach() for m in members])
     diff = ((got - want).abs() / want.abs().clamp_min(1e-12)).max()
     if not bool(diff <= rtol):
         return f"the stacked losses differ from the members' own by {float(diff):.2g} (relative) on the first batch"

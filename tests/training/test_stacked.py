@@ -13,6 +13,8 @@ from encons.entry.api import build
 from encons.models.base import DynamicsModel
 from encons.systems.pendulum import NPendulum
 from encons.training import ensemble, stacked
+from encons.training.members import StackedEnsemble
+from encons.training.module import TrainingModule
 
 #: one model of every family the papers use, at its usual system, and the stacked way it takes
 FAMILIES = [
@@ -158,6 +160,33 @@ def test_the_probe_asks_whether_the_stacked_code_computes_the_losses_not_how_flo
     want = torch.stack([m.training_loss(batch).detach() for m in members])
     assert float(((got - want).abs() / want.abs()).max()) > 1e-4  # float32 alone would have refused it
     assert stacked.probe(module.stacked, members, batch, rtol=1e-9) is None  # float64: the same code
+
+
+class _Float32Mix(DynamicsModel):
+    """A user's model that makes a float32 tensor of its own (a plain attribute, not a buffer): ż = net(z M)."""
+
+    def __init__(self, system):
+        super().__init__(system)
+        self.net = torch.nn.Linear(2 * self.n, 2 * self.n)
+        self.mix = torch.eye(2 * self.n)
+
+    def forward(self, t, z, u=None):
+        return self.net(z @ self.mix)
+
+
+def test_a_model_that_runs_only_in_float32_is_probed_as_it_trains(tmp_path, cache):
+    """The probe's float64 copies cannot run it (float64 @ float32 raises): its losses are compared in float32,
+    and it stacks, where a float64 probe alone sent it down the loop ("the stacked field failed ... double !=
+    float")."""
+    data, (first,) = _members("node", "pendulum2", [], cache, tmp_path, k=1)
+    torch.manual_seed(0)
+    members = [
+        TrainingModule(_Float32Mix(first.system), first.system, first.dt, first.integrator, first.optimizer)
+        for _ in range(2)
+    ]
+    module = StackedEnsemble(members, [0, 1])
+    assert module.path == "stacked (ensemble dimension)"
+    assert stacked.probe(module.stacked, members, next(iter(data.train_dataloader()))) is None
 
 
 class _Scaled(DynamicsModel):
