@@ -34,7 +34,7 @@ from __future__ import annotations
 import argparse
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import torch
@@ -177,6 +177,14 @@ def ab_line(name: str, k: int, before: str, now: str, times: dict[str, float]) -
         f"step: {times['before'] / times['now']:.3f}x",
         flush=True,
     )
+
+
+def pools(cells: list[str], cache: str) -> Iterator[tuple[str, list[str], list, dict]]:
+    """Each of ``cells`` (names in ``CELLS``) with 8 members (``members``) and its batch, on one thread: what the
+    in-process A/B scripts under ``benchmarks/reports/ensemble_speed/`` loop over."""
+    torch.set_num_threads(1)
+    for name in cells:
+        yield name, CELLS[name], *members(CELLS[name], 8, cache)
 
 
 def stacked_ensemble(cell: list[str], pool: list, batch: dict, k: int, cache: str):

@@ -51,10 +51,7 @@ def swap(module: nn.Module) -> int:
 
 
 def main(cells: list[str], cache: str) -> None:
-    torch.set_num_threads(1)
-    for name in cells:
-        cell = es.CELLS[name]
-        pool, batch = es.members(cell, 8, cache)
+    for name, cell, pool, batch in es.pools(cells, cache):
         for k in (3, 8):
             now, opt_now = es.stacked_ensemble(cell, pool, batch, k, cache)
             before = copy.deepcopy(now)

@@ -35,10 +35,7 @@ def before(self: stacked.StackedModel, regulariser: Any, points: Tensor, u: Tens
 
 
 def main(cells: list[str], cache: str) -> None:
-    torch.set_num_threads(1)
-    for name in cells:
-        cell = es.CELLS[name]
-        pool, batch = es.members(cell, 8, cache)
+    for name, cell, pool, batch in es.pools(cells, cache):
         for k in (3, 8):
             module, opt = es.stacked_ensemble(cell, pool, batch, k, cache)
 
