@@ -398,6 +398,11 @@ def step_times(
     return best[0], best[1]
 
 
+def float64_batch(batch: dict) -> dict:
+    """``batch`` with its floating tensors in float64 (what ``probe`` compares its float64 copies on)."""
+    return {k: v.double() if isinstance(v, Tensor) and v.is_floating_point() else v for k, v in batch.items()}
+
+
 def probe(stacked: StackedTraining, members: Sequence[TrainingModule], batch: dict, rtol: float = 1e-4) -> str | None:
     """None when the stacked losses on ``batch`` equal each member's own (relative ``rtol``), else why not
     (the first line of the error the stacked forward raised, e.g. ``vmap``'s at a data-dependent branch).
@@ -409,7 +414,7 @@ def probe(stacked: StackedTraining, members: Sequence[TrainingModule], batch: di
     the slower ``vmap`` path (``benchmarks/reports/ensemble_speed/cells.md``, "The probe in float64"). A model
     that does not run in float64 (a user's that makes float32 tensors of its own) is compared as it trains."""
     wide = (copy.deepcopy(stacked).double(), [copy.deepcopy(m).double() for m in members])
-    batch64 = {k: v.double() if isinstance(v, Tensor) and v.is_floating_point() else v for k, v in batch.items()}
+    batch64 = float64_batch(batch)
     try:
         want = torch.stack([m.training_loss(batch64).detach() for m in wide[1]])
         stacked, batch = wide[0], batch64

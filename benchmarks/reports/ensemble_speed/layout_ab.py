@@ -53,8 +53,7 @@ def swap(module: nn.Module) -> int:
 def losses64(module: ensemble.StackedEnsemble, batch: dict) -> torch.Tensor:
     """The stacked losses on ``batch`` of a float64 copy: the two layouts compute the same function, which float32
     rounds apart by more than 1e-5 where a loss is ill-conditioned (NSF's, ``stacked.probe``)."""
-    wide = {k: v.double() if isinstance(v, torch.Tensor) and v.is_floating_point() else v for k, v in batch.items()}
-    return copy.deepcopy(module.stacked).double().training_loss(wide).detach()
+    return copy.deepcopy(module.stacked).double().training_loss(stacked.float64_batch(batch)).detach()
 
 
 def main(cells: list[str], cache: str) -> None:
