@@ -17,6 +17,7 @@ from encons.numerics import metrics
 from encons.numerics.integrators import rollout
 
 if TYPE_CHECKING:
+    from encons.models.base import DynamicsModel
     from encons.numerics.learner import Learner
 
 
@@ -26,6 +27,10 @@ class SantosMetrics(Evaluator, Declared):
     - ``mse_train`` / ``mse_test``: one-step configuration MSE, each state k ≥ max(2, ``history``) of every
       train / test trajectory predicted from the ``history`` states before it (the same targets for every
       model of history 1 or 2);
+    - ``mse_train_floor`` / ``mse_test_floor``: the same for the model's ``true_counterpart`` (the system's true
+      dynamics stepped as the model steps: the true field by the training integrator, SyMo's DEL step with the
+      true M and V), in float64: what the model's own discretisation leaves at best, beside what it scored
+      (these metrics roll out by the training integrator, so each model has its own floor, not one oracle row);
     - ``mse_integration``: configuration MSE of ``n_trajectories`` unforced (u = 0) initial conditions
       rolled out ``steps`` steps of the data dt from their first ``history`` true states;
     - ``energy_mse_integration``: per-trajectory MSE of the true energy along those rollouts against the
@@ -41,6 +46,7 @@ class SantosMetrics(Evaluator, Declared):
     headline = (  # the benchmark summary's headline columns (encons.tools.report)
         "mse_train",
         "mse_test",
+        "mse_test_floor",
         "mse_integration",
         "energy_mse_integration",
         "mass_mse",
@@ -65,6 +71,12 @@ class SantosMetrics(Evaluator, Declared):
             return Result()
         data = module.trainer.datamodule
         scores = {f"mse_{split}": self.one_step_mse(module, data.arrays[split]) for split in ("train", "test")}
+        floor = module.model.true_counterpart(module.system)
+        if floor is not None:
+            floor = floor.double()
+            scores.update(
+                {f"mse_{split}_floor": floor_mse(module, floor, data.arrays[split]) for split in ("train", "test")}
+            )
         scores.update(self.integration(module, data.substeps))
         return Result(scores)
 
@@ -119,6 +131,18 @@ class SantosMetrics(Evaluator, Declared):
         if self.drawn is None:
             return {}
         return figures.integration_figure(*self.drawn, chart=module.model.chart, title=module.run_title())
+
+
+def floor_mse(module: Learner, floor: DynamicsModel, arrays: dict[str, Tensor]) -> float:
+    """``SantosMetrics.one_step_mse`` of ``floor`` (a float64 ``true_counterpart`` of the module's model) on the
+    same windows, stepped by the module's training integrator in float64."""
+    states, u = arrays["states"], arrays.get("u")
+    windows = one_step_windows(states, floor.history).double()
+    inputs = None if u is None else one_step_windows(u, floor.history).double()
+    start = windows[:, 0] if floor.history == 1 else windows[:, : floor.history]
+    t = torch.arange(windows.shape[1], dtype=torch.float64) * module.dt
+    pred = rollout(floor, start, t, module.integrator, inputs)[:, -1, : floor.n]
+    return metrics.configuration_mse(pred, windows[:, -1, : floor.n], q_angles(module)).item()
 
 
 def q_angles(module: Learner) -> Tensor | None:

@@ -116,6 +116,13 @@ class DynamicsModel(nn.Module, Declared):
         """Take the counters of ``copy``, a copy of this model that rolled out in its place (the
         evaluation's float64 copy), as this model's."""
 
+    def true_counterpart(self, system: System) -> DynamicsModel | None:
+        """The system's true dynamics in this model's form, stepped as this model steps: what it would be had it
+        learned them exactly (the floor of metrics that roll out by the training integrator or the model's own
+        step, ``encons.evaluators.santos``), or None where the form has none. A continuous model's is the true
+        field in its chart (``TrueField``), for the same integrator to step."""
+        return TrueField(system, self.chart)
+
     def constrained_field(self, s: Tensor, u: Tensor | None = None) -> tuple[Tensor, Callable[..., Tensor]]:
         """Points, per-point inputs and the per-sample field that soft dynamics constraints act on.
 
@@ -125,6 +132,18 @@ class DynamicsModel(nn.Module, Declared):
         """
         t = torch.zeros((), dtype=s.dtype, device=s.device)
         return self.to_internal(s), lambda z, ui=None: self(t, z) if ui is None else self(t, z, ui)
+
+
+class TrueField(DynamicsModel):
+    """The system's true vector field in ``chart`` as a model: what the oracle row rolls out
+    (``encons.numerics.evaluation``)."""
+
+    def __init__(self, system: System, chart: str):
+        super().__init__(system, chart)
+        self.system = system
+
+    def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
+        return self.system.field(s, self.chart, u)
 
 
 class DiscreteModel(DynamicsModel):
@@ -150,6 +169,10 @@ class DiscreteModel(DynamicsModel):
     def residual(self, states: Tensor, t: Tensor, u: Tensor | None = None) -> Tensor:
         """Residual vectors (..., K) of the model's own equations on windows ``states`` (..., T, 2n)."""
         raise NotImplementedError
+
+    def true_counterpart(self, system: System) -> DynamicsModel | None:
+        """None unless the discrete model defines its own (the system's field is not stepped by its step)."""
+        return None
 
 
 def angle_mask(system: System, angular: bool) -> bool | tuple[bool, ...]:

@@ -10,7 +10,7 @@ import torch
 from torch import Tensor, nn
 
 from encons.models.networks import mlp, run
-from encons.systems.base import CartesianLayout
+from encons.systems.base import CartesianLayout, System
 
 Angular = bool | tuple[bool, ...]
 
@@ -146,6 +146,35 @@ class Potential(nn.Module):
     def forward(self, q: Tensor) -> Tensor:
         """V(q), shape ``q.shape[:-1]``."""
         return run(self.net, embed_angles(q, self.angular)).squeeze(-1)
+
+
+class KnownMass(nn.Module):
+    """A system's true M(q) (of its angle chart) behind ``CholeskyMass``'s methods: a model's learned mass matrix
+    replaced by the truth (``DynamicsModel.true_counterpart``)."""
+
+    def __init__(self, system: System):
+        super().__init__()
+        self.system = system
+
+    def cholesky(self, q: Tensor) -> Tensor:
+        return torch.linalg.cholesky(self.system.mass_matrix(q))
+
+    def forward(self, q: Tensor) -> Tensor:
+        return self.system.mass_matrix(q)
+
+    def solve(self, q: Tensor, p: Tensor) -> Tensor:
+        return torch.cholesky_solve(p.unsqueeze(-1), self.cholesky(q)).squeeze(-1)
+
+
+class KnownPotential(nn.Module):
+    """A system's true V(q) (of its angle chart) behind ``Potential``'s call (``DynamicsModel.true_counterpart``)."""
+
+    def __init__(self, system: System):
+        super().__init__()
+        self.system = system
+
+    def forward(self, q: Tensor) -> Tensor:
+        return self.system.potential(q)
 
 
 class PointMasses(nn.Module):

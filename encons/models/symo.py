@@ -23,6 +23,7 @@ not differentiated.
 
 from __future__ import annotations
 
+import copy
 from typing import Annotated, Callable, ClassVar, cast
 
 import torch
@@ -32,7 +33,7 @@ from torch.func import grad, vjp, vmap
 from encons.infra.bounds import Count, Positive, Range
 from encons.infra.errors import ConfigError
 from encons.models.base import DiscreteModel, DynamicsModel, EnergyStructure, angle_mask
-from encons.models.parts import CholeskyMass, Potential
+from encons.models.parts import CholeskyMass, KnownMass, KnownPotential, Potential
 from encons.systems.base import System
 
 
@@ -110,6 +111,17 @@ class SyMo(DiscreteModel):
         """Its M(q), V(q) (those of its discrete Lagrangian) and input matrix: the energy-based controller's
         structure (``encons.tools.control``)."""
         return EnergyStructure(self.mass, self.potential, self.input_matrix)
+
+    def true_counterpart(self, system: System) -> SyMo | None:
+        """This model's midpoint DEL step with the system's true M(q) and V(q) in place of its networks (same
+        Newton settings): the one-step error its discretisation leaves at best; None in a chart other than the
+        angle chart (where the system's M and V are given) or for a system of unknown physics."""
+        if self.chart != "angle" or not system.known_physics:
+            return None
+        twin = copy.deepcopy(self)
+        # the same methods as the networks (the DEL step and the rollout call no others): typed as the networks
+        twin.mass, twin.potential = KnownMass(system), KnownPotential(system)  # type: ignore[assignment]
+        return twin
 
     # -- the discrete mechanics -------------------------------------------------------------------
     def discrete_lagrangian(self, a: Tensor, b: Tensor, h: Tensor) -> Tensor:

@@ -30,23 +30,12 @@ from torch import Tensor
 
 from encons.infra import bounds
 from encons.infra.bounds import Count, Positive
-from encons.models.base import DynamicsModel
+from encons.models.base import DynamicsModel, TrueField
 from encons.numerics.integrators import FIXED_STEP, Integrator, rollout
 from encons.systems.base import System
 
 log = logging.getLogger(__name__)
 FALLBACK = Integrator("rk4", 16)  # where an adaptive rollout gives up: bounded cost, 64 evaluations per dt
-
-
-class TrueField(DynamicsModel):
-    """The system's true vector field in ``chart`` as a model: what the oracle row rolls out."""
-
-    def __init__(self, system: System, chart: str):
-        super().__init__(system, chart)
-        self.system = system
-
-    def forward(self, t: Tensor, s: Tensor, u: Tensor | None = None) -> Tensor:
-        return self.system.field(s, self.chart, u)
 
 
 @dataclass(frozen=True)

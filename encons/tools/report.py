@@ -204,6 +204,7 @@ ORDER = (
     "test/baseline_linear_ode/state_mse_final",
     "test/mse_train",
     "test/mse_test",
+    "test/mse_test_floor",
     "test/mse_integration",
     "test/energy_mse_integration",
     "test/mass_mse",

@@ -9,8 +9,9 @@ import torch
 from encons.config.check import validate
 from encons.data.simulate import sample_trajectories
 from encons.entry import api
+from encons.models.base import TrueField
 from encons.numerics import metrics
-from encons.numerics.evaluation import Evaluation, TrueField
+from encons.numerics.evaluation import Evaluation
 from encons.numerics.integrators import Integrator, rollout
 from encons.training.build import build_system
 from tests.helpers import simulated_systems

@@ -9,13 +9,14 @@ equations (eqs. (12)–(15)) by Newton. This script scores, on the train and tes
 cart-pole at N_train = 8 draws (``CACHE``: the benchmark's ``cache_dir``, where they are kept; default: a fresh
 folder, which simulates them again, the same draws), the one-step configuration MSE of
 
-- the midpoint DEL with the system's true M(q) and V(q) in place of the networks (a SyMo model whose ``mass``
-  and ``potential`` are the true ones, in float64), at §7's evaluation tolerance (RMS residual 1e-4, here with
-  up to 50 iterations) and at 1e-10;
+- the midpoint DEL with the system's true M(q) and V(q) in place of the networks (E2E-SyMo's
+  ``true_counterpart``, in float64), at §7's evaluation tolerance (RMS residual 1e-4, here with up to 50
+  iterations) and at 1e-10;
 - the true vector field stepped by RK4 and by the explicit midpoint rule (what NODE/L-NODE-RK4 and -midpoint
   would score with the true dynamics),
 
-and writes ``floor.json`` beside this script.
+and writes ``floor.json`` beside this script. Runs report the test floors themselves now (``mse_test_floor``,
+``encons.evaluators.santos``); this script also gives the train split and both tolerances.
 """
 
 from __future__ import annotations
@@ -26,14 +27,10 @@ import tempfile
 from pathlib import Path
 
 import torch
-from torch import Tensor, nn
 
 from encons.entry import api
 from encons.entry.api import build
-from encons.evaluators.santos import one_step_windows, q_angles
-from encons.numerics import metrics
-from encons.numerics.evaluation import TrueField
-from encons.numerics.integrators import rollout
+from encons.evaluators.santos import floor_mse
 
 # the profile's cart-pole cell at N_train = 8 (conf/profile/santos.yaml; the model is set per floor)
 SANTOS = [
@@ -47,34 +44,6 @@ SANTOS = [
 ]
 
 
-class TrueMass(nn.Module):
-    """The system's M(q) with the ``CholeskyMass`` methods the DEL equations call."""
-
-    def __init__(self, system):
-        super().__init__()
-        self.system = system
-
-    def cholesky(self, q: Tensor) -> Tensor:
-        return torch.linalg.cholesky(self.system.mass_matrix(q))
-
-    def forward(self, q: Tensor) -> Tensor:
-        return self.system.mass_matrix(q)
-
-    def solve(self, q: Tensor, p: Tensor) -> Tensor:
-        return torch.linalg.solve(self.system.mass_matrix(q), p.unsqueeze(-1)).squeeze(-1)
-
-
-class TruePotential(nn.Module):
-    """The system's V(q) as the ``Potential`` network's call."""
-
-    def __init__(self, system):
-        super().__init__()
-        self.system = system
-
-    def forward(self, q: Tensor) -> Tensor:
-        return self.system.potential(q)
-
-
 def setup(cache: str, *overrides: str):
     cfg = api.compose(*SANTOS, *overrides, output_dir=tempfile.mkdtemp(), cache_dir=cache)
     data, module = build(cfg)
@@ -83,38 +52,24 @@ def setup(cache: str, *overrides: str):
     return data, module
 
 
-def one_step_mse(module, model, arrays: dict[str, Tensor]) -> float:
-    """``SantosMetrics.one_step_mse`` of ``model`` in float64 by ``module``'s integrator."""
-    states, u, history, n = arrays["states"], arrays.get("u"), model.history, model.n
-    windows = one_step_windows(states, history).double()
-    inputs = None if u is None else one_step_windows(u, history).double()
-    start = windows[:, 0] if history == 1 else windows[:, :history]
-    t = torch.arange(windows.shape[1], dtype=torch.float64) * module.dt
-    pred = rollout(model, start, t, module.integrator, inputs)[:, -1, :n]
-    return metrics.configuration_mse(pred, windows[:, -1, :n], q_angles(module)).item()
-
-
 def main() -> None:
     torch.set_num_threads(1)
     cache = sys.argv[1] if len(sys.argv) > 1 else tempfile.mkdtemp()
     out: dict = {"what": __doc__.split("\n")[0], "one_step_mse": {}}
     data, module = setup(cache, "model=e2e_symo")
-    model = module.model.double().eval()
-    model.mass, model.potential = TrueMass(module.system), TruePotential(module.system)
-    model.input_matrix = model.input_matrix.double()
+    model = module.model.true_counterpart(module.system).double().eval()
     for split in ("train", "test"):
         for tol in (1e-4, 1e-10):
             model.eval_tol, model.eval_iters = tol, 50
             model.reset_diagnostics()
             key = f"midpoint DEL, true M and V, Newton tol {tol:g}"
-            value = one_step_mse(module, model, data.arrays[split])
-            out["one_step_mse"].setdefault(key, {})[split] = value
+            out["one_step_mse"].setdefault(key, {})[split] = floor_mse(module, model, data.arrays[split])
             out["one_step_mse"][key][f"{split}_newton_unconverged"] = model.diagnostics()["newton_unconverged"]
     for integrator in ("rk4", "midpoint"):
         data, module = setup(cache, "model=lnode", f"integrator={integrator}")
-        true = TrueField(module.system, module.model.chart).double()
+        true = module.model.true_counterpart(module.system).double()
         key = f"true field by {integrator}"
-        out["one_step_mse"][key] = {split: one_step_mse(module, true, data.arrays[split]) for split in ("train", "test")}
+        out["one_step_mse"][key] = {split: floor_mse(module, true, data.arrays[split]) for split in ("train", "test")}
     for key, values in out["one_step_mse"].items():
         print(f"{key}: " + ", ".join(f"{k} {v:.3g}" for k, v in values.items()))
     Path(__file__).with_name("floor.json").write_text(json.dumps(out, indent=1) + "\n")
