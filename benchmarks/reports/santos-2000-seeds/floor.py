@@ -1,7 +1,7 @@
 """The floor of Santos §7's one-step MSE on this report's cart-pole data: the true physics through each model's own
 discretisation, scored as ``encons.evaluators.santos`` scores the models.
 
-    python benchmarks/reports/santos-2000-seeds/floor.py [CACHE]
+    PYTHONPATH=. python benchmarks/reports/santos-2000-seeds/floor.py [CACHE]
 
 The §7 metrics roll out by the training integrator, as the paper tests, so the true field's floor differs by
 model: NODE and L-NODE step by RK4 or the explicit midpoint rule, SyMo and E2E-SyMo solve the midpoint DEL
@@ -28,24 +28,14 @@ from pathlib import Path
 
 import torch
 
+from benchmarks.ensemble_speed import SANTOS  # the profile's cart-pole cell at N_train = 8
 from encons.entry import api
 from encons.entry.api import build
 from encons.evaluators.santos import floor_mse
 
-# the profile's cart-pole cell at N_train = 8 (conf/profile/santos.yaml; the model is set per floor)
-SANTOS = [
-    "experiment=symo_paper",
-    "system=cartpole",
-    "optimizer.lr=1e-3",
-    "model.hidden=256",
-    "data.n_train=8",
-    "data.batch_size=1",
-    "logger=none",
-]
-
 
 def setup(cache: str, *overrides: str):
-    cfg = api.compose(*SANTOS, *overrides, output_dir=tempfile.mkdtemp(), cache_dir=cache)
+    cfg = api.compose(*SANTOS, "logger=none", *overrides, output_dir=tempfile.mkdtemp(), cache_dir=cache)
     data, module = build(cfg)
     data.prepare_data()
     data.setup("test")
