@@ -75,21 +75,36 @@ class SantosMetrics(Evaluator, Declared):
         if floor is not None:
             floor = floor.double()
             scores.update(
-                {f"mse_{split}_floor": floor_mse(module, floor, data.arrays[split]) for split in ("train", "test")}
+                {
+                    f"mse_{split}_floor": self.one_step_mse(module, data.arrays[split], floor)
+                    for split in ("train", "test")
+                }
             )
         scores.update(self.integration(module, data.substeps))
         return Result(scores)
 
     @staticmethod
-    def one_step_mse(module: Learner, arrays: dict[str, Tensor]) -> float:
-        states, u, history, n = arrays["states"], arrays.get("u"), module.model.history, module.model.n
+    def one_step_mse(module: Learner, arrays: dict[str, Tensor], floor: DynamicsModel | None = None) -> float:
+        """The one-step configuration MSE of the module's model on ``arrays`` (through ``module.predict``, in the
+        model's dtype), or of ``floor``, a float64 ``true_counterpart`` of it, on the same windows by the same
+        training integrator in float64."""
+        model = module.model if floor is None else floor
+        states, u, history, n = arrays["states"], arrays.get("u"), model.history, model.n
         windows = one_step_windows(states, history)
-        dtype = next(module.model.parameters()).dtype  # test states are float64, the model need not be
-        batch = {"states": windows.to(module.device, dtype)}
-        if u is not None:
-            batch["u"] = one_step_windows(u, history).to(module.device, dtype)
-        pred = module.predict(batch)[:, -1, :n]
-        return metrics.configuration_mse(pred.double().cpu(), windows[:, -1, :n].double(), q_angles(module)).item()
+        inputs = None if u is None else one_step_windows(u, history)
+        if floor is None:
+            dtype = next(module.model.parameters()).dtype  # test states are float64, the model need not be
+            batch = {"states": windows.to(module.device, dtype)}
+            if inputs is not None:
+                batch["u"] = inputs.to(module.device, dtype)
+            pred = module.predict(batch)
+        else:
+            start = windows[:, 0] if history == 1 else windows[:, :history]
+            times = module.times(windows.shape[1], windows.double())
+            pred = rollout(floor, start.double(), times, module.integrator, None if inputs is None else inputs.double())
+        return metrics.configuration_mse(
+            pred[:, -1, :n].double().cpu(), windows[:, -1, :n].double(), q_angles(module)
+        ).item()
 
     def integration(self, module: Learner, substeps: int) -> dict[str, float]:
         model, system = module.model, module.system
@@ -131,18 +146,6 @@ class SantosMetrics(Evaluator, Declared):
         if self.drawn is None:
             return {}
         return figures.integration_figure(*self.drawn, chart=module.model.chart, title=module.run_title())
-
-
-def floor_mse(module: Learner, floor: DynamicsModel, arrays: dict[str, Tensor]) -> float:
-    """``SantosMetrics.one_step_mse`` of ``floor`` (a float64 ``true_counterpart`` of the module's model) on the
-    same windows, stepped by the module's training integrator in float64."""
-    states, u = arrays["states"], arrays.get("u")
-    windows = one_step_windows(states, floor.history).double()
-    inputs = None if u is None else one_step_windows(u, floor.history).double()
-    start = windows[:, 0] if floor.history == 1 else windows[:, : floor.history]
-    t = torch.arange(windows.shape[1], dtype=torch.float64) * module.dt
-    pred = rollout(floor, start, t, module.integrator, inputs)[:, -1, : floor.n]
-    return metrics.configuration_mse(pred, windows[:, -1, : floor.n], q_angles(module)).item()
 
 
 def q_angles(module: Learner) -> Tensor | None:

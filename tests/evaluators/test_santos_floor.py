@@ -10,7 +10,7 @@ import math
 import pytest
 
 from encons.entry.api import build
-from encons.evaluators.santos import floor_mse
+from encons.evaluators.santos import SantosMetrics
 from encons.models.base import TrueField
 from encons.training.build import compose
 
@@ -36,7 +36,7 @@ def floors(tmp_path, dt: float) -> dict[str, float]:
         assert floor is not None
         if name != "del":
             assert isinstance(floor, TrueField)
-        out[name] = floor_mse(module, floor.double(), data.arrays["test"])
+        out[name] = SantosMetrics.one_step_mse(module, data.arrays["test"], floor.double())
     return out
 
 

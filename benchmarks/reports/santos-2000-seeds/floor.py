@@ -31,7 +31,7 @@ import torch
 from benchmarks.ensemble_speed import SANTOS  # the profile's cart-pole cell at N_train = 8
 from encons.entry import api
 from encons.entry.api import build
-from encons.evaluators.santos import floor_mse
+from encons.evaluators.santos import SantosMetrics
 
 
 def setup(cache: str, *overrides: str):
@@ -53,13 +53,16 @@ def main() -> None:
             model.eval_tol, model.eval_iters = tol, 50
             model.reset_diagnostics()
             key = f"midpoint DEL, true M and V, Newton tol {tol:g}"
-            out["one_step_mse"].setdefault(key, {})[split] = floor_mse(module, model, data.arrays[split])
+            value = SantosMetrics.one_step_mse(module, data.arrays[split], model)
+            out["one_step_mse"].setdefault(key, {})[split] = value
             out["one_step_mse"][key][f"{split}_newton_unconverged"] = model.diagnostics()["newton_unconverged"]
     for integrator in ("rk4", "midpoint"):
         data, module = setup(cache, "model=lnode", f"integrator={integrator}")
         true = module.model.true_counterpart(module.system).double()
         key = f"true field by {integrator}"
-        out["one_step_mse"][key] = {split: floor_mse(module, true, data.arrays[split]) for split in ("train", "test")}
+        out["one_step_mse"][key] = {
+            split: SantosMetrics.one_step_mse(module, data.arrays[split], true) for split in ("train", "test")
+        }
     for key, values in out["one_step_mse"].items():
         print(f"{key}: " + ", ".join(f"{k} {v:.3g}" for k, v in values.items()))
     Path(__file__).with_name("floor.json").write_text(json.dumps(out, indent=1) + "\n")
